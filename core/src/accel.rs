@@ -1,0 +1,1 @@
+//! The BVH (the only module that talks to obvhs).

@@ -1,0 +1,1 @@
+//! GGX (Trowbridge–Reitz) microfacet distribution with visible-normal sampling.

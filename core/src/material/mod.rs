@@ -1,0 +1,152 @@
+//! BSDFs: how surfaces scatter light.
+//!
+//! Every BSDF works in the local shading frame: the shading normal is +Z. `wo` points towards
+//! the viewer (the direction light leaves along), `wi` towards the light (the direction light
+//! arrives from); both are unit vectors and either may be below the surface (z < 0).
+//!
+//! Conventions (those of pbrt-v4):
+//! - `eval` returns f(wo, wi) **without** the cosine factor; the integrator multiplies by |cos θi|.
+//! - `sample` returns `f`, `pdf` (solid angle) and `wi`; for delta lobes `pdf` is the discrete
+//!   probability of choosing that lobe and `f` is the lobe's value divided by |cos θi|, so the
+//!   estimator is always `f · |cos θi| / pdf`.
+//! - Reflection-only BSDFs (diffuse, mirror, conductors) are two-sided: they behave the same
+//!   seen from below (they mirror wo into the upper hemisphere internally).
+//! - Transmissive BSDFs: `eta` is the index inside relative to outside; the outside is +Z.
+//! - Energy is conserved: the directional albedo is ≤ 1 for every wo.
+//!
+//! A [`Bsdf`] is a small `Copy` value made per hit by the scene (textures already looked up), so
+//! there is no allocation and no dynamic dispatch per ray.
+
+pub mod conductor;
+pub mod dielectric;
+pub mod diffuse;
+pub mod microfacet;
+pub mod mirror;
+pub mod pbr;
+pub mod rough_dielectric;
+
+use glam::{Vec2, Vec3A};
+
+/// Which way light went at a scattering event.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Lobe {
+    /// Diffuse reflection.
+    Diffuse,
+    /// Glossy (rough, non-delta) reflection.
+    GlossyReflection,
+    /// Glossy transmission.
+    GlossyTransmission,
+    /// Delta (perfectly specular) reflection.
+    SpecularReflection,
+    /// Delta transmission.
+    SpecularTransmission,
+}
+
+impl Lobe {
+    /// Whether the lobe is a Dirac delta (cannot be hit by light sampling).
+    pub fn is_delta(self) -> bool {
+        matches!(self, Lobe::SpecularReflection | Lobe::SpecularTransmission)
+    }
+    /// Whether wi is on the other side of the surface from wo.
+    pub fn is_transmission(self) -> bool {
+        matches!(self, Lobe::SpecularTransmission | Lobe::GlossyTransmission)
+    }
+}
+
+/// The result of sampling a BSDF.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BsdfSample {
+    /// Sampled incident direction (local frame, unit).
+    pub wi: Vec3A,
+    /// BSDF value for (wo, wi), without the cosine.
+    pub f: Vec3A,
+    /// Probability density of `wi` (solid angle), or the discrete probability for delta lobes.
+    pub pdf: f32,
+    /// The lobe that was sampled.
+    pub lobe: Lobe,
+    /// Relative index of refraction across the boundary for transmission (η_t/η_i as seen from
+    /// wo's side), 1 for reflection. Used for radiance scaling and Russian roulette.
+    pub eta: f32,
+}
+
+/// A BSDF with its parameters resolved at one surface point.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Bsdf {
+    /// Lambertian reflection.
+    Diffuse(diffuse::Diffuse),
+    /// Perfect mirror.
+    Mirror(mirror::Mirror),
+    /// Smooth dielectric (glass, water), optionally thin-walled.
+    Dielectric(dielectric::Dielectric),
+    /// GGX rough (or smooth) conductor.
+    Conductor(conductor::Conductor),
+    /// GGX rough dielectric (frosted glass).
+    RoughDielectric(rough_dielectric::RoughDielectric),
+    /// glTF metallic–roughness (with specular, transmission and clearcoat extensions).
+    Pbr(pbr::Pbr),
+}
+
+macro_rules! dispatch {
+    ($self:ident, $b:ident => $e:expr) => {
+        match $self {
+            Bsdf::Diffuse($b) => $e,
+            Bsdf::Mirror($b) => $e,
+            Bsdf::Dielectric($b) => $e,
+            Bsdf::Conductor($b) => $e,
+            Bsdf::RoughDielectric($b) => $e,
+            Bsdf::Pbr($b) => $e,
+        }
+    };
+}
+
+impl Bsdf {
+    /// f(wo, wi) without the cosine; zero for delta lobes.
+    #[inline]
+    pub fn eval(&self, wo: Vec3A, wi: Vec3A) -> Vec3A {
+        dispatch!(self, b => b.eval(wo, wi))
+    }
+
+    /// Solid-angle density with which [`Bsdf::sample`] picks `wi` (delta lobes excluded).
+    #[inline]
+    pub fn pdf(&self, wo: Vec3A, wi: Vec3A) -> f32 {
+        dispatch!(self, b => b.pdf(wo, wi))
+    }
+
+    /// Samples `wi` given `wo`, a uniform number `uc` (lobe choice) and uniform `u` (direction).
+    #[inline]
+    pub fn sample(&self, wo: Vec3A, uc: f32, u: Vec2) -> Option<BsdfSample> {
+        dispatch!(self, b => b.sample(wo, uc, u))
+    }
+
+    /// Whether every lobe is a delta (light sampling is pointless: skip next-event estimation).
+    #[inline]
+    pub fn is_delta(&self) -> bool {
+        dispatch!(self, b => b.is_delta())
+    }
+
+    /// A colour summarising the surface, for the `albedo` debug output and denoisers.
+    pub fn albedo(&self) -> Vec3A {
+        dispatch!(self, b => b.albedo())
+    }
+}
+
+/// Fresnel reflectance of a dielectric interface for unpolarised light. `cos_i` is the cosine
+/// on the incident side (negative: coming from inside), `eta` the inside/outside index ratio.
+/// Returns 1 under total internal reflection.
+pub fn fresnel_dielectric(cos_i: f32, eta: f32) -> f32 {
+    let mut cos_i = cos_i.clamp(-1.0, 1.0);
+    let mut eta = eta;
+    if cos_i < 0.0 {
+        eta = 1.0 / eta;
+        cos_i = -cos_i;
+    }
+    let sin2_i = 1.0 - cos_i * cos_i;
+    let sin2_t = sin2_i / (eta * eta);
+    if sin2_t >= 1.0 {
+        return 1.0;
+    }
+    let cos_t = (1.0 - sin2_t).max(0.0).sqrt();
+    let r_parl = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    let r_perp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    0.5 * (r_parl * r_parl + r_perp * r_perp)
+}

@@ -1,0 +1,6 @@
+//! Deterministic sample sequences and warps from the unit square to useful distributions.
+
+pub mod sequence;
+pub mod warp;
+
+pub use sequence::{hash_u32, Sampler};

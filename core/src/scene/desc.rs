@@ -1,0 +1,448 @@
+//! Plain scene descriptions: what a scene *is*, before anything is built for rendering.
+//!
+//! Front ends (the JSON format in [`super::json`], glTF in [`super::gltf`]) parse files into a
+//! [`SceneDesc`]; [`super::build`] turns it into the render-ready [`crate::Scene`]. These types hold
+//! no BVH, no sampling tables and no file handles, so they are cheap to inspect in tests.
+//!
+//! Conventions: right-handed, +Y up, metres; colours are linear Rec.709 RGB; emission is radiance
+//! in W·sr⁻¹·m⁻² per channel (glTF "nits"); angles in the JSON format are degrees, here radians.
+
+use glam::{Mat4, Vec2, Vec3};
+use serde::{Deserialize, Serialize};
+
+/// A complete scene description: geometry, materials, lights, cameras and render defaults.
+#[derive(Clone, Debug, Default)]
+pub struct SceneDesc {
+    /// Triangle meshes, referenced by [`ShapeDesc::Mesh`]. One mesh may be used by many objects
+    /// (instancing): its vertex data is stored once.
+    pub meshes: Vec<MeshDesc>,
+    /// Decoded images, referenced by [`TextureRef::texture`].
+    pub textures: Vec<TextureDesc>,
+    /// Materials, referenced by [`ObjectDesc::material`].
+    pub materials: Vec<MaterialDesc>,
+    /// Shapes placed in the world, each with a material and a transform.
+    pub objects: Vec<ObjectDesc>,
+    /// Lights that are not surfaces (emissive surfaces are objects whose material emits).
+    pub lights: Vec<LightDesc>,
+    /// Light arriving from infinitely far away, if any.
+    pub environment: Option<EnvironmentDesc>,
+    /// Cameras; the render picks one by name or index (`--camera`), the first by default.
+    pub cameras: Vec<CameraDesc>,
+    /// Render settings the scene file asks for; command-line flags and job settings override them.
+    pub render: RenderDefaults,
+    /// Non-fatal problems found while loading (unsupported optional extensions, skipped
+    /// primitives...), to be shown to the user.
+    pub warnings: Vec<String>,
+}
+
+/// An indexed triangle mesh in its own object space.
+#[derive(Clone, Debug, Default)]
+pub struct MeshDesc {
+    /// Name for messages (glTF mesh name and primitive index, or the JSON object name).
+    pub name: String,
+    /// Vertex positions.
+    pub positions: Vec<Vec3>,
+    /// Per-vertex shading normals; empty means flat shading from the geometric normal.
+    pub normals: Vec<Vec3>,
+    /// Per-vertex tangents (xyz) with handedness in w, for normal mapping; may be empty.
+    pub tangents: Vec<[f32; 4]>,
+    /// Texture coordinate sets 0 and 1; each is empty or has one entry per vertex.
+    pub uvs: [Vec<Vec2>; 2],
+    /// Triangles as vertex indices, counter-clockwise seen from the front.
+    pub indices: Vec<[u32; 3]>,
+}
+
+/// A decoded texture image.
+#[derive(Clone, Debug)]
+pub struct TextureDesc {
+    /// Name for messages (file name or glTF image index).
+    pub name: String,
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Texels row by row from the top, RGBA. Colour data stays encoded as stored (see `srgb`);
+    /// alpha is always linear.
+    pub texels: Vec<[f32; 4]>,
+    /// Whether RGB is sRGB-encoded (base colour and emissive textures) and must be decoded to
+    /// linear on lookup, or linear data (normal, metallic-roughness maps).
+    pub srgb: bool,
+    /// Addressing outside [0, 1] along u.
+    pub wrap_u: WrapMode,
+    /// Addressing outside [0, 1] along v.
+    pub wrap_v: WrapMode,
+    /// Bilinear (true) or nearest (false) magnification.
+    pub bilinear: bool,
+}
+
+/// Texture addressing mode.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WrapMode {
+    /// Tile the image.
+    #[default]
+    Repeat,
+    /// Tile the image, mirroring every other copy.
+    MirroredRepeat,
+    /// Use the edge texel.
+    Clamp,
+}
+
+/// A reference from a material slot to a texture.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TextureRef {
+    /// Index into [`SceneDesc::textures`].
+    pub texture: usize,
+    /// Which texture coordinate set (0 or 1).
+    pub texcoord: u8,
+    /// `KHR_texture_transform` as a 3×3 affine matrix applied to (u, v, 1); identity if absent.
+    pub transform: glam::Mat3,
+}
+
+impl TextureRef {
+    /// A reference to `texture` through TEXCOORD_0 with no transform.
+    pub fn new(texture: usize) -> Self {
+        Self {
+            texture,
+            texcoord: 0,
+            transform: glam::Mat3::IDENTITY,
+        }
+    }
+}
+
+/// How a material treats alpha (glTF `alphaMode`).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum AlphaMode {
+    /// Alpha is ignored.
+    #[default]
+    Opaque,
+    /// Surface is absent where alpha < cutoff.
+    Mask(f32),
+    /// Surface is present with probability alpha (stochastic transparency).
+    Blend,
+}
+
+/// A surface material: a BSDF plus emission, alpha and normal mapping.
+#[derive(Clone, Debug)]
+pub struct MaterialDesc {
+    /// Name for messages and tests.
+    pub name: String,
+    /// How the surface scatters light.
+    pub bsdf: BsdfDesc,
+    /// Emitted radiance (already multiplied by any strength factor); zero for non-emitters.
+    pub emission: Vec3,
+    /// Multiplies `emission` per texel (sRGB texture).
+    pub emission_texture: Option<TextureRef>,
+    /// Whether the surface is seen (and emits) from both sides. One-sided emitters emit only on
+    /// the side their geometric normal faces (the counter-clockwise side of a triangle).
+    pub two_sided: bool,
+    /// Alpha handling; alpha is base colour alpha times the base colour texture's alpha.
+    pub alpha_mode: AlphaMode,
+    /// Tangent-space normal map with its scale (glTF `normalTexture.scale`).
+    pub normal_texture: Option<(TextureRef, f32)>,
+}
+
+impl MaterialDesc {
+    /// A named material with the given BSDF, no emission, one-sided, opaque.
+    pub fn new(name: impl Into<String>, bsdf: BsdfDesc) -> Self {
+        Self {
+            name: name.into(),
+            bsdf,
+            emission: Vec3::ZERO,
+            emission_texture: None,
+            two_sided: false,
+            alpha_mode: AlphaMode::Opaque,
+            normal_texture: None,
+        }
+    }
+}
+
+/// The scattering model of a material.
+#[derive(Clone, Debug)]
+pub enum BsdfDesc {
+    /// Ideal diffuse reflection.
+    Diffuse {
+        /// Reflectance (albedo).
+        albedo: Vec3,
+        /// Multiplies `albedo` (sRGB texture).
+        texture: Option<TextureRef>,
+    },
+    /// Perfect specular reflection.
+    Mirror {
+        /// Reflectance.
+        reflectance: Vec3,
+    },
+    /// Smooth glass: Snell refraction, exact Fresnel, total internal reflection.
+    Dielectric {
+        /// Index of refraction inside relative to outside.
+        ior: f32,
+        /// Multiplies transmitted light (a cheap tint; use `absorption` for physical colour).
+        transmittance: Vec3,
+        /// Beer–Lambert absorption coefficient per metre inside the body (zero: clear).
+        absorption: Vec3,
+        /// Thin-walled sheet: transmission without bending, no interior.
+        thin: bool,
+    },
+    /// A metal with GGX microfacets.
+    Conductor {
+        /// Complex index of refraction, real part (per channel).
+        eta: Vec3,
+        /// Complex index of refraction, imaginary part (per channel).
+        k: Vec3,
+        /// GGX alpha (perceptual roughness squared); 0 is a perfect mirror with Fresnel.
+        alpha: f32,
+    },
+    /// Frosted glass: GGX microfacet reflection and refraction.
+    RoughDielectric {
+        /// Index of refraction inside relative to outside.
+        ior: f32,
+        /// GGX alpha (perceptual roughness squared).
+        alpha: f32,
+        /// Multiplies transmitted light.
+        transmittance: Vec3,
+    },
+    /// The glTF 2.0 metallic–roughness model with the extensions raytile understands.
+    Pbr(Box<PbrDesc>),
+}
+
+/// Parameters of the glTF metallic–roughness material (core spec plus extensions).
+#[derive(Clone, Debug)]
+pub struct PbrDesc {
+    /// `baseColorFactor` (linear RGBA).
+    pub base_color: [f32; 4],
+    /// `baseColorTexture` (sRGB).
+    pub base_color_texture: Option<TextureRef>,
+    /// `metallicFactor`.
+    pub metallic: f32,
+    /// `roughnessFactor` (perceptual roughness; GGX alpha is its square).
+    pub roughness: f32,
+    /// `metallicRoughnessTexture`: roughness in G, metallic in B (linear).
+    pub metallic_roughness_texture: Option<TextureRef>,
+    /// `KHR_materials_specular.specularFactor` (1 if absent; 0 removes the specular layer).
+    pub specular: f32,
+    /// `KHR_materials_specular.specularColorFactor`.
+    pub specular_color: Vec3,
+    /// `KHR_materials_ior.ior` (1.5 if absent).
+    pub ior: f32,
+    /// `KHR_materials_transmission.transmissionFactor`.
+    pub transmission: f32,
+    /// `KHR_materials_transmission.transmissionTexture` (R channel).
+    pub transmission_texture: Option<TextureRef>,
+    /// `KHR_materials_volume`: `thicknessFactor == 0` (or no volume extension) means thin-walled.
+    pub thin_walled: bool,
+    /// `KHR_materials_volume.attenuationColor`.
+    pub attenuation_color: Vec3,
+    /// `KHR_materials_volume.attenuationDistance` (infinite: no absorption).
+    pub attenuation_distance: f32,
+    /// `KHR_materials_clearcoat.clearcoatFactor`.
+    pub clearcoat: f32,
+    /// `KHR_materials_clearcoat.clearcoatRoughnessFactor`.
+    pub clearcoat_roughness: f32,
+}
+
+impl Default for PbrDesc {
+    fn default() -> Self {
+        Self {
+            base_color: [1.0; 4],
+            base_color_texture: None,
+            metallic: 1.0,
+            roughness: 1.0,
+            metallic_roughness_texture: None,
+            specular: 1.0,
+            specular_color: Vec3::ONE,
+            ior: 1.5,
+            transmission: 0.0,
+            transmission_texture: None,
+            thin_walled: true,
+            attenuation_color: Vec3::ONE,
+            attenuation_distance: f32::INFINITY,
+            clearcoat: 0.0,
+            clearcoat_roughness: 0.0,
+        }
+    }
+}
+
+/// A shape in object space. Objects place it in the world with a transform.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ShapeDesc {
+    /// A sphere.
+    Sphere {
+        /// Centre.
+        center: Vec3,
+        /// Radius (> 0).
+        radius: f32,
+    },
+    /// An axis-aligned box (in object space; a transform may rotate it).
+    Box {
+        /// Minimum corner.
+        min: Vec3,
+        /// Maximum corner.
+        max: Vec3,
+    },
+    /// An infinite plane through `point` with normal `normal` (its front side).
+    Plane {
+        /// A point on the plane.
+        point: Vec3,
+        /// Front-facing normal.
+        normal: Vec3,
+    },
+    /// A disk.
+    Disk {
+        /// Centre.
+        center: Vec3,
+        /// Front-facing normal.
+        normal: Vec3,
+        /// Radius.
+        radius: f32,
+    },
+    /// A parallelogram `corner + s·edge_u + t·edge_v`, s, t ∈ [0, 1]; front is edge_u × edge_v.
+    Rectangle {
+        /// One corner.
+        corner: Vec3,
+        /// First edge.
+        edge_u: Vec3,
+        /// Second edge.
+        edge_v: Vec3,
+    },
+    /// A planar polygon, convex or concave, vertices in order (front: counter-clockwise).
+    Polygon {
+        /// At least three coplanar vertices.
+        vertices: Vec<Vec3>,
+    },
+    /// The quadric surface pᵀ Q p = 0 (p homogeneous), clipped to the box [clip_min, clip_max].
+    Quadric {
+        /// The symmetric 4×4 matrix Q (column-major as glam stores it).
+        q: Mat4,
+        /// Minimum corner of the clipping box.
+        clip_min: Vec3,
+        /// Maximum corner of the clipping box.
+        clip_max: Vec3,
+    },
+    /// A triangle mesh: index into [`SceneDesc::meshes`].
+    Mesh {
+        /// Index into [`SceneDesc::meshes`].
+        mesh: usize,
+    },
+}
+
+/// A shape placed in the world.
+#[derive(Clone, Debug)]
+pub struct ObjectDesc {
+    /// Name for messages and tests (glTF node name, JSON object name).
+    pub name: String,
+    /// The shape in object space.
+    pub shape: ShapeDesc,
+    /// Index into [`SceneDesc::materials`].
+    pub material: usize,
+    /// Object-to-world transform (affine; may scale non-uniformly or mirror).
+    pub transform: Mat4,
+}
+
+/// A light that is not a surface.
+#[derive(Clone, Debug, PartialEq)]
+pub enum LightDesc {
+    /// An isotropic point light.
+    Point {
+        /// Position in the world.
+        position: Vec3,
+        /// Radiant intensity in W/sr per channel (glTF candela).
+        intensity: Vec3,
+        /// glTF `range`: the light is cut off beyond it (infinite if absent).
+        range: f32,
+    },
+    /// A spot light with a smooth falloff between the inner and outer cone.
+    Spot {
+        /// Position in the world.
+        position: Vec3,
+        /// Direction the spot points in.
+        direction: Vec3,
+        /// Radiant intensity on the axis, W/sr per channel.
+        intensity: Vec3,
+        /// Half-angle of full intensity, radians.
+        inner_angle: f32,
+        /// Half-angle beyond which there is no light, radians.
+        outer_angle: f32,
+        /// Cut-off distance (infinite if absent).
+        range: f32,
+    },
+    /// A light from infinitely far away in one direction (the sun).
+    Directional {
+        /// Direction the light travels in.
+        direction: Vec3,
+        /// Irradiance on a surface facing the light, W/m² per channel (glTF lux).
+        irradiance: Vec3,
+    },
+}
+
+/// Light from infinitely far away.
+#[derive(Clone, Debug)]
+pub enum EnvironmentDesc {
+    /// The same radiance from every direction.
+    Constant {
+        /// Radiance.
+        radiance: Vec3,
+    },
+    /// An equirectangular (latitude–longitude) HDR map, importance-sampled.
+    Map {
+        /// The image (linear RGB).
+        texture: TextureDesc,
+        /// Multiplies the map.
+        scale: f32,
+        /// World-to-map rotation about +Y, radians.
+        rotation_y: f32,
+    },
+}
+
+/// How the camera projects.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Projection {
+    /// A pinhole or thin-lens perspective camera.
+    Perspective {
+        /// Vertical field of view, radians.
+        yfov: f32,
+        /// Lens radius in metres (0 = pinhole).
+        aperture_radius: f32,
+        /// Distance to the plane in focus, metres.
+        focus_distance: f32,
+    },
+    /// A parallel projection.
+    Orthographic {
+        /// Half the height of the view, metres (glTF `ymag`).
+        half_height: f32,
+    },
+}
+
+/// A camera: a camera-to-world transform (looking down −Z, +Y up, as glTF) and a projection.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CameraDesc {
+    /// Name used by `--camera NAME`.
+    pub name: String,
+    /// Camera-to-world transform (rigid; scale is ignored).
+    pub transform: Mat4,
+    /// Projection and lens.
+    pub projection: Projection,
+    /// Aspect ratio the file asks for (the render's width/height wins).
+    pub aspect: Option<f32>,
+}
+
+/// Render settings stored in the scene file. `None` means "use raytile's default".
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RenderDefaults {
+    /// Image width in pixels.
+    pub width: Option<u32>,
+    /// Image height in pixels.
+    pub height: Option<u32>,
+    /// Samples per pixel.
+    pub spp: Option<u32>,
+    /// Maximum path length in bounces.
+    pub max_depth: Option<u32>,
+    /// Integrator name (`path`, `whitted`, `normals`, `albedo`, `depth`, `ao`).
+    pub integrator: Option<String>,
+    /// Random seed.
+    pub seed: Option<u32>,
+    /// Camera name or index.
+    pub camera: Option<String>,
+    /// Reconstruction filter name (`box`, `gaussian`, `blackman-harris`).
+    pub filter: Option<String>,
+}
