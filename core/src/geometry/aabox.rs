@@ -51,7 +51,8 @@ impl AaBox {
             near = near.max(a);
             far = far.min(b);
         }
-        if !(near <= far) {
+        // `near` and `far` are never NaN (`max`/`min` drop NaN operands).
+        if near > far {
             return None;
         }
         if near > tmin && near < tmax {

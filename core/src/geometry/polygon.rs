@@ -82,7 +82,8 @@ impl Polygon {
             .map(|v| (*v - centroid).length())
             .fold(0.0f32, f32::max);
         let twice_area = newell.length();
-        if !(twice_area > 1e-6 * size * size) || !twice_area.is_finite() {
+        let has_area = twice_area.is_finite() && twice_area > 1e-6 * size * size;
+        if !has_area {
             return Err(format!(
                 "polygon is degenerate: its area {} is (nearly) zero for its size {size} \
                  (collinear or repeated vertices, or a figure-eight)",
@@ -130,7 +131,8 @@ impl Polygon {
             cdf.push(total);
         }
         let area = 0.5 * twice_area;
-        if !((total - area).abs() <= 1e-3 * area) {
+        let consistent = (total - area).abs() <= 1e-3 * area;
+        if !consistent {
             return Err(format!(
                 "polygon is not simple: its edges cross (triangulated area {total} differs \
                  from its area {area})"
@@ -484,6 +486,19 @@ mod tests {
             poly.intersect(Vec3A::new(1.0, 0.5, 5.0), Vec3A::Z, 0.0, 10.0),
             None
         );
+        // A repeated closing vertex (and a collinear one) changes nothing.
+        let mut closed = sq.to_vec();
+        closed.insert(1, Vec3A::new(1.0, 0.0, 2.0));
+        closed.push(sq[0]);
+        let same = Polygon::new(closed).unwrap();
+        assert_eq!(same.area(), 2.0);
+        assert_eq!(same.normal(), Vec3A::Z);
+        assert_eq!(same.intersect(o, d, 0.0, f32::INFINITY), Some(6.0));
+        assert_eq!(
+            same.intersect(Vec3A::new(2.5, 0.5, 5.0), -Vec3A::Z, 0.0, 10.0),
+            None
+        );
+        assert!(same.sample(Vec2::splat(0.3)).is_some());
         // Clockwise order flips the front.
         let mut cw = sq.to_vec();
         cw.reverse();

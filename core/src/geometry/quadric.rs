@@ -194,7 +194,8 @@ impl Quadric {
             lo = lo.max(a);
             hi = hi.min(b);
         }
-        if !(lo <= hi) {
+        let overlap = lo <= hi;
+        if !overlap {
             return None;
         }
         let t0 = if lo.is_finite() { lo } else { 0.0 };
@@ -205,7 +206,7 @@ impl Quadric {
         let h = dh.dot(qb);
         let c = base.extend(1.0).dot(qb);
         let disc = h * h - a * c;
-        if !(disc >= 0.0) {
+        if disc.is_nan() || disc < 0.0 {
             return None;
         }
         let q = -(h + disc.sqrt().copysign(h));
@@ -430,7 +431,7 @@ mod tests {
             cyl.intersect(Vec3A::new(0.1, -5.0, 0.0), Vec3A::Y, 0.0, 100.0),
             None
         );
-        assert_eq!(cyl.area().is_nan(), true);
+        assert!(cyl.area().is_nan());
         assert_eq!(cyl.sample(Vec2::splat(0.5)), None);
         assert_eq!(cyl.bounds().unwrap().min, Vec3A::new(-0.5, -1.0, -0.5));
     }
@@ -622,7 +623,13 @@ mod tests {
         let q = Quadric::new(asym, -Vec3A::splat(3.0), Vec3A::splat(3.0)).unwrap();
         assert_eq!(q.q(), q.q().transpose());
         assert!((q.q().x_axis.y - 0.3).abs() < 1e-7);
-        let e = Quadric::ellipsoid(Vec3A::new(1.0, 2.0, 0.5)).unwrap();
-        check_bad_inputs(&Analytic::Quadric(e), Vec3A::new(0.0, 5.0, 0.0), -Vec3A::Y);
+        // Every constructor's shape, hit from outside its clip box towards the centre of the box.
+        for (name, q, _) in all_shapes() {
+            let c = (q.clip_min + q.clip_max) * 0.5;
+            let s = Analytic::Quadric(q.clone());
+            let o = Vec3A::new(c.x + 0.1 * q.clip_max.x, c.y + 0.05, q.clip_max.z + 5.0);
+            assert!(s.intersect(o, -Vec3A::Z, 0.0, 100.0).is_some(), "{name}");
+            check_bad_inputs(&s, o, -Vec3A::Z);
+        }
     }
 }
