@@ -255,6 +255,22 @@ mod tests {
             if h.uv.x + eps < 1.0 {
                 assert!((h2.uv.x - h.uv.x - eps).abs() < 1e-4, "{} {}", h.uv, h2.uv);
             }
+            // ∂p/∂v = extent_b · e_b with b = (k + 2) mod 3; with ∂p/∂u it spans the outside.
+            let k = h.n.abs().max_position();
+            let mut dpdv = Vec3A::ZERO;
+            dpdv[(k + 2) % 3] = (b.max - b.min)[(k + 2) % 3];
+            let p3 = h.p + dpdv * eps;
+            let h3 = b.hit(p3 + s.n, -s.n, 1.0);
+            if h.uv.y + eps < 1.0 {
+                assert!((h3.uv.y - h.uv.y - eps).abs() < 1e-4, "{} {}", h.uv, h3.uv);
+            }
+            assert!(
+                h.dpdu.cross(dpdv).dot(h.n) > 0.0,
+                "{} {} {}",
+                h.dpdu,
+                dpdv,
+                h.n
+            );
         }
     }
 

@@ -303,3 +303,86 @@ pub fn check_bad_inputs(shape: &Analytic, o: Vec3A, d: Vec3A) {
     let _ = shape.sample(Vec2::ONE);
     let _ = shape.sample(Vec2::ZERO);
 }
+
+#[cfg(test)]
+mod tests {
+    use super::super::{aabox, plane, polygon, quadric, sphere};
+    use super::*;
+
+    fn every_shape() -> Vec<Analytic> {
+        vec![
+            Analytic::Sphere(sphere::Sphere {
+                center: Vec3A::new(0.5, -1.0, 2.0),
+                radius: 1.5,
+            }),
+            Analytic::AaBox(aabox::AaBox {
+                min: Vec3A::new(-1.0, 0.0, -2.0),
+                max: Vec3A::new(1.0, 0.5, 3.0),
+            }),
+            Analytic::Plane(plane::Plane {
+                point: Vec3A::new(0.0, 1.0, 0.0),
+                normal: Vec3A::new(0.0, 0.6, 0.8),
+            }),
+            Analytic::Disk(plane::Disk {
+                center: Vec3A::ZERO,
+                normal: Vec3A::X,
+                radius: 2.0,
+            }),
+            Analytic::Rectangle(plane::Rectangle {
+                corner: Vec3A::ZERO,
+                edge_u: Vec3A::X,
+                edge_v: Vec3A::new(0.0, 1.0, 1.0),
+            }),
+            Analytic::Polygon(
+                polygon::Polygon::new(vec![
+                    Vec3A::ZERO,
+                    Vec3A::new(2.0, 0.0, 0.0),
+                    Vec3A::new(1.0, 1.0, 0.0),
+                    Vec3A::new(0.0, 2.0, 0.0),
+                ])
+                .unwrap(),
+            ),
+            Analytic::Quadric(quadric::Quadric::cone(0.5, -2.0, 2.0).unwrap()),
+            Analytic::Quadric(quadric::Quadric::paraboloid(1.0, 2.0).unwrap()),
+        ]
+    }
+
+    /// Extreme finite inputs (zeros of both signs, subnormals, huge values) never panic, and
+    /// any reported hit lies in the requested interval.
+    #[test]
+    fn extreme_finite_inputs_never_panic() {
+        let values = [
+            0.0,
+            -0.0,
+            1e-45,
+            -1e-40,
+            1e-20,
+            1.0,
+            -1.0,
+            3.0,
+            1e20,
+            -1e30,
+            f32::MAX,
+            f32::MIN,
+        ];
+        let mut rng = Rng::new(99);
+        for shape in every_shape() {
+            for _ in 0..20_000 {
+                let mut pick = || values[(rng.f32() * values.len() as f32) as usize];
+                let o = Vec3A::new(pick(), pick(), pick());
+                let d = Vec3A::new(pick(), pick(), pick());
+                let (tmin, tmax) = if rng.f32() < 0.5 {
+                    (0.0, f32::INFINITY)
+                } else {
+                    (1e-3, 10.0)
+                };
+                if let Some(t) = shape.intersect(o, d, tmin, tmax) {
+                    assert!(t > tmin && t < tmax, "{shape:?} {o} {d}: t = {t}");
+                    let _ = shape.hit(o, d, t);
+                }
+            }
+            let _ = shape.bounds();
+            let _ = shape.area();
+        }
+    }
+}
