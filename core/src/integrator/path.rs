@@ -32,11 +32,14 @@ pub(crate) fn sample_one_light(
     let Some((li_index, pmf, _)) = scene.lights.choose(u_select) else {
         return Vec3A::ZERO;
     };
-    light_contribution(scene, it, bsdf, frame, wo, li_index, u) / pmf
+    light_contribution(scene, it, bsdf, frame, wo, li_index, u, true) / pmf
 }
 
 /// Contribution of light `index` sampled once with `u` (without the selection probability).
+/// With `mis`, weighted by the power heuristic against BSDF sampling (the path tracer also
+/// finds emitters by BSDF sampling); without, the full estimate (Whitted finds them only here).
 #[inline]
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn light_contribution(
     scene: &Scene,
     it: &Interaction,
@@ -45,6 +48,7 @@ pub(crate) fn light_contribution(
     wo: Vec3A,
     index: usize,
     u: glam::Vec2,
+    mis: bool,
 ) -> Vec3A {
     let light = &scene.lights.lights[index];
     let (wi, li, pdf, delta, shadow) = match *light {
@@ -90,8 +94,8 @@ pub(crate) fn light_contribution(
     if scene.occluded(&shadow.0, shadow.1) {
         return Vec3A::ZERO;
     }
-    if delta {
-        f * li
+    if delta || !mis {
+        f * li / pdf
     } else {
         let pmf = scene.lights.pmf(index);
         let w = power_heuristic(pdf * pmf, bsdf.pdf(wo, wi_local));

@@ -55,7 +55,7 @@ fn trace(
     if !bsdf.is_delta() {
         for i in 0..scene.lights.lights.len() {
             let u = sampler.next_2d();
-            l += light_contribution(scene, &it, &bsdf, &frame, wo, i, u);
+            l += light_contribution(scene, &it, &bsdf, &frame, wo, i, u, false);
         }
     }
     if depth >= max_depth {
