@@ -1,5 +1,6 @@
 //! `raytile`: render a scene locally, submit it to a farm, or run a local cluster.
 
+mod bench;
 mod render;
 
 use clap::{Parser, Subcommand};
@@ -16,12 +17,15 @@ struct Cli {
 enum Command {
     /// Render a scene on this machine.
     Render(render::RenderArgs),
+    /// Measure samples/s, ray throughput and BVH build times.
+    Bench(bench::BenchArgs),
 }
 
 fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Render(args) => render::run(args),
+        Command::Bench(args) => bench::run(args),
     };
     if let Err(e) = result {
         eprintln!("raytile: {e:#}");
