@@ -99,15 +99,18 @@ impl Ggx {
         1.0 / (1.0 + self.lambda(wo) + self.lambda(wi))
     }
 
-    /// Density of visible normals seen from `w`: G1(w)/|cos θw| · D(wm) · |w·wm|. Integrates to
-    /// one over the hemisphere of `wm`.
+    /// Density of visible normals seen from `w`: G1(w)/|cos θw| · D(wm) · max(0, w·wm), with `w`
+    /// replaced by `-w` below the surface. Integrates to one over the hemisphere of `wm`.
     #[inline]
     pub fn pdf_visible(&self, w: Vec3A, wm: Vec3A) -> f32 {
         let cos = w.z.abs();
         if !(cos > 0.0) {
             return 0.0;
         }
-        let p = self.g1(w) / cos * self.d(wm) * w.dot(wm).abs();
+        // Only normals facing the viewer are visible; for `w` below the surface that viewer
+        // is `-w` (see `sample_wm`).
+        let facing = (w.dot(wm) * w.z.signum()).max(0.0);
+        let p = self.g1(w) / cos * self.d(wm) * facing;
         if p.is_finite() {
             p
         } else {
