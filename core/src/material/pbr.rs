@@ -14,9 +14,20 @@
 //! material           = (1 − metallic) · dielectric_brdf + metallic · metal_brdf
 //! ```
 //!
-//! with c the base colour. The base is weighted by `1 − max(F)` (the channel maximum) exactly as
+//! with c the base colour. The base is weighted by `1 − max(F)` (the channel maximum) as
 //! `fresnel_mix` in `KHR_materials_specular`; for a white specular colour this is the plain
 //! `mix(base, specular, F)`. With specular = 0 and metallic = 0 the model is exactly Lambertian.
+//!
+//! **One deliberate deviation:** the Fresnel factor that attenuates the base (diffuse and
+//! transmission) is evaluated at min(|v·h|, |n·v|) instead of |v·h|. The specification's |v·h|
+//! barely dims the diffuse lobe at grazing view angles while the specular lobe reflects
+//! F(|n·v|) ≈ 0.65 there: a white dielectric then reflects up to 1.6 (measured at 85°,
+//! roughness 0.05) and 1.84 at 89°. With min(|v·h|, |n·v|) the base never gets more than
+//! 1 − F(|n·v|) and the white furnace stays ≤ 1; nothing changes where |v·h| ≤ |n·v| (most
+//! configurations away from grazing views). The price is reciprocity of the base lobes
+//! (f(v, l) ≠ f(l, v) when |n·v| < |v·h|), which a unidirectional path tracer does not need;
+//! the symmetric choice min(|v·h|, |n·v|, |n·l|) was tried and rejected because it darkens the
+//! diffuse lobe by 4.5 % even at normal view.
 //!
 //! `specular_btdf` is the GGX transmission lobe: thin-walled, the reflection lobe mirrored
 //! through the surface (light goes straight through, only blurred by the roughness); otherwise
@@ -206,7 +217,8 @@ impl Pbr {
             let fd = p.f_dielectric(vh);
             let spec_brdf = ggx.d(h) * ggx.g(wo, wi) / (4.0 * wo.z * wi.z);
             let spec_f = (dielectric * fd + p.metallic * p.f_metal(vh)) * spec_brdf;
-            let diffuse_w = dielectric * (1.0 - p.transmission) * (1.0 - fd.max_element());
+            let fb = p.f_dielectric(vh.min(wo.z));
+            let diffuse_w = dielectric * (1.0 - p.transmission) * (1.0 - fb.max_element());
             let f = spec_f + p.base * FRAC_1_PI * diffuse_w;
             let pdf = probs.spec * reflection_pdf(ggx, wo, h)
                 + probs.diffuse * cosine_hemisphere_pdf(wi.z);
@@ -222,7 +234,7 @@ impl Pbr {
             let Some(h) = (wo + wr).try_normalize() else {
                 return zero;
             };
-            let fd = p.f_dielectric(wo.dot(h).abs());
+            let fd = p.f_dielectric(wo.dot(h).abs().min(wo.z));
             let spec_brdf = ggx.d(h) * ggx.g(wo, wr) / (4.0 * wo.z * wr.z);
             let f = p.base * (weight * (1.0 - fd.max_element()) * spec_brdf);
             return (f, probs.trans * reflection_pdf(ggx, wo, h));
@@ -242,7 +254,7 @@ impl Pbr {
         if !(denom > 0.0) {
             return zero;
         }
-        let fd = p.f_dielectric(wo_h);
+        let fd = p.f_dielectric(wo_h.min(wo.z));
         let btdf =
             ggx.d(h) * ggx.g(wo, wi) * (wi_h * wo_h / (denom * wi.z * wo.z)).abs() / (etap * etap);
         let f = p.base * (weight * (1.0 - fd.max_element()) * btdf);
