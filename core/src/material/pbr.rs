@@ -36,16 +36,23 @@
 //! glTF does not define the interface seen from inside, so the same Schlick Fresnel is used on
 //! both sides and opaque (or thin) surfaces are two-sided.
 //!
-//! Clearcoat (`KHR_materials_clearcoat`) is **not** implemented: `clearcoat` and
-//! `clearcoat_alpha` are ignored.
+//! Clearcoat (`KHR_materials_clearcoat`, `fresnel_coat` of the extension, with the coat normal
+//! equal to the shading normal):
+//!
+//! ```text
+//! coated = (1 − clearcoat · Fc) · material + clearcoat · Fc · specular_brdf(α_coat),
+//! Fc     = 0.04 + 0.96 (1 − |n·v|)⁵                                      (ior 1.5)
+//! ```
+//!
+//! which stays energy conserving because Fc depends on v only.
 //!
 //! Very smooth surfaces are not delta: alpha is clamped to [`PBR_MIN_ALPHA`], which keeps D
 //! finite while visible-normal sampling keeps f·cos/pdf bounded.
 //!
-//! Sampling picks one of three lobes (specular reflection = dielectric specular plus metal,
-//! diffuse, transmission) with probabilities proportional to their approximate albedos at
+//! Sampling picks one of four lobes (clearcoat, specular reflection = dielectric specular plus
+//! metal, diffuse, transmission) with probabilities proportional to their approximate albedos at
 //! wo (the Fresnel terms evaluated at |v·n|, times the mean base colour for diffuse and
-//! transmission), then returns the full mixture value and the mixture density, so that
+//! transmission, the layers below the coat scaled by 1 − clearcoat · Fc), then returns the full mixture value and the mixture density, so that
 //! multiple importance sampling sees one consistent pdf.
 
 use super::conductor::reflection_pdf;
@@ -79,9 +86,9 @@ pub struct Pbr {
     pub transmission: f32,
     /// Thin-walled transmission.
     pub thin: bool,
-    /// Clearcoat factor (not implemented yet: ignored).
+    /// Clearcoat factor (0: no coat).
     pub clearcoat: f32,
-    /// Clearcoat GGX alpha (not implemented yet: ignored).
+    /// Clearcoat GGX alpha (clearcoat roughness squared); clamped like `alpha`.
     pub clearcoat_alpha: f32,
 }
 
@@ -95,10 +102,15 @@ struct Params {
     transmission: f32,
     ggx: Ggx,
     ior: f32,
+    /// Clearcoat factor.
+    coat: f32,
+    /// Clearcoat distribution.
+    coat_ggx: Ggx,
 }
 
 /// Lobe selection probabilities.
 struct Probs {
+    coat: f32,
     spec: f32,
     diffuse: f32,
     trans: f32,
@@ -131,6 +143,11 @@ impl Params {
         let w = pow5(1.0 - unit(vh));
         self.f0 + (Vec3A::splat(self.specular) - self.f0) * w
     }
+    /// The clearcoat weight clearcoat · Fc(|n·v|).
+    #[inline]
+    fn coat_weight(&self, cos_o: f32) -> f32 {
+        self.coat * (0.04 + 0.96 * pow5(1.0 - unit(cos_o)))
+    }
     /// Metal Fresnel: Schlick with F0 = base colour.
     #[inline]
     fn f_metal(&self, vh: f32) -> Vec3A {
@@ -146,10 +163,12 @@ impl Pbr {
         let specular = unit(self.specular);
         let r0 = ((ior - 1.0) / (ior + 1.0)).powi(2);
         let f0 = (r0 * unit3(self.specular_color)).min(Vec3A::ONE) * specular;
-        let alpha = if self.alpha.is_nan() {
-            PBR_MIN_ALPHA
-        } else {
-            self.alpha.max(PBR_MIN_ALPHA)
+        let clamp_alpha = |a: f32| {
+            if a.is_nan() {
+                PBR_MIN_ALPHA
+            } else {
+                a.max(PBR_MIN_ALPHA)
+            }
         };
         Params {
             base: unit3(self.base_color),
@@ -157,8 +176,10 @@ impl Pbr {
             specular,
             f0,
             transmission: unit(self.transmission),
-            ggx: Ggx::new(alpha),
+            ggx: Ggx::new(clamp_alpha(self.alpha)),
             ior,
+            coat: unit(self.clearcoat),
+            coat_ggx: Ggx::new(clamp_alpha(self.clearcoat_alpha)),
         }
     }
 
@@ -173,16 +194,24 @@ impl Pbr {
         let base = dielectric * (1.0 - fd.max_element()) * mean(p.base);
         let diffuse = base * (1.0 - p.transmission);
         let trans = base * p.transmission;
-        let sum = spec + diffuse + trans;
+        let coat = p.coat_weight(cos_o);
+        let (spec, diffuse, trans) = (
+            spec * (1.0 - coat),
+            diffuse * (1.0 - coat),
+            trans * (1.0 - coat),
+        );
+        let sum = coat + spec + diffuse + trans;
         if !(sum > 0.0) || !sum.is_finite() {
             // Black everywhere: any valid density will do; the diffuse one is cheapest.
             return Probs {
+                coat: 0.0,
                 spec: 0.0,
                 diffuse: 1.0,
                 trans: 0.0,
             };
         }
         Probs {
+            coat: coat / sum,
             spec: spec / sum,
             diffuse: diffuse / sum,
             trans: trans / sum,
@@ -209,6 +238,7 @@ impl Pbr {
         let probs = Self::probs(p, wo.z);
         let dielectric = 1.0 - p.metallic;
         let ggx = &p.ggx;
+        let coat = p.coat_weight(wo.z);
         if wi.z > 0.0 {
             let Some(h) = (wo + wi).try_normalize() else {
                 return zero;
@@ -219,12 +249,15 @@ impl Pbr {
             let spec_f = (dielectric * fd + p.metallic * p.f_metal(vh)) * spec_brdf;
             let fb = p.f_dielectric(vh.min(wo.z));
             let diffuse_w = dielectric * (1.0 - p.transmission) * (1.0 - fb.max_element());
-            let f = spec_f + p.base * FRAC_1_PI * diffuse_w;
-            let pdf = probs.spec * reflection_pdf(ggx, wo, h)
+            let cg = &p.coat_ggx;
+            let coat_f = coat * cg.d(h) * cg.g(wo, wi) / (4.0 * wo.z * wi.z);
+            let f = (spec_f + p.base * FRAC_1_PI * diffuse_w) * (1.0 - coat) + Vec3A::splat(coat_f);
+            let pdf = probs.coat * reflection_pdf(cg, wo, h)
+                + probs.spec * reflection_pdf(ggx, wo, h)
                 + probs.diffuse * cosine_hemisphere_pdf(wi.z);
             return (f, pdf);
         }
-        let weight = dielectric * p.transmission;
+        let weight = dielectric * p.transmission * (1.0 - coat);
         if !(weight > 0.0) {
             return zero;
         }
@@ -309,10 +342,13 @@ impl Pbr {
         let p = self.params();
         let probs = Self::probs(&p, wo_u.z);
         let etap = self.etap(&p, below);
-        let (wi, lobe, eta) = if uc < probs.spec {
+        let (wi, lobe, eta) = if uc < probs.coat {
+            let wm = p.coat_ggx.sample_wm(wo_u, u);
+            (reflect(wo_u, wm), Lobe::GlossyReflection, 1.0)
+        } else if uc < probs.coat + probs.spec {
             let wm = p.ggx.sample_wm(wo_u, u);
             (reflect(wo_u, wm), Lobe::GlossyReflection, 1.0)
-        } else if uc < probs.spec + probs.diffuse || !(probs.trans > 0.0) {
+        } else if uc < probs.coat + probs.spec + probs.diffuse || !(probs.trans > 0.0) {
             (cosine_hemisphere(u), Lobe::Diffuse, 1.0)
         } else if self.thin {
             let wm = p.ggx.sample_wm(wo_u, u);

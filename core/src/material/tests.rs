@@ -137,6 +137,26 @@ fn cases(alpha: Option<f32>) -> Vec<Case> {
             transmittance: Vec3A::ONE,
         });
         v.push(case("rough dielectric alpha 0".into(), b, true, true));
+        // glTF roughness 0 must stay finite (alpha is clamped).
+        for metallic in [0.0, 1.0] {
+            let b = Bsdf::Pbr(Pbr {
+                metallic,
+                clearcoat: 1.0,
+                ..pbr(0.0)
+            });
+            v.push(case(
+                format!("pbr roughness 0 metallic {metallic}"),
+                b,
+                true,
+                true,
+            ));
+        }
+        let b = Bsdf::Pbr(Pbr {
+            transmission: 1.0,
+            thin: false,
+            ..pbr(0.0)
+        });
+        v.push(case("pbr roughness 0 refractive".into(), b, true, true));
     }
     for a in [0.05f32, 0.3, 0.8] {
         if !keep(a) {
@@ -198,6 +218,17 @@ fn cases(alpha: Option<f32>) -> Vec<Case> {
                 ..pbr(r)
             }),
             false,
+            true,
+        ));
+        v.push(case(
+            format!("pbr clearcoat roughness {r}"),
+            Bsdf::Pbr(Pbr {
+                base_color: Vec3A::new(0.9, 0.2, 0.1),
+                clearcoat: 1.0,
+                clearcoat_alpha: 0.01,
+                ..pbr(r)
+            }),
+            true,
             true,
         ));
         v.push(case(
@@ -532,8 +563,12 @@ fn is_rough_dielectric(b: &Bsdf) -> bool {
     matches!(b, Bsdf::RoughDielectric(_))
 }
 
-fn is_not_rough_dielectric(b: &Bsdf) -> bool {
-    !is_rough_dielectric(b)
+fn is_conductor(b: &Bsdf) -> bool {
+    matches!(b, Bsdf::Conductor(_))
+}
+
+fn is_pbr(b: &Bsdf) -> bool {
+    matches!(b, Bsdf::Pbr(_))
 }
 
 #[test]
@@ -554,8 +589,13 @@ fn chi2_rough_dielectric_alpha_005() {
 }
 
 #[test]
-fn chi2_conductor_and_pbr_alpha_005() {
-    chi2_all(0.05, is_not_rough_dielectric);
+fn chi2_conductor_alpha_005() {
+    chi2_all(0.05, is_conductor);
+}
+
+#[test]
+fn chi2_pbr_alpha_005() {
+    chi2_all(0.05, is_pbr);
 }
 
 #[test]
@@ -564,8 +604,13 @@ fn chi2_rough_dielectric_alpha_03() {
 }
 
 #[test]
-fn chi2_conductor_and_pbr_alpha_03() {
-    chi2_all(0.3, is_not_rough_dielectric);
+fn chi2_conductor_alpha_03() {
+    chi2_all(0.3, is_conductor);
+}
+
+#[test]
+fn chi2_pbr_alpha_03() {
+    chi2_all(0.3, is_pbr);
 }
 
 #[test]
@@ -574,8 +619,13 @@ fn chi2_rough_dielectric_alpha_08() {
 }
 
 #[test]
-fn chi2_conductor_and_pbr_alpha_08() {
-    chi2_all(0.8, is_not_rough_dielectric);
+fn chi2_conductor_alpha_08() {
+    chi2_all(0.8, is_conductor);
+}
+
+#[test]
+fn chi2_pbr_alpha_08() {
+    chi2_all(0.8, is_pbr);
 }
 
 // ---------------------------------------------------------------------------------------------
