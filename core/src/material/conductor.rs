@@ -5,6 +5,8 @@
 //! [`SMOOTH_ALPHA`](super::microfacet::SMOOTH_ALPHA) the surface is a perfect mirror tinted by
 //! the Fresnel term (a delta lobe). Two-sided: seen from below it behaves as seen from above.
 
+#![allow(clippy::neg_cmp_op_on_partial_ord)] // `!(x > 0.0)` is deliberate: NaN must fail the guards.
+
 use super::dielectric::finite_sample;
 use super::microfacet::Ggx;
 use super::{reflect, BsdfSample, Lobe};

@@ -6,6 +6,8 @@
 //! divided by η², η being the relative index crossed ([`BsdfSample::eta`]). A light-tracing
 //! (importance) integrator would have to multiply it back.
 
+#![allow(clippy::neg_cmp_op_on_partial_ord)] // `!(x > 0.0)` is deliberate: NaN must fail the guards.
+
 use super::{fresnel_dielectric, refract, sanitize_eta, BsdfSample, Lobe};
 use glam::{Vec2, Vec3A};
 

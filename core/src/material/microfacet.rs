@@ -6,6 +6,8 @@
 //! are in the local shading frame (normal +Z); microfacet normals `wm` are in the upper
 //! hemisphere.
 
+#![allow(clippy::neg_cmp_op_on_partial_ord)] // `!(x > 0.0)` is deliberate: NaN must fail the guards.
+
 use glam::{Vec2, Vec3A};
 use std::f32::consts::PI;
 
@@ -31,10 +33,12 @@ impl Ggx {
     /// The distribution with roughness `alpha`; NaN or tiny values become [`MIN_ALPHA`].
     #[inline]
     pub fn new(alpha: f32) -> Self {
-        // `f32::max` ignores NaN, so a NaN alpha turns into MIN_ALPHA.
-        Self {
-            alpha: alpha.max(MIN_ALPHA).min(MAX_ALPHA),
-        }
+        let alpha = if alpha.is_nan() {
+            MIN_ALPHA
+        } else {
+            alpha.clamp(MIN_ALPHA, MAX_ALPHA)
+        };
+        Self { alpha }
     }
 
     /// The (clamped) alpha.

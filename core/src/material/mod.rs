@@ -174,7 +174,7 @@ pub fn refract(wi: Vec3A, n: Vec3A, eta: f32) -> Option<(Vec3A, f32)> {
     }
     let sin2_i = (1.0 - cos_i * cos_i).max(0.0);
     let sin2_t = sin2_i / (eta * eta);
-    if !(sin2_t < 1.0) {
+    if sin2_t >= 1.0 || sin2_t.is_nan() {
         return None;
     }
     let cos_t = (1.0 - sin2_t).sqrt();

@@ -55,6 +55,8 @@
 //! transmission, the layers below the coat scaled by 1 − clearcoat · Fc), then returns the full mixture value and the mixture density, so that
 //! multiple importance sampling sees one consistent pdf.
 
+#![allow(clippy::neg_cmp_op_on_partial_ord)] // `!(x > 0.0)` is deliberate: NaN must fail the guards.
+
 use super::conductor::reflection_pdf;
 use super::dielectric::finite_sample;
 use super::microfacet::Ggx;

@@ -8,6 +8,8 @@
 //! [`SMOOTH_ALPHA`](super::microfacet::SMOOTH_ALPHA), or with η = 1, it is exactly the smooth
 //! [`Dielectric`].
 
+#![allow(clippy::neg_cmp_op_on_partial_ord)] // `!(x > 0.0)` is deliberate: NaN must fail the guards.
+
 use super::conductor::reflection_pdf;
 use super::dielectric::{finite_sample, Dielectric};
 use super::microfacet::Ggx;
