@@ -205,7 +205,7 @@ fn cases(alpha: Option<f32>) -> Vec<Case> {
                 metallic: 1.0,
                 ..pbr(r)
             }),
-            true,
+            false,
             true,
         ));
         v.push(case(
@@ -228,7 +228,7 @@ fn cases(alpha: Option<f32>) -> Vec<Case> {
                 clearcoat_alpha: 0.01,
                 ..pbr(r)
             }),
-            true,
+            false,
             true,
         ));
         v.push(case(
@@ -332,43 +332,67 @@ fn bin_of(w: Vec3A) -> usize {
     i * N_PHI + j
 }
 
-/// ∫ pdf over the (θ, φ) rectangle by 4×4 midpoints, refined adaptively by quadrants.
-/// Refinement always goes two levels deep (so that a lobe smaller than a bin cannot hide
-/// between the coarse midpoints) and at most `depth` levels.
-fn integrate(pdf: &dyn Fn(Vec3A) -> f64, t0: f64, t1: f64, p0: f64, p1: f64, depth: u32) -> f64 {
-    fn midpoint(pdf: &dyn Fn(Vec3A) -> f64, t0: f64, t1: f64, p0: f64, p1: f64) -> f64 {
-        let (dt, dp) = ((t1 - t0) / 4.0, (p1 - p0) / 4.0);
-        let mut s = 0.0;
+/// Maps s ∈ [0, 1] to a polar angle θ and dθ/ds.
+type ThetaMap<'a> = &'a dyn Fn(f64) -> (f64, f64);
+
+/// ∫ pdf over the rectangle [s0, s1] × [p0, p1] of (s, φ), θ = `theta(s)`, by 4×4 midpoints,
+/// refined adaptively by quadrants. Refinement always goes two levels deep (so that a lobe
+/// smaller than a bin cannot hide between the coarse midpoints) and at most `depth` levels.
+fn integrate(
+    pdf: &dyn Fn(Vec3A) -> f64,
+    theta: ThetaMap,
+    (s0, s1, p0, p1): (f64, f64, f64, f64),
+    depth: u32,
+) -> f64 {
+    let midpoint = |s0: f64, s1: f64, p0: f64, p1: f64| {
+        let (ds, dp) = ((s1 - s0) / 4.0, (p1 - p0) / 4.0);
+        let mut sum = 0.0;
         for a in 0..4 {
-            let t = t0 + (a as f64 + 0.5) * dt;
+            let (t, jac) = theta(s0 + (a as f64 + 0.5) * ds);
             let (st, ct) = t.sin_cos();
             for b in 0..4 {
                 let p = p0 + (b as f64 + 0.5) * dp;
                 let w = Vec3A::new((st * p.cos()) as f32, (st * p.sin()) as f32, ct as f32);
-                s += pdf(w) * st;
+                sum += pdf(w) * st * jac;
             }
         }
-        s * dt * dp
-    }
-    let coarse = midpoint(pdf, t0, t1, p0, p1);
-    let (tm, pm) = (0.5 * (t0 + t1), 0.5 * (p0 + p1));
+        sum * ds * dp
+    };
+    let coarse = midpoint(s0, s1, p0, p1);
+    let (sm, pm) = (0.5 * (s0 + s1), 0.5 * (p0 + p1));
     let quads = [
-        (t0, tm, p0, pm),
-        (tm, t1, p0, pm),
-        (t0, tm, pm, p1),
-        (tm, t1, pm, p1),
+        (s0, sm, p0, pm),
+        (sm, s1, p0, pm),
+        (s0, sm, pm, p1),
+        (sm, s1, pm, p1),
     ];
-    let fine: f64 = quads
-        .iter()
-        .map(|&(a, b, c, d)| midpoint(pdf, a, b, c, d))
-        .sum();
-    if depth == 0 || (depth < CHI2_DEPTH - 1 && (fine - coarse).abs() <= 1e-3 * fine.abs() + 1e-8) {
+    let fine: f64 = quads.iter().map(|&(a, b, c, d)| midpoint(a, b, c, d)).sum();
+    if depth == 0 || (depth < CHI2_DEPTH - 1 && (fine - coarse).abs() <= 3e-3 * fine.abs() + 3e-7) {
         return fine;
     }
     quads
         .iter()
-        .map(|&(a, b, c, d)| integrate(pdf, a, b, c, d, depth - 1))
+        .map(|&q| integrate(pdf, theta, q, depth - 1))
         .sum()
+}
+
+/// The polar map of bin row `i`: linear inside, cubic towards the poles, where normal-incidence
+/// lobes put their narrow peaks.
+fn theta_map(i: usize) -> impl Fn(f64) -> (f64, f64) {
+    let (t0, t1) = (
+        PI * i as f64 / N_THETA as f64,
+        PI * (i + 1) as f64 / N_THETA as f64,
+    );
+    move |s: f64| {
+        if i == 0 {
+            (t1 * s * s * s, 3.0 * t1 * s * s)
+        } else if i == N_THETA - 1 {
+            let r = 1.0 - s;
+            (PI - (PI - t0) * r * r * r, 3.0 * (PI - t0) * r * r)
+        } else {
+            (t0 + (t1 - t0) * s, t1 - t0)
+        }
+    }
 }
 
 /// ln Γ(x) for x > 0 (Lanczos, g = 7, n = 9).
@@ -486,17 +510,14 @@ fn chi2_check(name: &str, bsdf: &Bsdf, wo: Vec3A, seed: u64) -> f64 {
     let pdf = |w: Vec3A| bsdf.pdf(wo, w) as f64;
     let mut expected = vec![0.0f64; N_THETA * N_PHI];
     for i in 0..N_THETA {
+        let theta = theta_map(i);
         for j in 0..N_PHI {
-            let (t0, t1) = (
-                PI * i as f64 / N_THETA as f64,
-                PI * (i + 1) as f64 / N_THETA as f64,
-            );
             let (p0, p1) = (
                 2.0 * PI * j as f64 / N_PHI as f64 - PI,
                 2.0 * PI * (j + 1) as f64 / N_PHI as f64 - PI,
             );
             expected[i * N_PHI + j] =
-                CHI2_SAMPLES as f64 * integrate(&pdf, t0, t1, p0, p1, CHI2_DEPTH);
+                CHI2_SAMPLES as f64 * integrate(&pdf, &theta, (0.0, 1.0, p0, p1), CHI2_DEPTH);
         }
     }
     // The pdf integrates to the probability of a non-delta sample.
@@ -567,8 +588,12 @@ fn is_conductor(b: &Bsdf) -> bool {
     matches!(b, Bsdf::Conductor(_))
 }
 
-fn is_pbr(b: &Bsdf) -> bool {
-    matches!(b, Bsdf::Pbr(_))
+fn is_pbr_opaque(b: &Bsdf) -> bool {
+    matches!(b, Bsdf::Pbr(p) if p.transmission == 0.0)
+}
+
+fn is_pbr_transmissive(b: &Bsdf) -> bool {
+    matches!(b, Bsdf::Pbr(p) if p.transmission > 0.0)
 }
 
 #[test]
@@ -594,8 +619,13 @@ fn chi2_conductor_alpha_005() {
 }
 
 #[test]
-fn chi2_pbr_alpha_005() {
-    chi2_all(0.05, is_pbr);
+fn chi2_pbr_opaque_roughness_005() {
+    chi2_all(0.05, is_pbr_opaque);
+}
+
+#[test]
+fn chi2_pbr_transmissive_roughness_005() {
+    chi2_all(0.05, is_pbr_transmissive);
 }
 
 #[test]
@@ -609,8 +639,13 @@ fn chi2_conductor_alpha_03() {
 }
 
 #[test]
-fn chi2_pbr_alpha_03() {
-    chi2_all(0.3, is_pbr);
+fn chi2_pbr_opaque_roughness_03() {
+    chi2_all(0.3, is_pbr_opaque);
+}
+
+#[test]
+fn chi2_pbr_transmissive_roughness_03() {
+    chi2_all(0.3, is_pbr_transmissive);
 }
 
 #[test]
@@ -624,8 +659,13 @@ fn chi2_conductor_alpha_08() {
 }
 
 #[test]
-fn chi2_pbr_alpha_08() {
-    chi2_all(0.8, is_pbr);
+fn chi2_pbr_opaque_roughness_08() {
+    chi2_all(0.8, is_pbr_opaque);
+}
+
+#[test]
+fn chi2_pbr_transmissive_roughness_08() {
+    chi2_all(0.8, is_pbr_transmissive);
 }
 
 // ---------------------------------------------------------------------------------------------
