@@ -1052,3 +1052,55 @@ fn degenerate_inputs_never_produce_nan() {
         }
     }
 }
+
+#[test]
+fn smooth_special_cases() {
+    // A smooth conductor reflects exactly its Fresnel term; eta 0 is a perfect reflector.
+    for wo in wos(true) {
+        let s = gold(0.0).sample(wo, 0.5, Vec2::splat(0.5)).unwrap();
+        assert_eq!(s.wi, Vec3A::new(-wo.x, -wo.y, wo.z));
+        let g = gold(0.0);
+        let expect = fresnel_conductor(wo.z.abs(), g.eta, g.k);
+        assert!((s.f * s.wi.z.abs() / s.pdf - expect).abs().max_element() < 1e-5);
+        let white = Conductor {
+            eta: Vec3A::ZERO,
+            k: Vec3A::ONE,
+            alpha: 0.0,
+        };
+        let s = white.sample(wo, 0.5, Vec2::splat(0.5)).unwrap();
+        assert!(
+            (s.f * s.wi.z.abs() / s.pdf - Vec3A::ONE)
+                .abs()
+                .max_element()
+                < 1e-5
+        );
+    }
+    // Thin sheets transmit straight through, tinted, without bending; eta 1 is invisible.
+    let tint = Vec3A::new(0.9, 0.5, 0.1);
+    for (eta, thin) in [(1.5, true), (1.0, false), (1.0, true)] {
+        let d = Dielectric {
+            eta,
+            transmittance: tint,
+            thin,
+        };
+        for wo in wos(true) {
+            let s = d.sample(wo, 0.999_999, Vec2::ZERO).unwrap();
+            assert_eq!(s.lobe, Lobe::SpecularTransmission);
+            assert!((s.wi + wo).length() < 1e-6, "eta {eta} thin {thin}");
+            assert_eq!(s.eta, 1.0);
+            let v = s.f * s.wi.z.abs() / s.pdf;
+            assert!((v - tint).abs().max_element() < 1e-5, "{v}");
+        }
+    }
+    // Thin sheets reflect more than one interface: R' = R + T²R/(1 − R²).
+    let r = fresnel_dielectric(1.0, 1.5);
+    let thin_r = r + (1.0 - r) * (1.0 - r) * r / (1.0 - r * r);
+    let d = Dielectric {
+        eta: 1.5,
+        transmittance: Vec3A::ONE,
+        thin: true,
+    };
+    let s = d.sample(Vec3A::Z, 0.0, Vec2::ZERO).unwrap();
+    assert_eq!(s.lobe, Lobe::SpecularReflection);
+    assert!((s.pdf - thin_r).abs() < 1e-6, "{} vs {thin_r}", s.pdf);
+}
