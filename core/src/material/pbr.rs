@@ -52,8 +52,9 @@
 //! Sampling picks one of four lobes (clearcoat, specular reflection = dielectric specular plus
 //! metal, diffuse, transmission) with probabilities proportional to their approximate albedos at
 //! wo (the Fresnel terms evaluated at |v·n|, times the mean base colour for diffuse and
-//! transmission, the layers below the coat scaled by 1 − clearcoat · Fc), then returns the full mixture value and the mixture density, so that
-//! multiple importance sampling sees one consistent pdf.
+//! transmission, the layers below the coat scaled by 1 − clearcoat · Fc), then returns the full
+//! mixture value and the mixture density, so that multiple importance sampling sees one
+//! consistent pdf.
 
 #![allow(clippy::neg_cmp_op_on_partial_ord)] // `!(x > 0.0)` is deliberate: NaN must fail the guards.
 
