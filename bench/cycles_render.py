@@ -42,6 +42,7 @@ def parse_args():
     p.add_argument("--width", type=int, default=256)
     p.add_argument("--height", type=int, default=256)
     p.add_argument("--out", required=True)
+    p.add_argument("--name", default="cycles", help="row name in the results table")
     return p.parse_args(argv)
 
 
@@ -168,7 +169,7 @@ def main():
     seconds = timed_render(scene, args.spp)
     bpy.data.images["Render Result"].save_render(args.out)
     print("BENCH_JSON " + json.dumps({
-        "renderer": "cycles", "version": bpy.app.version_string, "spp": args.spp,
+        "name": args.name, "exr": args.out, "renderer": "cycles", "version": bpy.app.version_string, "spp": args.spp,
         "threads": scene.render.threads, "seconds": seconds, "warmup_seconds": warmup,
         "camera_fov_y_deg": camera.data.angle_y * 180 / 3.141592653589793,
         "camera_sensor_fit": camera.data.sensor_fit, "materials": materials}), flush=True)

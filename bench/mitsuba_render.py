@@ -3,8 +3,8 @@
     python bench/mitsuba_render.py SCENE.gltf --variant llvm_ad_rgb --spp 64 \
         --threads 2 --seed 0 --out OUT.exr --work DIR
 
-Writes OUT.exr (linear RGB float) and prints one JSON line on stdout:
-{"renderer", "variant", "spp", "threads", "seconds", "warmup_seconds", "mean"}.
+Writes OUT.exr (linear RGB float) and prints `BENCH_JSON {...}` on stdout:
+{name, exr, "renderer", "variant", "spp", "threads", "seconds", "warmup_seconds", "mean"}.
 `seconds` is the render only: the scene is loaded first, and for JIT variants a
 1-spp render compiles the kernels before the timed one (`warmup_seconds`).
 Large sample counts are split into passes of at most --max-spp-per-pass, each with
@@ -37,6 +37,7 @@ def parse_args():
     p.add_argument("--height", type=int, default=256)
     p.add_argument("--max-spp-per-pass", type=int, default=256)
     p.add_argument("--out", required=True)
+    p.add_argument("--name", default="mitsuba", help="row name in the results table")
     p.add_argument("--work", required=True, help="folder for the generated PLY meshes")
     p.add_argument("--builtin-cornell", action="store_true",
                    help="cross-check: render mitsuba.cornell_box() (not the glTF) with the same "
@@ -137,11 +138,12 @@ def main():
     seconds = time.perf_counter() - start
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     mi.Bitmap(img).write(args.out)
-    print(json.dumps({"renderer": "mitsuba", "builtin_cornell": args.builtin_cornell,
+    print("BENCH_JSON " + json.dumps({"name": args.name, "exr": args.out,
+                      "renderer": "mitsuba", "builtin_cornell": args.builtin_cornell,
                       "variant": args.variant, "spp": args.spp,
                       "threads": dr.thread_count(), "seconds": seconds,
                       "warmup_seconds": warmup,
-                      "mean": [float(x) for x in img.reshape(-1, 3).mean(axis=0)]}))
+                      "mean": [float(x) for x in img.reshape(-1, 3).mean(axis=0)]}), flush=True)
 
 
 if __name__ == "__main__":
