@@ -140,7 +140,7 @@ def main():
     mi.Bitmap(img).write(args.out)
     print("BENCH_JSON " + json.dumps({"name": args.name, "exr": args.out,
                       "renderer": "mitsuba", "builtin_cornell": args.builtin_cornell,
-                      "variant": args.variant, "spp": args.spp,
+                      "variant": args.variant, "version": mi.__version__, "spp": args.spp,
                       "threads": dr.thread_count(), "seconds": seconds,
                       "warmup_seconds": warmup,
                       "mean": [float(x) for x in img.reshape(-1, 3).mean(axis=0)]}), flush=True)
