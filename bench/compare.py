@@ -48,9 +48,20 @@ def stats(img, ref):
             "mse": float(np.mean(diff ** 2))}
 
 
+def orientation_warning(name, img, ref):
+    """A mirrored image keeps its means but not its pixels: say so if a flip fits better."""
+    rmse = np.sqrt(np.mean((img - ref) ** 2))
+    for label, flipped in (("upside down", img[::-1]), ("mirrored left-right", img[:, ::-1])):
+        if np.sqrt(np.mean((flipped - ref) ** 2)) < 0.8 * rmse:
+            print(f"WARNING: {name}: the image looks {label} against the reference",
+                  file=sys.stderr)
+
+
 def evaluate(rows, ref):
     for row in rows:
-        row.update(stats(read_exr(row["exr"]), ref))
+        img = read_exr(row["exr"])
+        row.update(stats(img, ref))
+        orientation_warning(row["name"], img, ref)
         pixels = ref.shape[0] * ref.shape[1]
         row["msamples_per_s"] = pixels * row["spp"] / row["seconds"] / 1e6
         row["efficiency"] = 1.0 / (row["mse"] * row["seconds"])

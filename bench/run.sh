@@ -4,7 +4,7 @@
 #   bash bench/run.sh [--spp N] [--threads T] [--seed S] [--ref-spp N] [--no-bvh] [--no-crosscheck]
 #
 # The same settings can come from the environment: SPP, THREADS, SEED, REF_SPP, BVH=0,
-# CROSSCHECK=0, SCENE. See bench/README.md for what it installs, the columns and timings.
+# CROSSCHECK=0, SCENE, RAYTILE_BIN (use this binary instead of building). See bench/README.md for what it installs, the columns and timings.
 # Exit status: 0 on success (a missing optional renderer is a skip with a message),
 # non-zero on a real failure (a renderer crashing, means more than 5 sigma apart, ...).
 set -euo pipefail
@@ -132,9 +132,13 @@ fi
 REF_LABEL="Mitsuba $(sed -n 's/.*"variant": "\([a-z_]*\)".*/\1/p' "$REF.json" 2>/dev/null || echo "$REF_VARIANT"), $REF_SPP spp, path max_depth -1 ($(basename "$REF"))"
 
 # ---------------------------------------------------------------- raytile
-say "raytile: cargo build --release -p raytile"
-cargo build --release -p raytile
-RAYTILE=$ROOT/target/release/raytile
+if [ -n "${RAYTILE_BIN:-}" ]; then
+    RAYTILE=$RAYTILE_BIN # a prebuilt binary (or a stand-in when testing this script)
+else
+    say "raytile: cargo build --release -p raytile"
+    cargo build --release -p raytile
+    RAYTILE=$ROOT/target/release/raytile
+fi
 if ! "$RAYTILE" render --help > /dev/null 2>&1; then
     skip "raytile has no working 'render' subcommand yet ('$RAYTILE render --help' fails)"
 else
