@@ -67,8 +67,12 @@ install_apt() {
     missing=$(apt_missing "$@")
     [ -z "$missing" ] && return 0
     if [ "$(id -u)" != 0 ]; then
-        command -v sudo > /dev/null && sudo -n true 2> /dev/null && sudo="sudo -n" || {
-            skip "cannot install $missing (not root, no sudo)"; return 0; }
+        if command -v sudo > /dev/null && sudo -n true 2> /dev/null; then
+            sudo="sudo -n"
+        else
+            skip "cannot install $missing (not root, no password-less sudo)"
+            return 0
+        fi
     fi
     say "apt-get install $missing"
     $sudo apt-get update -qq > /dev/null
@@ -85,7 +89,8 @@ install_venv() {
 }
 
 if command -v dpkg-query > /dev/null; then
-    install_apt blender python3-numpy libllvm19
+    # shellcheck disable=SC2046
+    install_apt $(command -v blender > /dev/null || echo blender) python3-numpy libllvm19
 fi
 install_venv
 
