@@ -170,7 +170,8 @@ def main():
     bpy.data.images["Render Result"].save_render(args.out)
     print("BENCH_JSON " + json.dumps({
         "name": args.name, "exr": args.out, "renderer": "cycles", "version": bpy.app.version_string, "spp": args.spp,
-        "threads": scene.render.threads, "seconds": seconds, "warmup_seconds": warmup,
+        "threads": scene.render.threads, "sampling_pattern": scene.cycles.sampling_pattern,
+        "seconds": seconds, "warmup_seconds": warmup,
         "camera_fov_y_deg": camera.data.angle_y * 180 / 3.141592653589793,
         "camera_sensor_fit": camera.data.sensor_fit, "materials": materials}), flush=True)
 
