@@ -151,7 +151,9 @@ pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, max_depth: u32) ->
         let frame = Frame::from_zx(it.ns, it.dpdu);
         let wo = frame.to_local(wo_world);
 
-        // Fixed dimension layout per bounce: light choice, light point, lobe, direction, roulette.
+        // Fixed dimension layout per bounce, two 4D sets: [light choice, light point (2), lobe],
+        // [direction (2), roulette, unused].
+        sampler.align4();
         let u_light = sampler.next_1d();
         let u_light2 = sampler.next_2d();
         let u_lobe = sampler.next_1d();

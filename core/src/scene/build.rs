@@ -895,18 +895,30 @@ impl Scene {
             ObjectKind::Mesh { mesh, .. } => {
                 let m = &self.meshes[*mesh as usize];
                 let (b1, b2) = crate::sampling::warp::uniform_triangle(u);
-                let hit = Hit {
+                // Only what emission needs: point, front normal, and uv if it is textured.
+                let local = TriangleGeom::new(m.corners(prim as usize));
+                let geom = TriangleGeom::new(
+                    m.corners(prim as usize)
+                        .map(|v| o.to_world.transform_point3a(v)),
+                );
+                let area = 0.5 * geom.normal().length();
+                let ng = (o.normal_matrix * local.normal()).normalize_or(Vec3A::Y);
+                let textured = self.materials[o.material as usize].slots.emission.is_some();
+                let uv = if textured {
+                    self.mesh_uvs(m, prim, b1, b2)
+                } else {
+                    [Vec2::ZERO; 2]
+                };
+                let it = Interaction {
+                    p: geom.point(b1, b2),
+                    ng,
+                    ns: ng,
+                    dpdu: Vec3A::ZERO,
+                    uv,
                     t: 0.0,
                     object,
                     prim,
-                    b1,
-                    b2,
                 };
-                let it = self.mesh_interaction(o, m, &hit);
-                let c = m
-                    .corners(prim as usize)
-                    .map(|v| o.to_world.transform_point3a(v));
-                let area = 0.5 * (c[1] - c[0]).cross(c[2] - c[0]).length();
                 (it, 1.0 / area)
             }
             ObjectKind::Analytic(a) => {
