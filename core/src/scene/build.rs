@@ -56,6 +56,8 @@ enum Prim {
         geom: TriangleGeom,
         object: u32,
         tri: u32,
+        /// The material is not opaque: hits need the alpha test.
+        alpha: bool,
     },
     Analytic {
         object: u32,
@@ -290,6 +292,7 @@ impl Scene {
                     })?;
                     let flattened = uses[mesh_i] <= 1;
                     if flattened {
+                        let needs_alpha = materials[o.material].alpha_mode != AlphaMode::Opaque;
                         for (ti, _) in m.indices.iter().enumerate() {
                             let c = m.corners(ti).map(|v| to_world.transform_point3a(v));
                             let geom = TriangleGeom::new(c);
@@ -299,6 +302,7 @@ impl Scene {
                                     geom,
                                     object: oi as u32,
                                     tri: ti as u32,
+                                    alpha: needs_alpha,
                                 },
                             ));
                         }
@@ -476,8 +480,13 @@ impl Scene {
         let found = self
             .bvh
             .closest(ray, tmax, |slot, tmax| match self.prims[slot] {
-                Prim::Tri { geom, object, tri } => match geom.intersect(ray.o, ray.d, 0.0, tmax) {
-                    Some((t, b1, b2)) if self.alpha_passes(object, tri, b1, b2, t) => {
+                Prim::Tri {
+                    geom,
+                    object,
+                    tri,
+                    alpha,
+                } => match geom.intersect(ray.o, ray.d, 0.0, tmax) {
+                    Some((t, b1, b2)) if !alpha || self.alpha_passes(object, tri, b1, b2, t) => {
                         cand = Hit {
                             t,
                             object,
@@ -527,8 +536,13 @@ impl Scene {
             }
         }
         self.bvh.any(ray, tmax, |slot| match self.prims[slot] {
-            Prim::Tri { geom, object, tri } => match geom.intersect(ray.o, ray.d, 0.0, tmax) {
-                Some((t, b1, b2)) => self.alpha_passes(object, tri, b1, b2, t),
+            Prim::Tri {
+                geom,
+                object,
+                tri,
+                alpha,
+            } => match geom.intersect(ray.o, ray.d, 0.0, tmax) {
+                Some((t, b1, b2)) => !alpha || self.alpha_passes(object, tri, b1, b2, t),
                 None => false,
             },
             Prim::Analytic { object } => self.intersect_analytic(object, ray, tmax).is_some(),
