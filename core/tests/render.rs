@@ -361,3 +361,95 @@ fn cornell_box_is_lit_and_finite() {
     // Red wall on the left, green on the right: colour bleeding shows in the channel means.
     assert!(m[0] > 0.1 && m[1] > 0.1 && m[2] > 0.05, "{m:?}");
 }
+
+#[test]
+fn every_example_scene_loads_and_renders() {
+    let dir = repo("scenes");
+    let mut n = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().and_then(|e| e.to_str()) != Some("json") {
+            continue;
+        }
+        let desc = raytile_core::load_scene(&path).unwrap_or_else(|e| panic!("{e}"));
+        for integrator in IntegratorKind::ALL {
+            let settings = RenderSettings {
+                width: 12,
+                height: 8,
+                spp: 2,
+                integrator,
+                ..Default::default()
+            };
+            let scene = Scene::build(&desc, &settings)
+                .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            let film = render(&scene, &settings, &());
+            assert_eq!(film.bad_samples, 0, "{} {integrator:?}", path.display());
+        }
+        n += 1;
+    }
+    assert!(n >= 3, "expected the example scenes in {}", dir.display());
+}
+
+#[test]
+fn bad_scenes_are_errors_not_panics() {
+    let settings = RenderSettings::default();
+    let mut desc = furnace(BsdfDesc::Diffuse {
+        albedo: Vec3::ONE,
+        texture: None,
+    });
+    desc.objects[0].material = 5;
+    assert!(Scene::build(&desc, &settings)
+        .unwrap_err()
+        .to_string()
+        .contains("material index 5"));
+    let mut desc = furnace(BsdfDesc::Diffuse {
+        albedo: Vec3::ONE,
+        texture: None,
+    });
+    desc.objects[0].shape = ShapeDesc::Sphere {
+        center: Vec3::NAN,
+        radius: 1.0,
+    };
+    assert!(Scene::build(&desc, &settings).is_err());
+    let mut desc = furnace(BsdfDesc::Diffuse {
+        albedo: Vec3::ONE,
+        texture: None,
+    });
+    desc.objects[0].transform = Mat4::ZERO;
+    assert!(Scene::build(&desc, &settings)
+        .unwrap_err()
+        .to_string()
+        .contains("singular"));
+    let mut desc = furnace(BsdfDesc::Diffuse {
+        albedo: Vec3::ONE,
+        texture: None,
+    });
+    desc.meshes.push(MeshDesc {
+        name: "m".into(),
+        positions: vec![Vec3::ZERO; 3],
+        indices: vec![[0, 1, 7]],
+        ..Default::default()
+    });
+    desc.objects[0].shape = ShapeDesc::Mesh { mesh: 0 };
+    assert!(Scene::build(&desc, &settings)
+        .unwrap_err()
+        .to_string()
+        .contains("out of range"));
+    let desc = furnace(BsdfDesc::Diffuse {
+        albedo: Vec3::ONE,
+        texture: None,
+    });
+    let s = RenderSettings {
+        camera: Some("nope".into()),
+        ..Default::default()
+    };
+    assert!(Scene::build(&desc, &s)
+        .unwrap_err()
+        .to_string()
+        .contains("nope"));
+    let s = RenderSettings {
+        spp: 0,
+        ..Default::default()
+    };
+    assert!(Scene::build(&desc, &s).is_err());
+}

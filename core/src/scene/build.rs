@@ -1317,3 +1317,12 @@ fn build_material(m: &MaterialDesc, n_textures: usize) -> Result<Material, Scene
         absorption,
     })
 }
+
+impl std::fmt::Debug for Scene {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Scene")
+            .field("stats", &self.stats)
+            .field("bounds", &self.bounds)
+            .finish_non_exhaustive()
+    }
+}
