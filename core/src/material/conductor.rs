@@ -4,12 +4,30 @@
 //! the complex-index Fresnel term, sampled through the visible normals. Below
 //! [`SMOOTH_ALPHA`](super::microfacet::SMOOTH_ALPHA) the surface is a perfect mirror tinted by
 //! the Fresnel term (a delta lobe). Two-sided: seen from below it behaves as seen from above.
+//!
+//! Rough conductors add the multiple-scattering compensation lobe of Kulla & Conty 2017
+//! ("Revisiting Physically Based Shading at Imageworks"):
+//!
+//! ```text
+//! f_ms(wo, wi) = F_ms · (1 − E(μo)) (1 − E(μi)) / (π (1 − E_avg)),
+//! F_ms         = F_avg² E_avg / (1 − F_avg (1 − E_avg))                       (per channel)
+//! ```
+//!
+//! with E the tabulated single-scattering albedo at F = 1 ([`GgxAlbedo`]) and F_avg the
+//! hemispherical average 2 ∫ F(μ) μ dμ of the complex-index Fresnel term, integrated per call
+//! by 6-point Gauss–Legendre quadrature in μ (within 1e-5 of a fine quadrature for gold and
+//! other typical indices: the grazing rise of F is damped by the μ weight). A white conductor
+//! (F = 1) then has directional albedo 1 up to the table's accuracy (measured within 0.1 %
+//! for α ∈ [0.05, 1]). The compensation lobe is sampled with cosine-weighted
+//! directions, chosen over the single-scattering lobe in proportion to the lobes' albedos at
+//! wo; eval, pdf and sample all return the full mixture.
 
 #![allow(clippy::neg_cmp_op_on_partial_ord)] // `!(x > 0.0)` is deliberate: NaN must fail the guards.
 
 use super::dielectric::finite_sample;
-use super::microfacet::Ggx;
+use super::microfacet::{Ggx, GgxAlbedo};
 use super::{reflect, BsdfSample, Lobe};
+use crate::sampling::warp::{cosine_hemisphere, cosine_hemisphere_pdf};
 use glam::{Vec2, Vec3A};
 
 /// GGX conductor.
@@ -37,7 +55,7 @@ impl Conductor {
         }
     }
 
-    /// f(wo, wi) without cosine; zero for the smooth (delta) case.
+    /// f(wo, wi) = f_ss + f_ms without cosine; zero for the smooth (delta) case.
     pub fn eval(&self, wo: Vec3A, wi: Vec3A) -> Vec3A {
         let ggx = Ggx::new(self.alpha);
         if ggx.effectively_smooth() {
@@ -49,15 +67,17 @@ impl Conductor {
         let Some(wm) = half_vector(wo, wi) else {
             return Vec3A::ZERO;
         };
-        let f = fresnel_conductor(wo.dot(wm).abs(), self.eta, self.k)
-            * (ggx.d(wm) * ggx.g(wo, wi) / (4.0 * wo.z * wi.z));
+        let ms = Ms::new(self, wo.z);
+        let (f, _) = ms.eval_pdf(self, &ggx, wo, wi, wm);
         if f.is_finite() {
             f
         } else {
             Vec3A::ZERO
         }
     }
-    /// Density of `sample`: visible-normal density times the reflection Jacobian 1/(4 |wo·wm|).
+    /// Density of `sample`: the mixture of the single-scattering density (visible-normal density
+    /// times the reflection Jacobian 1/(4 |wo·wm|)) and the cosine density of the
+    /// multiple-scattering lobe.
     pub fn pdf(&self, wo: Vec3A, wi: Vec3A) -> f32 {
         let ggx = Ggx::new(self.alpha);
         if ggx.effectively_smooth() {
@@ -69,10 +89,13 @@ impl Conductor {
         let Some(wm) = half_vector(wo, wi) else {
             return 0.0;
         };
-        reflection_pdf(&ggx, wo, wm)
+        let ms = Ms::new(self, wo.z);
+        ms.eval_pdf(self, &ggx, wo, wi, wm).1
     }
-    /// Samples a visible microfacet normal and reflects about it (or mirrors when smooth).
-    pub fn sample(&self, wo: Vec3A, _uc: f32, u: Vec2) -> Option<BsdfSample> {
+    /// Picks the single-scattering lobe (a visible microfacet normal, reflected about) or the
+    /// multiple-scattering lobe (cosine-weighted) with `uc`, or mirrors when smooth; returns
+    /// the full f and the mixture density.
+    pub fn sample(&self, wo: Vec3A, uc: f32, u: Vec2) -> Option<BsdfSample> {
         if !wo.is_finite() || wo.z == 0.0 {
             return None;
         }
@@ -90,14 +113,17 @@ impl Conductor {
                 eta: 1.0,
             });
         }
-        let wm = ggx.sample_wm(wo_u, u);
-        let mut wi = reflect(wo_u, wm);
+        let ms = Ms::new(self, wo_u.z);
+        let mut wi = if uc < ms.p_ms {
+            cosine_hemisphere(u)
+        } else {
+            reflect(wo_u, ggx.sample_wm(wo_u, u))
+        };
         if !(wi.z > 0.0) {
             return None;
         }
-        let f = fresnel_conductor(wo_u.dot(wm).abs(), self.eta, self.k)
-            * (ggx.d(wm) * ggx.g(wo_u, wi) / (4.0 * wo_u.z * wi.z));
-        let pdf = reflection_pdf(&ggx, wo_u, wm);
+        let wm = half_vector(wo_u, wi)?;
+        let (f, pdf) = ms.eval_pdf(self, &ggx, wo_u, wi, wm);
         if flip {
             wi.z = -wi.z;
         }
@@ -116,6 +142,72 @@ impl Conductor {
     /// The reflectance at normal incidence.
     pub fn albedo(&self) -> Vec3A {
         fresnel_conductor(1.0, self.eta, self.k)
+    }
+}
+
+/// Per-call data of the multiple-scattering compensation at one `wo`.
+struct Ms {
+    albedo: GgxAlbedo,
+    /// E(μo).
+    e_o: f32,
+    /// F_ms per channel.
+    f_ms: Vec3A,
+    /// Probability of sampling the compensation lobe.
+    p_ms: f32,
+}
+
+/// Nodes and weights of 6-point Gauss–Legendre quadrature on [0, 1].
+const GL6: [(f32, f32); 6] = [
+    (0.033_765_24, 0.085_662_25),
+    (0.169_395_3, 0.180_380_8),
+    (0.380_690_4, 0.233_957),
+    (0.619_309_6, 0.233_957),
+    (0.830_604_7, 0.180_380_8),
+    (0.966_234_8, 0.085_662_25),
+];
+
+/// Hemispherical average Fresnel 2 ∫ F(μ) μ dμ of a conductor, by 6-point Gauss–Legendre
+/// quadrature in μ (within 1e-5 of a fine quadrature for typical metals).
+pub fn fresnel_conductor_avg(eta: Vec3A, k: Vec3A) -> Vec3A {
+    let mut s = Vec3A::ZERO;
+    for (mu, w) in GL6 {
+        s += fresnel_conductor(mu, eta, k) * (2.0 * mu * w);
+    }
+    s.clamp(Vec3A::ZERO, Vec3A::ONE)
+}
+
+impl Ms {
+    #[inline]
+    fn new(c: &Conductor, cos_o: f32) -> Self {
+        let albedo = GgxAlbedo::new(c.alpha);
+        let e_o = albedo.e(cos_o);
+        let f_ms = albedo.f_ms(fresnel_conductor_avg(c.eta, c.k));
+        let mean = |v: Vec3A| (v.x + v.y + v.z) * (1.0 / 3.0);
+        let a_ms = mean(f_ms) * (1.0 - e_o);
+        let a_ss = mean(fresnel_conductor(cos_o, c.eta, c.k)) * e_o;
+        let sum = a_ms + a_ss;
+        let p_ms = if sum > 0.0 && sum.is_finite() {
+            (a_ms / sum).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        Self {
+            albedo,
+            e_o,
+            f_ms,
+            p_ms,
+        }
+    }
+
+    /// (f, pdf) for upper-hemisphere `wo`, `wi` with half vector `wm`.
+    #[inline]
+    fn eval_pdf(&self, c: &Conductor, ggx: &Ggx, wo: Vec3A, wi: Vec3A, wm: Vec3A) -> (Vec3A, f32) {
+        let f_ss = fresnel_conductor(wo.dot(wm).abs(), c.eta, c.k)
+            * (ggx.d(wm) * ggx.g(wo, wi) / (4.0 * wo.z * wi.z));
+        let f_ms = self.f_ms * self.albedo.ms_shape(self.e_o, self.albedo.e(wi.z));
+        let pdf = (1.0 - self.p_ms) * reflection_pdf(ggx, wo, wm)
+            + self.p_ms * cosine_hemisphere_pdf(wi.z);
+        (f_ss + f_ms, if pdf.is_finite() { pdf } else { 0.0 })
     }
 }
 

@@ -9,7 +9,7 @@
 //! F_dielectric       = F0 + (F90 − F0)(1 − |v·h|)⁵,
 //!                      F0 = min(((ior − 1)/(ior + 1))² · specular_color, 1) · specular,
 //!                      F90 = specular
-//! dielectric_brdf    = (1 − max(F_dielectric)) · base + F_dielectric · specular_brdf
+//! dielectric_brdf    = (1 − max(F_dielectric)) · base + F_dielectric · specular_brdf   (see below)
 //! base               = (1 − transmission) · c/π + transmission · c · specular_btdf(α)
 //! material           = (1 − metallic) · dielectric_brdf + metallic · metal_brdf
 //! ```
@@ -18,16 +18,27 @@
 //! `fresnel_mix` in `KHR_materials_specular`; for a white specular colour this is the plain
 //! `mix(base, specular, F)`. With specular = 0 and metallic = 0 the model is exactly Lambertian.
 //!
-//! **One deliberate deviation:** the Fresnel factor that attenuates the base (diffuse and
-//! transmission) is evaluated at min(|v·h|, |n·v|) instead of |v·h|. The specification's |v·h|
-//! barely dims the diffuse lobe at grazing view angles while the specular lobe reflects
-//! F(|n·v|) ≈ 0.65 there: a white dielectric then reflects up to 1.6 (measured at 85°,
-//! roughness 0.05) and 1.84 at 89°. With min(|v·h|, |n·v|) the base never gets more than
-//! 1 − F(|n·v|) and the white furnace stays ≤ 1; nothing changes where |v·h| ≤ |n·v| (most
-//! configurations away from grazing views). The price is reciprocity of the base lobes
-//! (f(v, l) ≠ f(l, v) when |n·v| < |v·h|), which a unidirectional path tracer does not need;
-//! the symmetric choice min(|v·h|, |n·v|, |n·l|) was tried and rejected because it darkens the
-//! diffuse lobe by 4.5 % even at normal view.
+//! **Energy compensation (a deliberate deviation).** Single-scattering GGX loses the energy of
+//! light that would bounce more than once between microfacets (up to ~40 % at roughness 1),
+//! and the specification's base weight 1 − max F(|v·h|) does not match what the specular lobe
+//! actually reflects (a white dielectric reflects up to 1.6 at grazing views). Following
+//! Kulla & Conty 2017, both specular lobes (dielectric and metal) get the multiple-scattering
+//! lobe F_ms · (1 − E(μo))(1 − E(μi)) / (π (1 − E_avg)) of [`super::conductor`], with
+//! F_ms from the closed-form Schlick average F_avg = F0 + (F90 − F0)/21, and the base
+//! (diffuse and transmission) is weighted by the energy the compensated dielectric specular
+//! lobe does not reflect:
+//!
+//! ```text
+//! base weight = 1 − max(E_spec(μo)),  E_spec = F0 · E(μo) + (F90 − F0) · E₅(μo) + F_ms (1 − E(μo))
+//! ```
+//!
+//! (E, E₅ tabulated in [`super::microfacet::GgxAlbedo`]; Schlick's F is linear in F0 and F90,
+//! so two tables give the exact single-scattering albedo for any F0.) A white base with
+//! metallic 0 and specular 1 then reflects 1 up to the tables' accuracy (≲ 0.3 %), at every
+//! roughness and view angle; with specular 0 the weight is exactly 1 (pure Lambertian). The
+//! base weight depends on wo only, so the base lobes are not reciprocal
+//! (f(v, l) ≠ f(l, v)), which a unidirectional path tracer does not need; the specular and
+//! metal lobes, compensation included, are.
 //!
 //! `specular_btdf` is the GGX transmission lobe: thin-walled, the reflection lobe mirrored
 //! through the surface (light goes straight through, only blurred by the roughness); otherwise
@@ -45,22 +56,23 @@
 //! ```
 //!
 //! which stays energy conserving because Fc depends on v only.
+//! The clearcoat lobe and the transmission lobes are single scattering (not compensated).
 //!
 //! Very smooth surfaces are not delta: alpha is clamped to [`PBR_MIN_ALPHA`], which keeps D
 //! finite while visible-normal sampling keeps f·cos/pdf bounded.
 //!
-//! Sampling picks one of four lobes (clearcoat, specular reflection = dielectric specular plus
-//! metal, diffuse, transmission) with probabilities proportional to their approximate albedos at
-//! wo (the Fresnel terms evaluated at |v·n|, times the mean base colour for diffuse and
-//! transmission, the layers below the coat scaled by 1 − clearcoat · Fc), then returns the full
-//! mixture value and the mixture density, so that multiple importance sampling sees one
-//! consistent pdf.
+//! Sampling picks one of five lobes (clearcoat, specular reflection = dielectric specular plus
+//! metal, their multiple-scattering compensation (cosine-weighted), diffuse, transmission) with
+//! probabilities proportional to their albedos at wo (from the albedo tables; the base weight
+//! times the mean base colour for diffuse and transmission; the layers below the coat scaled by
+//! 1 − clearcoat · Fc), then returns the full mixture value and the mixture density, so that
+//! multiple importance sampling sees one consistent pdf.
 
 #![allow(clippy::neg_cmp_op_on_partial_ord)] // `!(x > 0.0)` is deliberate: NaN must fail the guards.
 
 use super::conductor::reflection_pdf;
 use super::dielectric::finite_sample;
-use super::microfacet::Ggx;
+use super::microfacet::{schlick_f_avg, Ggx, GgxAlbedo};
 use super::{reflect, refract, sanitize_eta, BsdfSample, Lobe};
 use crate::sampling::warp::{cosine_hemisphere, cosine_hemisphere_pdf};
 use glam::{Vec2, Vec3A};
@@ -109,12 +121,32 @@ struct Params {
     coat: f32,
     /// Clearcoat distribution.
     coat_ggx: Ggx,
+    /// Albedo tables of the specular/metal distribution.
+    alb: GgxAlbedo,
+    /// Kulla–Conty F_ms of the dielectric specular lobe (Schlick F0 = `f0`, F90 = `specular`).
+    fms_dielectric: Vec3A,
+    /// Kulla–Conty F_ms of the metal lobe (Schlick F0 = base colour, F90 = 1).
+    fms_metal: Vec3A,
+}
+
+/// Quantities that depend on wo only.
+struct AtWo {
+    /// E(μo) of the specular distribution at F = 1.
+    e_o: f32,
+    /// Combined multiple-scattering Fresnel (1 − metallic) F_ms,dielectric + metallic F_ms,metal.
+    fms: Vec3A,
+    /// Weight of the base layer: 1 − max E_spec(μo), the energy the (compensated) dielectric
+    /// specular lobe does not reflect.
+    base_w: f32,
+    probs: Probs,
 }
 
 /// Lobe selection probabilities.
 struct Probs {
     coat: f32,
     spec: f32,
+    /// Multiple-scattering compensation of the specular and metal lobes (cosine sampled).
+    ms: f32,
     diffuse: f32,
     trans: f32,
 }
@@ -166,6 +198,7 @@ impl Pbr {
         let specular = unit(self.specular);
         let r0 = ((ior - 1.0) / (ior + 1.0)).powi(2);
         let f0 = (r0 * unit3(self.specular_color)).min(Vec3A::ONE) * specular;
+        let base = unit3(self.base_color);
         let clamp_alpha = |a: f32| {
             if a.is_nan() {
                 PBR_MIN_ALPHA
@@ -173,51 +206,72 @@ impl Pbr {
                 a.max(PBR_MIN_ALPHA)
             }
         };
+        let alpha = clamp_alpha(self.alpha);
+        let alb = GgxAlbedo::new(alpha);
         Params {
-            base: unit3(self.base_color),
+            base,
             metallic: unit(self.metallic),
             specular,
             f0,
             transmission: unit(self.transmission),
-            ggx: Ggx::new(clamp_alpha(self.alpha)),
+            ggx: Ggx::new(alpha),
             ior,
             coat: unit(self.clearcoat),
             coat_ggx: Ggx::new(clamp_alpha(self.clearcoat_alpha)),
+            alb,
+            fms_dielectric: alb.f_ms(schlick_f_avg(f0, Vec3A::splat(specular))),
+            fms_metal: alb.f_ms(schlick_f_avg(base, Vec3A::ONE)),
         }
     }
 
-    /// Lobe probabilities at upper-hemisphere `wo`, from the lobes' approximate albedos.
+    /// Energy compensation terms and lobe probabilities at upper-hemisphere `wo`, the
+    /// probabilities from the lobes' albedos.
     #[inline]
-    fn probs(p: &Params, cos_o: f32) -> Probs {
-        let fd = p.f_dielectric(cos_o);
-        let fm = p.f_metal(cos_o);
+    fn at_wo(p: &Params, cos_o: f32) -> AtWo {
         let mean = |v: Vec3A| (v.x + v.y + v.z) * (1.0 / 3.0);
         let dielectric = 1.0 - p.metallic;
-        let spec = dielectric * mean(fd) + p.metallic * mean(fm);
-        let base = dielectric * (1.0 - fd.max_element()) * mean(p.base);
+        let e_o = p.alb.e(cos_o);
+        let ss_d = p.alb.e_schlick(cos_o, p.f0, Vec3A::splat(p.specular));
+        let ss_m = p.alb.e_schlick(cos_o, p.base, Vec3A::ONE);
+        let e_spec = ss_d + p.fms_dielectric * (1.0 - e_o);
+        let base_w = (1.0 - e_spec.max_element()).clamp(0.0, 1.0);
+        let fms = dielectric * p.fms_dielectric + p.metallic * p.fms_metal;
+        let spec = dielectric * mean(ss_d) + p.metallic * mean(ss_m);
+        let ms = mean(fms) * (1.0 - e_o);
+        let base = dielectric * base_w * mean(p.base);
         let diffuse = base * (1.0 - p.transmission);
         let trans = base * p.transmission;
         let coat = p.coat_weight(cos_o);
-        let (spec, diffuse, trans) = (
+        let (spec, ms, diffuse, trans) = (
             spec * (1.0 - coat),
+            ms * (1.0 - coat),
             diffuse * (1.0 - coat),
             trans * (1.0 - coat),
         );
-        let sum = coat + spec + diffuse + trans;
-        if !(sum > 0.0) || !sum.is_finite() {
+        let sum = coat + spec + ms + diffuse + trans;
+        let probs = if !(sum > 0.0) || !sum.is_finite() {
             // Black everywhere: any valid density will do; the diffuse one is cheapest.
-            return Probs {
+            Probs {
                 coat: 0.0,
                 spec: 0.0,
+                ms: 0.0,
                 diffuse: 1.0,
                 trans: 0.0,
-            };
-        }
-        Probs {
-            coat: coat / sum,
-            spec: spec / sum,
-            diffuse: diffuse / sum,
-            trans: trans / sum,
+            }
+        } else {
+            Probs {
+                coat: coat / sum,
+                spec: spec / sum,
+                ms: ms / sum,
+                diffuse: diffuse / sum,
+                trans: trans / sum,
+            }
+        };
+        AtWo {
+            e_o,
+            fms,
+            base_w,
+            probs,
         }
     }
 
@@ -238,7 +292,8 @@ impl Pbr {
         if !(wo.z > 0.0) || wi.z == 0.0 || !wi.is_finite() {
             return zero;
         }
-        let probs = Self::probs(p, wo.z);
+        let at = Self::at_wo(p, wo.z);
+        let probs = &at.probs;
         let dielectric = 1.0 - p.metallic;
         let ggx = &p.ggx;
         let coat = p.coat_weight(wo.z);
@@ -249,15 +304,15 @@ impl Pbr {
             let vh = wo.dot(h).abs();
             let fd = p.f_dielectric(vh);
             let spec_brdf = ggx.d(h) * ggx.g(wo, wi) / (4.0 * wo.z * wi.z);
-            let spec_f = (dielectric * fd + p.metallic * p.f_metal(vh)) * spec_brdf;
-            let fb = p.f_dielectric(vh.min(wo.z));
-            let diffuse_w = dielectric * (1.0 - p.transmission) * (1.0 - fb.max_element());
+            let ms_f = at.fms * p.alb.ms_shape(at.e_o, p.alb.e(wi.z));
+            let spec_f = (dielectric * fd + p.metallic * p.f_metal(vh)) * spec_brdf + ms_f;
+            let diffuse_w = dielectric * (1.0 - p.transmission) * at.base_w;
             let cg = &p.coat_ggx;
             let coat_f = coat * cg.d(h) * cg.g(wo, wi) / (4.0 * wo.z * wi.z);
             let f = (spec_f + p.base * FRAC_1_PI * diffuse_w) * (1.0 - coat) + Vec3A::splat(coat_f);
             let pdf = probs.coat * reflection_pdf(cg, wo, h)
                 + probs.spec * reflection_pdf(ggx, wo, h)
-                + probs.diffuse * cosine_hemisphere_pdf(wi.z);
+                + (probs.diffuse + probs.ms) * cosine_hemisphere_pdf(wi.z);
             return (f, pdf);
         }
         let weight = dielectric * p.transmission * (1.0 - coat);
@@ -270,9 +325,8 @@ impl Pbr {
             let Some(h) = (wo + wr).try_normalize() else {
                 return zero;
             };
-            let fd = p.f_dielectric(wo.dot(h).abs().min(wo.z));
             let spec_brdf = ggx.d(h) * ggx.g(wo, wr) / (4.0 * wo.z * wr.z);
-            let f = p.base * (weight * (1.0 - fd.max_element()) * spec_brdf);
+            let f = p.base * (weight * at.base_w * spec_brdf);
             return (f, probs.trans * reflection_pdf(ggx, wo, h));
         }
         // Refraction (Walter et al. 2007) with the generalised half vector.
@@ -290,10 +344,9 @@ impl Pbr {
         if !(denom > 0.0) {
             return zero;
         }
-        let fd = p.f_dielectric(wo_h.min(wo.z));
         let btdf =
             ggx.d(h) * ggx.g(wo, wi) * (wi_h * wo_h / (denom * wi.z * wo.z)).abs() / (etap * etap);
-        let f = p.base * (weight * (1.0 - fd.max_element()) * btdf);
+        let f = p.base * (weight * at.base_w * btdf);
         let pdf = probs.trans * ggx.pdf_visible(wo, h) * wi_h.abs() / denom;
         (f, pdf)
     }
@@ -343,7 +396,7 @@ impl Pbr {
     pub fn sample(&self, wo: Vec3A, uc: f32, u: Vec2) -> Option<BsdfSample> {
         let (wo_u, _, below) = Self::flip(wo, Vec3A::Z)?;
         let p = self.params();
-        let probs = Self::probs(&p, wo_u.z);
+        let probs = Self::at_wo(&p, wo_u.z).probs;
         let etap = self.etap(&p, below);
         let (wi, lobe, eta) = if uc < probs.coat {
             let wm = p.coat_ggx.sample_wm(wo_u, u);
@@ -351,7 +404,9 @@ impl Pbr {
         } else if uc < probs.coat + probs.spec {
             let wm = p.ggx.sample_wm(wo_u, u);
             (reflect(wo_u, wm), Lobe::GlossyReflection, 1.0)
-        } else if uc < probs.coat + probs.spec + probs.diffuse || !(probs.trans > 0.0) {
+        } else if uc < probs.coat + probs.spec + probs.ms {
+            (cosine_hemisphere(u), Lobe::GlossyReflection, 1.0)
+        } else if uc < probs.coat + probs.spec + probs.ms + probs.diffuse || !(probs.trans > 0.0) {
             (cosine_hemisphere(u), Lobe::Diffuse, 1.0)
         } else if self.thin {
             let wm = p.ggx.sample_wm(wo_u, u);
