@@ -73,7 +73,7 @@ impl Sampler {
         let d = self.dimension;
         self.dimension += 1;
         if d < sobol_burley::NUM_DIMENSIONS && self.index < SOBOL_MAX_INDEX {
-            if d % 4 == 0 {
+            if d.is_multiple_of(4) {
                 self.set = sobol_burley::sample_4d(self.index, d / 4, self.pixel_seed);
             }
             self.set[(d % 4) as usize]

@@ -24,7 +24,8 @@ use crate::RenderSettings;
 use glam::{Affine3A, Mat3A, Mat4, Vec2, Vec3, Vec3A, Vec4};
 use std::f32::consts::PI;
 
-/// What an object is made of.
+/// What an object is made of. (Objects are few: the size of the analytic variant does not matter.)
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug)]
 pub(crate) enum ObjectKind {
     /// Mesh `mesh` (flattened into the top level, or instanced through its own BVH).
