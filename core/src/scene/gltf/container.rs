@@ -14,6 +14,7 @@ const CHUNK_JSON: u32 = 0x4E4F_534A;
 const CHUNK_BIN: u32 = 0x004E_4942;
 
 /// The JSON text and the optional binary chunk of a .gltf or .glb file.
+#[derive(Debug)]
 pub(super) struct Container<'a> {
     /// The glTF JSON.
     pub json: &'a [u8],

@@ -192,24 +192,31 @@ fn check_extensions(raw: &Value, warnings: &mut Vec<String>) -> Result<(), Strin
     Ok(())
 }
 
-fn validation_message(e: gltf::Error) -> String {
-    match e {
-        gltf::Error::Validation(errs) => {
-            let shown: Vec<String> = errs
-                .iter()
-                .take(5)
-                .map(|(path, err)| format!("{path}: {err}"))
-                .collect();
-            let more = errs.len().saturating_sub(5);
-            let more = if more > 0 {
-                format!(" (and {more} more)")
-            } else {
-                String::new()
-            };
-            format!("invalid glTF: {}{more}", shown.join("; "))
+/// The gltf crate's validation (every index in range, every enum known), except for the
+/// POSITION `min`/`max` it requires: many exporters omit them and raytile computes bounds itself.
+fn validate(root: &gltf::json::Root) -> Result<(), String> {
+    use gltf::json::validation::{Error, Validate};
+    let mut errs: Vec<(String, Error)> = Vec::new();
+    root.validate(root, gltf::json::Path::new, &mut |path, err| {
+        let path = path().to_string();
+        let bounds = path.ends_with("[\"POSITION\"].min") || path.ends_with("[\"POSITION\"].max");
+        if !(bounds && matches!(err, Error::Missing)) {
+            errs.push((path, err));
         }
-        other => format!("invalid glTF: {other}"),
+    });
+    if errs.is_empty() {
+        return Ok(());
     }
+    let shown: Vec<String> = errs
+        .iter()
+        .take(5)
+        .map(|(path, err)| format!("{path}: {err}"))
+        .collect();
+    let more = match errs.len().saturating_sub(5) {
+        0 => String::new(),
+        n => format!(" (and {n} more)"),
+    };
+    Err(format!("invalid glTF: {}{more}", shown.join("; ")))
 }
 
 fn load_inner(
@@ -236,7 +243,8 @@ fn load_inner(
         serde_json::from_slice(container.json).map_err(|e| format!("invalid glTF: {e}"))?;
     // Already checked against raytile's own list; the gltf crate's list lacks some we support.
     root.extensions_required.clear();
-    let doc = gltf::Document::from_json(root).map_err(validation_message)?;
+    validate(&root)?;
+    let doc = gltf::Document::from_json_without_validation(root);
 
     let mut loader = Loader {
         doc: &doc,
