@@ -209,7 +209,8 @@ impl Loader<'_> {
         }
         if let Some(vol) = mat.volume() {
             let thickness = vol.thickness_factor();
-            p.thin_walled = !(thickness > 0.0);
+            // 0 (or less) means thin-walled; a NaN thickness is refused just below.
+            p.thin_walled = thickness <= 0.0;
             p.attenuation_color = Vec3::from(vol.attenuation_color());
             p.attenuation_distance = vol.attenuation_distance();
             check_finite(

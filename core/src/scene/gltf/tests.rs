@@ -17,7 +17,7 @@ struct Doc {
 impl Doc {
     /// Appends `bytes` as a new buffer view; returns its index.
     fn view(&mut self, bytes: &[u8]) -> usize {
-        while self.bin.len() % 4 != 0 {
+        while self.bin.len() & 3 != 0 {
             self.bin.push(0);
         }
         let offset = self.bin.len();
@@ -586,7 +586,7 @@ fn malformed_data_is_refused() {
 /// The GLB form of `json` with `bin` as its binary chunk.
 fn glb(json: &[u8], bin: &[u8]) -> Vec<u8> {
     let mut j = json.to_vec();
-    while j.len() % 4 != 0 {
+    while j.len() & 3 != 0 {
         j.push(b' ');
     }
     let mut out = b"glTF".to_vec();
