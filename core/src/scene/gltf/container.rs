@@ -99,7 +99,7 @@ pub(super) fn show_uri(uri: &str) -> String {
 
 /// Decodes a `data:` URI.
 fn decode_data_uri(uri: &str, what: &str) -> Result<Vec<u8>, String> {
-    let rest = &uri[5..];
+    let rest = uri.get(5..).unwrap_or("");
     let (header, data) = rest
         .split_once(',')
         .ok_or_else(|| format!("{what}: malformed data URI {} (no ',')", show_uri(uri)))?;
@@ -158,7 +158,8 @@ pub(super) fn load_uri(
     what: &str,
     max_len: u64,
 ) -> Result<Vec<u8>, String> {
-    if uri.len() >= 5 && uri[..5].eq_ignore_ascii_case("data:") {
+    // `get` rather than slicing: byte 5 may fall inside a multi-byte character.
+    if uri.get(..5).is_some_and(|s| s.eq_ignore_ascii_case("data:")) {
         return decode_data_uri(uri, what);
     }
     let rel = relative_path(uri)
@@ -230,6 +231,9 @@ mod tests {
             assert!(relative_path(uri).is_err(), "{uri} accepted");
         }
         assert!(relative_path("textures/a%20b.png").is_ok());
+        // Regression: a multi-byte character across byte 5 must not panic.
+        assert!(load_uri("dataé.bin", None, "buffer 0", 1).is_err());
+        assert!(load_uri("abcdé", None, "buffer 0", 1).is_err());
         assert_eq!(
             relative_path("a%20b.png").unwrap(),
             PathBuf::from("a b.png")
