@@ -159,7 +159,10 @@ pub(super) fn load_uri(
     max_len: u64,
 ) -> Result<Vec<u8>, String> {
     // `get` rather than slicing: byte 5 may fall inside a multi-byte character.
-    if uri.get(..5).is_some_and(|s| s.eq_ignore_ascii_case("data:")) {
+    if uri
+        .get(..5)
+        .is_some_and(|s| s.eq_ignore_ascii_case("data:"))
+    {
         return decode_data_uri(uri, what);
     }
     let rel = relative_path(uri)

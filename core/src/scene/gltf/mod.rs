@@ -232,8 +232,12 @@ fn load_inner(
             bin: None,
         }
     };
-    let raw: Value =
-        serde_json::from_slice(container.json).map_err(|e| format!("invalid JSON: {e}"))?;
+    // Some exporters write a UTF-8 byte order mark, which JSON parsers refuse.
+    let json = container
+        .json
+        .strip_prefix(b"\xEF\xBB\xBF".as_slice())
+        .unwrap_or(container.json);
+    let raw: Value = serde_json::from_slice(json).map_err(|e| format!("invalid JSON: {e}"))?;
     if !raw.is_object() {
         return Err("invalid glTF: the JSON is not an object".into());
     }

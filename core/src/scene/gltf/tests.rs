@@ -789,3 +789,10 @@ fn memory_limit_is_enforced() {
     let e = load_gltf_slice(&tri_scene(json!({}), json!({})), None, "t", &opts).unwrap_err();
     assert!(e.to_string().contains("memory"), "{e}");
 }
+
+#[test]
+fn byte_order_mark_is_tolerated() {
+    let mut bytes = b"\xEF\xBB\xBF".to_vec();
+    bytes.extend(tri_scene(json!({}), json!({})));
+    assert_eq!(load(&bytes).unwrap().meshes.len(), 1);
+}
