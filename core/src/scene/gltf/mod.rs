@@ -244,7 +244,7 @@ fn load_inner(
     let mut warnings = Vec::new();
     check_extensions(&raw, &mut warnings)?;
     let mut root: gltf::json::Root =
-        serde_json::from_slice(container.json).map_err(|e| format!("invalid glTF: {e}"))?;
+        serde_json::from_slice(json).map_err(|e| format!("invalid glTF: {e}"))?;
     // Already checked against raytile's own list; the gltf crate's list lacks some we support.
     root.extensions_required.clear();
     validate(&root)?;
