@@ -204,6 +204,23 @@ fn validate(root: &gltf::json::Root) -> Result<(), String> {
             errs.push((path, err));
         }
     });
+    // The gltf crate checks that a camera has a projection, not that it matches `type`, and
+    // would panic on the mismatch.
+    for (i, cam) in root.cameras.iter().enumerate() {
+        use gltf::json::camera::Type;
+        use gltf::json::validation::Checked;
+        let ok = match cam.type_ {
+            Checked::Valid(Type::Perspective) => cam.perspective.is_some(),
+            Checked::Valid(Type::Orthographic) => cam.orthographic.is_some(),
+            Checked::Invalid => true,
+        };
+        if !ok {
+            errs.push((
+                format!("cameras[{i}]: the projection does not match \"type\""),
+                Error::Missing,
+            ));
+        }
+    }
     if errs.is_empty() {
         return Ok(());
     }

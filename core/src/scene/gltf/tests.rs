@@ -796,3 +796,17 @@ fn byte_order_mark_is_tolerated() {
     bytes.extend(tri_scene(json!({}), json!({})));
     assert_eq!(load(&bytes).unwrap().meshes.len(), 1);
 }
+
+#[test]
+fn camera_type_must_match_its_projection() {
+    // Regression: the gltf crate's `Camera::projection` panics on this.
+    let bytes = tri_scene(
+        json!({}),
+        json!({
+            "scenes": [{"nodes": [0, 1]}],
+            "nodes": [{"mesh": 0}, {"camera": 0}],
+            "cameras": [{"type": "orthographic", "perspective": {"yfov": 0.5, "znear": 0.1}}],
+        }),
+    );
+    expect_err(&bytes, &["cameras[0]", "type"]);
+}
