@@ -196,11 +196,30 @@ fn check_extensions(raw: &Value, warnings: &mut Vec<String>) -> Result<(), Strin
 /// POSITION `min`/`max` it requires: many exporters omit them and raytile computes bounds itself.
 fn validate(root: &gltf::json::Root) -> Result<(), String> {
     use gltf::json::validation::{Error, Validate};
+    // The gltf crate's primitive check indexes `accessors` with the POSITION index before
+    // checking it, and panics when it is out of range: check it first.
+    for (mi, mesh) in root.meshes.iter().enumerate() {
+        for (pi, prim) in mesh.primitives.iter().enumerate() {
+            let pos = gltf::json::validation::Checked::Valid(gltf::Semantic::Positions);
+            if let Some(a) = prim.attributes.get(&pos) {
+                if a.value() >= root.accessors.len() {
+                    return Err(format!(
+                        "mesh {mi} primitive {pi}: POSITION accessor {} does not exist ({} accessors)",
+                        a.value(),
+                        root.accessors.len()
+                    ));
+                }
+            }
+        }
+    }
     let mut errs: Vec<(String, Error)> = Vec::new();
     root.validate(root, gltf::json::Path::new, &mut |path, err| {
         let path = path().to_string();
         let bounds = path.ends_with("[\"POSITION\"].min") || path.ends_with("[\"POSITION\"].max");
-        if !(bounds && matches!(err, Error::Missing)) {
+        // A primitive without POSITION is skipped with a warning rather than refused.
+        let no_position =
+            path.ends_with("attributes[\"POSITION\"]") && matches!(err, Error::Missing);
+        if !(bounds && matches!(err, Error::Missing | Error::Invalid) || no_position) {
             errs.push((path, err));
         }
     });

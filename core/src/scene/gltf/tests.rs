@@ -810,3 +810,16 @@ fn camera_type_must_match_its_projection() {
     );
     expect_err(&bytes, &["cameras[0]", "type"]);
 }
+
+#[test]
+fn position_accessor_out_of_range_is_refused() {
+    // Regression (fuzz): the gltf crate's validation indexes accessors with it and panics.
+    expect_err(
+        &tri_scene(json!({"attributes": {"POSITION": 2}}), json!({})),
+        &["mesh 0 primitive 0", "POSITION accessor 2"],
+    );
+    // No POSITION at all: skipped with a warning.
+    let s = load(&tri_scene(json!({"attributes": {}}), json!({}))).unwrap();
+    assert!(s.objects.is_empty());
+    assert!(s.warnings.iter().any(|w| w.contains("no POSITION")));
+}
