@@ -212,6 +212,19 @@ fn validate(root: &gltf::json::Root) -> Result<(), String> {
             }
         }
     }
+    // The gltf crate's `Image::source` panics on an image with neither a buffer view nor a
+    // URI, or with a buffer view but no MIME type.
+    for (i, image) in root.images.iter().enumerate() {
+        match (&image.buffer_view, &image.uri, &image.mime_type) {
+            (Some(_), _, Some(_)) | (None, Some(_), _) => {}
+            (Some(_), _, None) => {
+                return Err(format!(
+                    "image {i}: an image in a buffer view needs a mimeType"
+                ))
+            }
+            (None, None, _) => return Err(format!("image {i}: neither a uri nor a bufferView")),
+        }
+    }
     let mut errs: Vec<(String, Error)> = Vec::new();
     root.validate(root, gltf::json::Path::new, &mut |path, err| {
         let path = path().to_string();

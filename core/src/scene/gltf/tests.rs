@@ -823,3 +823,19 @@ fn position_accessor_out_of_range_is_refused() {
     assert!(s.objects.is_empty());
     assert!(s.warnings.iter().any(|w| w.contains("no POSITION")));
 }
+
+#[test]
+fn images_need_a_source() {
+    // Regressions (fuzz): the gltf crate's `Image::source` panics on these.
+    for image in [json!({}), json!({"bufferView": 0})] {
+        let bytes = tri_scene(
+            json!({"material": 0}),
+            json!({
+                "images": [image],
+                "textures": [{"source": 0}],
+                "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
+            }),
+        );
+        expect_err(&bytes, &["image 0"]);
+    }
+}
