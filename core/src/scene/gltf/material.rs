@@ -1,0 +1,422 @@
+//! glTF materials to [`MaterialDesc`] with [`BsdfDesc::Pbr`], textures, samplers and images.
+
+use super::{container, Loader};
+use crate::scene::desc::{
+    AlphaMode, BsdfDesc, MaterialDesc, PbrDesc, TextureDesc, TextureRef, WrapMode,
+};
+use glam::{Mat3, Vec3};
+use serde_json::Value;
+use std::rc::Rc;
+
+/// Largest accepted image side, in pixels.
+pub(super) const MAX_IMAGE_SIDE: u32 = 16384;
+/// Largest accepted image area, in pixels (8192², 1 GiB as f32 RGBA).
+pub(super) const MAX_IMAGE_PIXELS: u64 = 1 << 26;
+/// Largest external image file read.
+const MAX_IMAGE_FILE: u64 = 1 << 30;
+
+/// A decoded image, shared by every texture that uses it.
+pub(super) struct Decoded {
+    width: u32,
+    height: u32,
+    texels: Vec<[f32; 4]>,
+}
+
+/// A number from raw extension JSON, or `default` when absent.
+fn num(obj: Option<&Value>, key: &str, default: f32, what: &str) -> Result<f32, String> {
+    match obj.and_then(|o| o.get(key)) {
+        None => Ok(default),
+        Some(v) => match v.as_f64() {
+            Some(x) if x.is_finite() => Ok(x as f32),
+            _ => Err(format!("{what}: '{key}' must be a finite number")),
+        },
+    }
+}
+
+fn check_finite(values: &[f32], what: &str) -> Result<(), String> {
+    if values.iter().all(|x| x.is_finite()) {
+        Ok(())
+    } else {
+        Err(format!("{what} is not finite"))
+    }
+}
+
+/// The `KHR_texture_transform` of a raw textureInfo object as the spec's T·R·S matrix, and its
+/// texCoord override.
+pub(super) fn texture_transform(
+    info: Option<&Value>,
+    what: &str,
+) -> Result<(Mat3, Option<u32>), String> {
+    let Some(ext) = info
+        .and_then(|i| i.get("extensions"))
+        .and_then(|e| e.get("KHR_texture_transform"))
+    else {
+        return Ok((Mat3::IDENTITY, None));
+    };
+    let what = format!("{what} KHR_texture_transform");
+    let pair = |key: &str, default: [f32; 2]| -> Result<[f32; 2], String> {
+        match ext.get(key) {
+            None => Ok(default),
+            Some(Value::Array(a)) if a.len() == 2 => {
+                let x = a[0].as_f64().unwrap_or(f64::NAN) as f32;
+                let y = a[1].as_f64().unwrap_or(f64::NAN) as f32;
+                if x.is_finite() && y.is_finite() {
+                    Ok([x, y])
+                } else {
+                    Err(format!("{what}: '{key}' must hold two finite numbers"))
+                }
+            }
+            Some(_) => Err(format!("{what}: '{key}' must be an array of two numbers")),
+        }
+    };
+    let offset = pair("offset", [0.0, 0.0])?;
+    let scale = pair("scale", [1.0, 1.0])?;
+    let rotation = num(Some(ext), "rotation", 0.0, &what)?;
+    let tex_coord = match ext.get("texCoord") {
+        None => None,
+        Some(v) => Some(
+            v.as_u64()
+                .filter(|&t| t <= u32::MAX as u64)
+                .ok_or_else(|| format!("{what}: 'texCoord' must be a non-negative integer"))?
+                as u32,
+        ),
+    };
+    Ok((transform_matrix(offset, rotation, scale), tex_coord))
+}
+
+/// The spec's matrix (GLSL, column-major): translation · rotation · scale.
+pub(super) fn transform_matrix(offset: [f32; 2], rotation: f32, scale: [f32; 2]) -> Mat3 {
+    let (s, c) = rotation.sin_cos();
+    let t = Mat3::from_cols(Vec3::X, Vec3::Y, Vec3::new(offset[0], offset[1], 1.0));
+    let r = Mat3::from_cols(Vec3::new(c, s, 0.0), Vec3::new(-s, c, 0.0), Vec3::Z);
+    let sc = Mat3::from_diagonal(Vec3::new(scale[0], scale[1], 1.0));
+    t * r * sc
+}
+
+impl Loader<'_> {
+    /// The raw JSON object of material `index`.
+    fn raw_material(&self, index: Option<usize>) -> Option<&Value> {
+        self.raw.get("materials")?.get(index?)
+    }
+
+    /// The [`crate::scene::desc::SceneDesc::materials`] index for a glTF material (`None`: the
+    /// glTF default material), converting it on first use.
+    pub(super) fn material(&mut self, mat: &gltf::Material) -> Result<usize, String> {
+        if let Some(&i) = self.material_cache.get(&mat.index()) {
+            return Ok(i);
+        }
+        let desc = self.convert_material(mat)?;
+        let i = self.desc.materials.len();
+        self.desc.materials.push(desc);
+        self.material_cache.insert(mat.index(), i);
+        Ok(i)
+    }
+
+    /// Whether the material has a normal map, and through which UV set.
+    pub(super) fn normal_map_uv(&self, mat: &gltf::Material) -> Option<u8> {
+        let nt = mat.normal_texture()?;
+        let raw = self
+            .raw_material(mat.index())
+            .and_then(|m| m.get("normalTexture"));
+        let over = texture_transform(raw, "").ok().and_then(|(_, t)| t);
+        Some(over.unwrap_or(nt.tex_coord()).min(1) as u8)
+    }
+
+    fn convert_material(&mut self, mat: &gltf::Material) -> Result<MaterialDesc, String> {
+        let what = match mat.index() {
+            Some(i) => format!("material {i}"),
+            None => "default material".to_string(),
+        };
+        let name = match (mat.name(), mat.index()) {
+            (Some(n), _) => n.to_string(),
+            (None, Some(i)) => format!("material {i}"),
+            (None, None) => "default".to_string(),
+        };
+        let raw = self.raw_material(mat.index()).cloned();
+        let raw = raw.as_ref();
+        let raw_pbr = raw.and_then(|m| m.get("pbrMetallicRoughness"));
+        let raw_ext = |name: &str| {
+            raw.and_then(|m| m.get("extensions"))
+                .and_then(|e| e.get(name))
+        };
+
+        let pbr = mat.pbr_metallic_roughness();
+        let base_color = pbr.base_color_factor();
+        check_finite(&base_color, &format!("{what}: baseColorFactor"))?;
+        let mut p = PbrDesc {
+            base_color,
+            metallic: pbr.metallic_factor(),
+            roughness: pbr.roughness_factor(),
+            ..PbrDesc::default()
+        };
+        check_finite(
+            &[p.metallic, p.roughness],
+            &format!("{what}: metallic/roughness"),
+        )?;
+        if let Some(info) = pbr.base_color_texture() {
+            p.base_color_texture = self.texture_ref(
+                &info.texture(),
+                info.tex_coord(),
+                raw_pbr.and_then(|r| r.get("baseColorTexture")),
+                true,
+                &format!("{what} baseColorTexture"),
+            )?;
+        }
+        if let Some(info) = pbr.metallic_roughness_texture() {
+            p.metallic_roughness_texture = self.texture_ref(
+                &info.texture(),
+                info.tex_coord(),
+                raw_pbr.and_then(|r| r.get("metallicRoughnessTexture")),
+                false,
+                &format!("{what} metallicRoughnessTexture"),
+            )?;
+        }
+        if let Some(spec) = mat.specular() {
+            p.specular = spec.specular_factor();
+            p.specular_color = Vec3::from(spec.specular_color_factor());
+            check_finite(
+                &[
+                    p.specular,
+                    p.specular_color.x,
+                    p.specular_color.y,
+                    p.specular_color.z,
+                ],
+                &format!("{what}: KHR_materials_specular"),
+            )?;
+            if spec.specular_texture().is_some() || spec.specular_color_texture().is_some() {
+                self.warn(format!(
+                    "{what}: KHR_materials_specular textures are not supported; factors used"
+                ));
+            }
+        }
+        if let Some(ior) = mat.ior() {
+            check_finite(&[ior], &format!("{what}: KHR_materials_ior.ior"))?;
+            p.ior = ior;
+        }
+        if let Some(tr) = mat.transmission() {
+            p.transmission = tr.transmission_factor();
+            check_finite(&[p.transmission], &format!("{what}: transmissionFactor"))?;
+            if let Some(info) = tr.transmission_texture() {
+                p.transmission_texture = self.texture_ref(
+                    &info.texture(),
+                    info.tex_coord(),
+                    raw_ext("KHR_materials_transmission")
+                        .and_then(|t| t.get("transmissionTexture")),
+                    false,
+                    &format!("{what} transmissionTexture"),
+                )?;
+            }
+        }
+        if let Some(vol) = mat.volume() {
+            let thickness = vol.thickness_factor();
+            // 0 (or less) means thin-walled; a NaN thickness is refused just below.
+            p.thin_walled = thickness <= 0.0;
+            p.attenuation_color = Vec3::from(vol.attenuation_color());
+            p.attenuation_distance = vol.attenuation_distance();
+            check_finite(
+                &[
+                    thickness,
+                    p.attenuation_color.x,
+                    p.attenuation_color.y,
+                    p.attenuation_color.z,
+                ],
+                &format!("{what}: KHR_materials_volume"),
+            )?;
+            if p.attenuation_distance.is_nan() || p.attenuation_distance <= 0.0 {
+                return Err(format!(
+                    "{what}: KHR_materials_volume.attenuationDistance must be positive"
+                ));
+            }
+        }
+        if let Some(cc) = raw_ext("KHR_materials_clearcoat") {
+            let w = format!("{what}: KHR_materials_clearcoat");
+            p.clearcoat = num(Some(cc), "clearcoatFactor", 0.0, &w)?;
+            p.clearcoat_roughness = num(Some(cc), "clearcoatRoughnessFactor", 0.0, &w)?;
+            if cc.get("clearcoatTexture").is_some()
+                || cc.get("clearcoatRoughnessTexture").is_some()
+                || cc.get("clearcoatNormalTexture").is_some()
+            {
+                self.warn(format!(
+                    "{w}: clearcoat textures are not supported; factors used"
+                ));
+            }
+        }
+
+        let mut m = MaterialDesc::new(name, BsdfDesc::Pbr(Box::new(p)));
+        let strength = mat.emissive_strength().unwrap_or(1.0);
+        let ef = mat.emissive_factor();
+        check_finite(&ef, &format!("{what}: emissiveFactor"))?;
+        check_finite(&[strength], &format!("{what}: emissiveStrength"))?;
+        m.emission = Vec3::from(ef) * strength;
+        if let Some(info) = mat.emissive_texture() {
+            m.emission_texture = self.texture_ref(
+                &info.texture(),
+                info.tex_coord(),
+                raw.and_then(|r| r.get("emissiveTexture")),
+                true,
+                &format!("{what} emissiveTexture"),
+            )?;
+        }
+        if let Some(nt) = mat.normal_texture() {
+            let scale = nt.scale();
+            check_finite(&[scale], &format!("{what}: normalTexture.scale"))?;
+            if let Some(r) = self.texture_ref(
+                &nt.texture(),
+                nt.tex_coord(),
+                raw.and_then(|r| r.get("normalTexture")),
+                false,
+                &format!("{what} normalTexture"),
+            )? {
+                m.normal_texture = Some((r, scale));
+            }
+        }
+        m.two_sided = mat.double_sided();
+        m.alpha_mode = match mat.alpha_mode() {
+            gltf::material::AlphaMode::Opaque => AlphaMode::Opaque,
+            gltf::material::AlphaMode::Mask => {
+                let cutoff = mat.alpha_cutoff().unwrap_or(0.5);
+                check_finite(&[cutoff], &format!("{what}: alphaCutoff"))?;
+                AlphaMode::Mask(cutoff)
+            }
+            gltf::material::AlphaMode::Blend => AlphaMode::Blend,
+        };
+        Ok(m)
+    }
+
+    /// A reference to texture `tex` decoded as sRGB or linear, with its texture transform.
+    fn texture_ref(
+        &mut self,
+        tex: &gltf::Texture,
+        tex_coord: u32,
+        raw_info: Option<&Value>,
+        srgb: bool,
+        what: &str,
+    ) -> Result<Option<TextureRef>, String> {
+        let (transform, over) = texture_transform(raw_info, what)?;
+        let set = over.unwrap_or(tex_coord);
+        let texcoord = if set > 1 {
+            self.warn(format!(
+                "{what}: TEXCOORD_{set} is not supported (only 0 and 1); TEXCOORD_0 used"
+            ));
+            0
+        } else {
+            set as u8
+        };
+        let Some(texture) = self.texture(tex, srgb)? else {
+            return Ok(None);
+        };
+        Ok(Some(TextureRef {
+            texture,
+            texcoord,
+            transform,
+        }))
+    }
+
+    /// The [`crate::scene::desc::SceneDesc::textures`] index of glTF texture `tex` as sRGB or
+    /// linear data; `None` (with a warning) for a texture without an image.
+    fn texture(&mut self, tex: &gltf::Texture, srgb: bool) -> Result<Option<usize>, String> {
+        if let Some(&i) = self.texture_cache.get(&(tex.index(), srgb)) {
+            return Ok(Some(i));
+        }
+        let Some(image) = tex.source() else {
+            self.warn(format!("texture {}: no image source; ignored", tex.index()));
+            return Ok(None);
+        };
+        let decoded = self.image(&image)?;
+        let sampler = tex.sampler();
+        let wrap = |w: gltf::texture::WrappingMode| match w {
+            gltf::texture::WrappingMode::ClampToEdge => WrapMode::Clamp,
+            gltf::texture::WrappingMode::MirroredRepeat => WrapMode::MirroredRepeat,
+            gltf::texture::WrappingMode::Repeat => WrapMode::Repeat,
+        };
+        self.charge(
+            decoded.texels.len() * 16,
+            &format!("texture {}", tex.index()),
+        )?;
+        let desc = TextureDesc {
+            name: image
+                .name()
+                .map(str::to_string)
+                .unwrap_or_else(|| format!("image {}", image.index())),
+            width: decoded.width,
+            height: decoded.height,
+            texels: decoded.texels.clone(),
+            srgb,
+            wrap_u: wrap(sampler.wrap_s()),
+            wrap_v: wrap(sampler.wrap_t()),
+            bilinear: !matches!(
+                sampler.mag_filter(),
+                Some(gltf::texture::MagFilter::Nearest)
+            ),
+        };
+        let i = self.desc.textures.len();
+        self.desc.textures.push(desc);
+        self.texture_cache.insert((tex.index(), srgb), i);
+        Ok(Some(i))
+    }
+
+    /// Decodes an image once, with size limits.
+    fn image(&mut self, image: &gltf::Image) -> Result<Rc<Decoded>, String> {
+        if let Some(d) = self.image_cache.get(&image.index()) {
+            return Ok(d.clone());
+        }
+        let what = format!("image {}", image.index());
+        let bytes: Vec<u8> = match image.source() {
+            gltf::image::Source::View { view, .. } => self.view_bytes(&view, &what)?.to_vec(),
+            gltf::image::Source::Uri { uri, .. } => {
+                container::load_uri(uri, self.base_dir, &what, MAX_IMAGE_FILE)?
+            }
+        };
+        let mut reader = image::ImageReader::new(std::io::Cursor::new(&bytes))
+            .with_guessed_format()
+            .map_err(|e| format!("{what}: {e}"))?;
+        let mut limits = image::Limits::default();
+        limits.max_image_width = Some(MAX_IMAGE_SIDE);
+        limits.max_image_height = Some(MAX_IMAGE_SIDE);
+        limits.max_alloc = Some(1 << 30);
+        reader.limits(limits);
+        let (w, h) = reader
+            .into_dimensions()
+            .map_err(|e| format!("{what}: cannot decode: {e}"))?;
+        if (w as u64) * (h as u64) > MAX_IMAGE_PIXELS || w == 0 || h == 0 {
+            return Err(format!(
+                "{what}: {w}×{h} pixels is empty or more than the {MAX_IMAGE_PIXELS} allowed"
+            ));
+        }
+        self.charge((w as usize) * (h as usize) * 16, &what)?;
+        let mut reader = image::ImageReader::new(std::io::Cursor::new(&bytes))
+            .with_guessed_format()
+            .map_err(|e| format!("{what}: {e}"))?;
+        let mut limits = image::Limits::default();
+        limits.max_image_width = Some(MAX_IMAGE_SIDE);
+        limits.max_image_height = Some(MAX_IMAGE_SIDE);
+        limits.max_alloc = Some(1 << 30);
+        reader.limits(limits);
+        let img = reader
+            .decode()
+            .map_err(|e| format!("{what}: cannot decode: {e}"))?;
+        // Values stay as stored (sRGB-encoded for colour); only scaled to [0, 1].
+        let rgba = img.to_rgba32f();
+        let decoded = Rc::new(Decoded {
+            width: rgba.width(),
+            height: rgba.height(),
+            texels: rgba.pixels().map(|p| p.0).collect(),
+        });
+        self.image_cache.insert(image.index(), decoded.clone());
+        Ok(decoded)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn texture_transform_is_t_r_s() {
+        let m = transform_matrix([0.5, 0.25], std::f32::consts::FRAC_PI_2, [2.0, 3.0]);
+        // (1, 0) scaled to (2, 0), rotated a quarter turn to (0, 2), then offset.
+        let p = m * Vec3::new(1.0, 0.0, 1.0);
+        assert!((p - Vec3::new(0.5, 2.25, 1.0)).length() < 1e-5, "{p}");
+        assert_eq!(transform_matrix([0.0; 2], 0.0, [1.0; 2]), Mat3::IDENTITY);
+    }
+}

@@ -1,0 +1,259 @@
+//! glTF primitives to [`MeshDesc`]: triangle lists, strips and fans; attributes; generated
+//! tangents for normal-mapped materials.
+
+use super::Loader;
+use crate::scene::desc::MeshDesc;
+use glam::{Vec2, Vec3};
+use gltf::accessor::Dimensions;
+use gltf::mesh::Mode;
+use gltf::Semantic;
+
+/// Converts a strip or fan (or a list) of indices to triangles, following glTF 2.0 §3.7.2.1.
+/// Degenerate triangles of strips and fans (often used to stitch strips) are dropped.
+pub(super) fn triangulate(mode: Mode, idx: &[u32]) -> Vec<[u32; 3]> {
+    match mode {
+        Mode::TriangleStrip => (0..idx.len().saturating_sub(2))
+            .map(|i| {
+                if i % 2 == 0 {
+                    [idx[i], idx[i + 1], idx[i + 2]]
+                } else {
+                    [idx[i], idx[i + 2], idx[i + 1]]
+                }
+            })
+            .filter(|t| t[0] != t[1] && t[1] != t[2] && t[0] != t[2])
+            .collect(),
+        Mode::TriangleFan => (1..idx.len().saturating_sub(1))
+            .map(|i| [idx[i], idx[i + 1], idx[0]])
+            .filter(|t| t[0] != t[1] && t[1] != t[2] && t[0] != t[2])
+            .collect(),
+        _ => idx.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+    }
+}
+
+fn pairs<T>(v: Vec<f32>, f: impl Fn(&[f32]) -> T, n: usize) -> Vec<T> {
+    v.chunks_exact(n).map(f).collect()
+}
+
+impl Loader<'_> {
+    /// Loads one primitive. `None` (with a warning) when it is not made of triangles or has no
+    /// positions. `tangent_uv` asks for tangents from that UV set when TANGENT is absent.
+    pub(super) fn load_primitive(
+        &mut self,
+        mesh: &gltf::Mesh,
+        prim: &gltf::Primitive,
+        tangent_uv: Option<u8>,
+    ) -> Result<Option<MeshDesc>, String> {
+        let label = format!("mesh {} primitive {}", mesh.index(), prim.index());
+        let mode = prim.mode();
+        if !matches!(
+            mode,
+            Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan
+        ) {
+            self.warn(format!(
+                "{label}: {mode:?} primitives are not rendered (only triangles are); skipped"
+            ));
+            return Ok(None);
+        }
+        let Some(pos_acc) = prim.get(&Semantic::Positions) else {
+            self.warn(format!("{label}: no POSITION attribute; skipped"));
+            return Ok(None);
+        };
+        let plabel = format!("{label} (POSITION)");
+        let positions: Vec<Vec3> = pairs(
+            self.read_floats(&pos_acc, &plabel, Dimensions::Vec3)?,
+            Vec3::from_slice,
+            3,
+        );
+        let n = positions.len();
+        let same_count = |acc: &gltf::Accessor, what: &str| -> Result<(), String> {
+            if acc.count() != n {
+                return Err(format!(
+                    "{label}: accessor {} ({what}) has {} elements but POSITION has {n}",
+                    acc.index(),
+                    acc.count()
+                ));
+            }
+            Ok(())
+        };
+        let mut normals = Vec::new();
+        if let Some(acc) = prim.get(&Semantic::Normals) {
+            same_count(&acc, "NORMAL")?;
+            normals = pairs(
+                self.read_floats(&acc, &format!("{label} (NORMAL)"), Dimensions::Vec3)?,
+                Vec3::from_slice,
+                3,
+            );
+        }
+        let mut tangents = Vec::new();
+        if let Some(acc) = prim.get(&Semantic::Tangents) {
+            same_count(&acc, "TANGENT")?;
+            tangents = pairs(
+                self.read_floats(&acc, &format!("{label} (TANGENT)"), Dimensions::Vec4)?,
+                |c| [c[0], c[1], c[2], c[3]],
+                4,
+            );
+        }
+        let mut uvs: [Vec<Vec2>; 2] = [Vec::new(), Vec::new()];
+        for (set, slot) in uvs.iter_mut().enumerate() {
+            if let Some(acc) = prim.get(&Semantic::TexCoords(set as u32)) {
+                let what = format!("TEXCOORD_{set}");
+                same_count(&acc, &what)?;
+                *slot = pairs(
+                    self.read_floats(&acc, &format!("{label} ({what})"), Dimensions::Vec2)?,
+                    Vec2::from_slice,
+                    2,
+                );
+            }
+        }
+        if prim.get(&Semantic::Colors(0)).is_some() {
+            self.warn(format!(
+                "{label}: vertex colours (COLOR_0) are not supported and are ignored"
+            ));
+        }
+        if prim.morph_targets().next().is_some() {
+            self.warn(format!("{label}: morph targets are ignored (rest pose)"));
+        }
+
+        let raw_indices = match prim.indices() {
+            Some(acc) => {
+                let idx = self.read_indices(&acc, &format!("{label} (indices)"))?;
+                if let Some((i, &v)) = idx.iter().enumerate().find(|(_, &v)| v as usize >= n) {
+                    return Err(format!(
+                        "{label}: index {v} at position {i} of accessor {} is out of range ({n} vertices)",
+                        acc.index()
+                    ));
+                }
+                idx
+            }
+            None => {
+                self.charge(n * 4, &label)?;
+                (0..n as u32).collect()
+            }
+        };
+        if mode == Mode::Triangles && raw_indices.len() % 3 != 0 {
+            self.warn(format!(
+                "{label}: {} indices is not a multiple of 3; the last {} are ignored",
+                raw_indices.len(),
+                raw_indices.len() % 3
+            ));
+        }
+        self.charge(raw_indices.len() * 4, &label)?;
+        let indices = triangulate(mode, &raw_indices);
+        drop(raw_indices);
+        if indices.is_empty() {
+            self.warn(format!("{label}: no triangles; skipped"));
+            return Ok(None);
+        }
+
+        let name = match mesh.name() {
+            Some(m) => format!("{m} primitive {}", prim.index()),
+            None => label.clone(),
+        };
+        let mut desc = MeshDesc {
+            name,
+            positions,
+            normals,
+            tangents,
+            uvs,
+            indices,
+        };
+        if let Some(set) = tangent_uv {
+            if desc.tangents.is_empty() {
+                if desc.uvs[set as usize % 2].is_empty() {
+                    self.warn(format!(
+                        "{label}: the material has a normal map but TEXCOORD_{set} is missing; normal map ignored on this primitive"
+                    ));
+                } else {
+                    self.charge(n * 16, &label)?;
+                    desc.tangents = generate_tangents(&desc, set as usize % 2);
+                }
+            }
+        }
+        Ok(Some(desc))
+    }
+}
+
+/// MikkTSpace tangents. Tangents are stored per vertex: where MikkTSpace would split a vertex
+/// (a UV seam shared by an index), the last face written wins, as most glTF viewers do.
+fn generate_tangents(mesh: &MeshDesc, set: usize) -> Vec<[f32; 4]> {
+    struct Geo<'a> {
+        mesh: &'a MeshDesc,
+        set: usize,
+        out: Vec<[f32; 4]>,
+    }
+    impl Geo<'_> {
+        fn vertex(&self, face: usize, vert: usize) -> usize {
+            self.mesh
+                .indices
+                .get(face)
+                .and_then(|t| t.get(vert))
+                .copied()
+                .unwrap_or(0) as usize
+        }
+        fn pos(&self, i: usize) -> Vec3 {
+            self.mesh.positions.get(i).copied().unwrap_or(Vec3::ZERO)
+        }
+    }
+    impl mikktspace::Geometry for Geo<'_> {
+        fn num_faces(&self) -> usize {
+            self.mesh.indices.len()
+        }
+        fn num_vertices_of_face(&self, _face: usize) -> usize {
+            3
+        }
+        fn position(&self, face: usize, vert: usize) -> [f32; 3] {
+            self.pos(self.vertex(face, vert)).to_array()
+        }
+        fn normal(&self, face: usize, vert: usize) -> [f32; 3] {
+            if let Some(n) = self.mesh.normals.get(self.vertex(face, vert)) {
+                return n.to_array();
+            }
+            // Flat shading: the geometric normal of the face.
+            let [a, b, c] = [0, 1, 2].map(|v| self.pos(self.vertex(face, v)));
+            (b - a).cross(c - a).normalize_or_zero().to_array()
+        }
+        fn tex_coord(&self, face: usize, vert: usize) -> [f32; 2] {
+            self.mesh.uvs[self.set]
+                .get(self.vertex(face, vert))
+                .copied()
+                .unwrap_or(Vec2::ZERO)
+                .to_array()
+        }
+        fn set_tangent_encoded(&mut self, tangent: [f32; 4], face: usize, vert: usize) {
+            let v = self.vertex(face, vert);
+            if let Some(slot) = self.out.get_mut(v) {
+                *slot = tangent;
+            }
+        }
+    }
+    let mut geo = Geo {
+        mesh,
+        set,
+        out: vec![[1.0, 0.0, 0.0, 1.0]; mesh.positions.len()],
+    };
+    mikktspace::generate_tangents(&mut geo);
+    geo.out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn strips_and_fans_follow_the_spec() {
+        assert_eq!(
+            triangulate(Mode::TriangleStrip, &[0, 1, 2, 3, 4]),
+            vec![[0, 1, 2], [1, 3, 2], [2, 3, 4]]
+        );
+        assert_eq!(
+            triangulate(Mode::TriangleFan, &[0, 1, 2, 3]),
+            vec![[1, 2, 0], [2, 3, 0]]
+        );
+        assert_eq!(
+            triangulate(Mode::Triangles, &[0, 1, 2, 3, 4]),
+            vec![[0, 1, 2]]
+        );
+        assert!(triangulate(Mode::TriangleStrip, &[0, 1]).is_empty());
+        assert!(triangulate(Mode::TriangleFan, &[]).is_empty());
+    }
+}

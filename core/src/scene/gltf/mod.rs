@@ -1,0 +1,700 @@
+//! The glTF 2.0 front end: `.gltf` (external or data-URI buffers) and `.glb` files to a
+//! [`SceneDesc`].
+//!
+//! The `gltf` crate parses and validates the JSON; everything else is done here so that hostile
+//! files are refused with a message instead of a panic or an out-of-memory: GLB chunks, buffer
+//! and image URIs (confined to the scene's folder), accessor byte ranges, index ranges, counts
+//! against actual buffer sizes and a memory budget, image sizes. See `docs/gltf.md` for the
+//! conventions (units, light intensities, what is supported).
+//!
+//! Winding: indices are stored as the file has them. A node with a negative-determinant
+//! transform mirrors its mesh; the renderer flips the front face for such objects, so the
+//! loader leaves the indices alone.
+
+mod accessor;
+mod container;
+mod material;
+mod mesh;
+#[cfg(test)]
+mod tests;
+
+use super::desc::{
+    CameraDesc, EnvironmentDesc, LightDesc, ObjectDesc, Projection, SceneDesc, ShapeDesc,
+};
+use super::SceneError;
+use glam::{Mat4, Quat, Vec3};
+use serde_json::Value;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::rc::Rc;
+
+/// Extensions raytile understands (`extensionsRequired` may name only these).
+pub const SUPPORTED_EXTENSIONS: &[&str] = &[
+    "KHR_lights_punctual",
+    "KHR_materials_clearcoat",
+    "KHR_materials_emissive_strength",
+    "KHR_materials_ior",
+    "KHR_materials_specular",
+    "KHR_materials_transmission",
+    "KHR_materials_volume",
+    "KHR_texture_transform",
+];
+
+/// Largest glTF/GLB file or external buffer read.
+const MAX_FILE_BYTES: u64 = 1 << 32;
+
+/// Options for [`load_gltf_with`] and [`load_gltf_slice`].
+#[derive(Clone, Debug)]
+pub struct GltfOptions {
+    /// Add a constant white environment (with a warning) when the scene has no light at all:
+    /// no punctual light and no emissive material in use. Default: true.
+    pub default_light: bool,
+    /// Upper bound on the memory the loader allocates for decoded vertex, index and texel
+    /// data and objects, in bytes; larger scenes are refused. Default: 8 GiB.
+    pub memory_limit: usize,
+}
+
+impl Default for GltfOptions {
+    fn default() -> Self {
+        Self {
+            default_light: true,
+            memory_limit: 8 << 30,
+        }
+    }
+}
+
+/// Loads a `.gltf` or `.glb` file with the default [`GltfOptions`]. External buffers and
+/// images are resolved only inside the file's own folder.
+pub fn load_gltf(path: &Path) -> Result<SceneDesc, SceneError> {
+    load_gltf_with(path, &GltfOptions::default())
+}
+
+/// Loads a `.gltf` or `.glb` file with the given options.
+pub fn load_gltf_with(path: &Path, opts: &GltfOptions) -> Result<SceneDesc, SceneError> {
+    let err = |message: String| SceneError::Gltf {
+        path: path.to_path_buf(),
+        message,
+    };
+    let io = |source| SceneError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let len = std::fs::metadata(path).map_err(io)?.len();
+    if len > MAX_FILE_BYTES {
+        return Err(err(format!(
+            "the file is {len} bytes, more than the {MAX_FILE_BYTES} allowed"
+        )));
+    }
+    let bytes = std::fs::read(path).map_err(io)?;
+    let is_glb_name = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("glb"));
+    if is_glb_name && !container::is_glb(&bytes) {
+        return Err(err("not a GLB file: wrong magic (expected \"glTF\")".into()));
+    }
+    let base = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    load_inner(&bytes, Some(base), opts).map_err(err)
+}
+
+/// Loads a glTF or GLB held in memory. `base_dir` is the folder relative URIs resolve in; with
+/// `None`, every external URI is refused (only data URIs and the GLB binary chunk are used).
+/// `name` names the file in error messages.
+pub fn load_gltf_slice(
+    bytes: &[u8],
+    base_dir: Option<&Path>,
+    name: &str,
+    opts: &GltfOptions,
+) -> Result<SceneDesc, SceneError> {
+    load_inner(bytes, base_dir, opts).map_err(|message| SceneError::Gltf {
+        path: PathBuf::from(name),
+        message,
+    })
+}
+
+/// State while converting one document.
+pub(super) struct Loader<'a> {
+    doc: &'a gltf::Document,
+    raw: &'a Value,
+    base_dir: Option<&'a Path>,
+    buffers: Vec<Vec<u8>>,
+    /// Bytes the loader may still allocate (see [`GltfOptions::memory_limit`]).
+    budget: std::cell::Cell<usize>,
+    desc: SceneDesc,
+    /// SceneDesc mesh per (mesh, primitive); `None` for skipped primitives.
+    mesh_cache: HashMap<(usize, usize), Option<usize>>,
+    material_cache: HashMap<Option<usize>, usize>,
+    texture_cache: HashMap<(usize, bool), usize>,
+    image_cache: HashMap<usize, Rc<material::Decoded>>,
+}
+
+impl Loader<'_> {
+    /// Takes `bytes` from the memory budget, or refuses the scene.
+    pub(super) fn charge(&self, bytes: usize, what: &str) -> Result<(), String> {
+        let left = self.budget.get();
+        if bytes > left {
+            return Err(format!(
+                "{what}: the scene needs more memory than the loader's limit allows"
+            ));
+        }
+        self.budget.set(left - bytes);
+        Ok(())
+    }
+
+    /// Records a non-fatal problem.
+    pub(super) fn warn(&mut self, message: String) {
+        log::warn!("{message}");
+        self.desc.warnings.push(message);
+    }
+}
+
+/// Refuses unsupported required extensions; warns about unsupported optional ones.
+fn check_extensions(raw: &Value, warnings: &mut Vec<String>) -> Result<(), String> {
+    let names = |key: &str| -> Vec<String> {
+        raw.get(key)
+            .and_then(Value::as_array)
+            .map(|a| {
+                a.iter()
+                    .map(|v| {
+                        v.as_str()
+                            .map(str::to_string)
+                            .unwrap_or_else(|| v.to_string())
+                    })
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    let required = names("extensionsRequired");
+    let missing: Vec<&str> = required
+        .iter()
+        .map(String::as_str)
+        .filter(|e| !SUPPORTED_EXTENSIONS.contains(e))
+        .collect();
+    if !missing.is_empty() {
+        return Err(format!(
+            "required extension(s) not supported by raytile: {}",
+            missing.join(", ")
+        ));
+    }
+    let optional: Vec<String> = names("extensionsUsed")
+        .into_iter()
+        .filter(|e| !SUPPORTED_EXTENSIONS.contains(&e.as_str()))
+        .collect();
+    if !optional.is_empty() {
+        warnings.push(format!(
+            "extension(s) not supported and ignored: {}",
+            optional.join(", ")
+        ));
+    }
+    Ok(())
+}
+
+/// The gltf crate's validation (every index in range, every enum known), except for the
+/// POSITION `min`/`max` it requires: many exporters omit them and raytile computes bounds itself.
+fn validate(root: &gltf::json::Root) -> Result<(), String> {
+    use gltf::json::validation::{Error, Validate};
+    // The gltf crate's primitive check indexes `accessors` with the POSITION index before
+    // checking it, and panics when it is out of range: check it first.
+    for (mi, mesh) in root.meshes.iter().enumerate() {
+        for (pi, prim) in mesh.primitives.iter().enumerate() {
+            let pos = gltf::json::validation::Checked::Valid(gltf::Semantic::Positions);
+            if let Some(a) = prim.attributes.get(&pos) {
+                if a.value() >= root.accessors.len() {
+                    return Err(format!(
+                        "mesh {mi} primitive {pi}: POSITION accessor {} does not exist ({} accessors)",
+                        a.value(),
+                        root.accessors.len()
+                    ));
+                }
+            }
+        }
+    }
+    // The gltf crate's `Image::source` panics on an image with neither a buffer view nor a
+    // URI, or with a buffer view but no MIME type.
+    for (i, image) in root.images.iter().enumerate() {
+        match (&image.buffer_view, &image.uri, &image.mime_type) {
+            (Some(_), _, Some(_)) | (None, Some(_), _) => {}
+            (Some(_), _, None) => {
+                return Err(format!(
+                    "image {i}: an image in a buffer view needs a mimeType"
+                ))
+            }
+            (None, None, _) => return Err(format!("image {i}: neither a uri nor a bufferView")),
+        }
+    }
+    let mut errs: Vec<(String, Error)> = Vec::new();
+    root.validate(root, gltf::json::Path::new, &mut |path, err| {
+        let path = path().to_string();
+        let bounds = path.ends_with("[\"POSITION\"].min") || path.ends_with("[\"POSITION\"].max");
+        // A primitive without POSITION is skipped with a warning rather than refused.
+        let no_position =
+            path.ends_with("attributes[\"POSITION\"]") && matches!(err, Error::Missing);
+        if !(bounds && matches!(err, Error::Missing | Error::Invalid) || no_position) {
+            errs.push((path, err));
+        }
+    });
+    // The gltf crate checks that a camera has a projection, not that it matches `type`, and
+    // would panic on the mismatch.
+    for (i, cam) in root.cameras.iter().enumerate() {
+        use gltf::json::camera::Type;
+        use gltf::json::validation::Checked;
+        let ok = match cam.type_ {
+            Checked::Valid(Type::Perspective) => cam.perspective.is_some(),
+            Checked::Valid(Type::Orthographic) => cam.orthographic.is_some(),
+            Checked::Invalid => true,
+        };
+        if !ok {
+            errs.push((
+                format!("cameras[{i}]: the projection does not match \"type\""),
+                Error::Missing,
+            ));
+        }
+    }
+    if errs.is_empty() {
+        return Ok(());
+    }
+    let shown: Vec<String> = errs
+        .iter()
+        .take(5)
+        .map(|(path, err)| format!("{path}: {err}"))
+        .collect();
+    let more = match errs.len().saturating_sub(5) {
+        0 => String::new(),
+        n => format!(" (and {n} more)"),
+    };
+    Err(format!("invalid glTF: {}{more}", shown.join("; ")))
+}
+
+fn load_inner(
+    bytes: &[u8],
+    base_dir: Option<&Path>,
+    opts: &GltfOptions,
+) -> Result<SceneDesc, String> {
+    let container = if container::is_glb(bytes) {
+        container::split_glb(bytes)?
+    } else {
+        container::Container {
+            json: bytes,
+            bin: None,
+        }
+    };
+    // Some exporters write a UTF-8 byte order mark, which JSON parsers refuse.
+    let json = container
+        .json
+        .strip_prefix(b"\xEF\xBB\xBF".as_slice())
+        .unwrap_or(container.json);
+    let raw: Value = serde_json::from_slice(json).map_err(|e| format!("invalid JSON: {e}"))?;
+    if !raw.is_object() {
+        return Err("invalid glTF: the JSON is not an object".into());
+    }
+    let mut warnings = Vec::new();
+    check_extensions(&raw, &mut warnings)?;
+    let mut root: gltf::json::Root =
+        serde_json::from_slice(json).map_err(|e| format!("invalid glTF: {e}"))?;
+    // Already checked against raytile's own list; the gltf crate's list lacks some we support.
+    root.extensions_required.clear();
+    validate(&root)?;
+    let doc = gltf::Document::from_json_without_validation(root);
+
+    let mut loader = Loader {
+        doc: &doc,
+        raw: &raw,
+        base_dir,
+        buffers: Vec::new(),
+        budget: std::cell::Cell::new(opts.memory_limit),
+        desc: SceneDesc {
+            warnings,
+            ..SceneDesc::default()
+        },
+        mesh_cache: HashMap::new(),
+        material_cache: HashMap::new(),
+        texture_cache: HashMap::new(),
+        image_cache: HashMap::new(),
+    };
+    loader.load_buffers(container.bin)?;
+    loader.load_scene()?;
+    loader.finish(opts)?;
+    Ok(loader.desc)
+}
+
+/// The local transform of a node, checked to be finite.
+fn node_matrix(node: &gltf::Node) -> Result<Mat4, String> {
+    let what = format!("node {}", node.index());
+    let m = match node.transform() {
+        gltf::scene::Transform::Matrix { matrix } => Mat4::from_cols_array_2d(&matrix),
+        gltf::scene::Transform::Decomposed {
+            translation,
+            rotation,
+            scale,
+        } => {
+            let q = Quat::from_array(rotation);
+            let len = q.length();
+            if !len.is_finite() || len < 1e-6 {
+                return Err(format!("{what}: rotation quaternion is zero or not finite"));
+            }
+            Mat4::from_scale_rotation_translation(
+                Vec3::from(scale),
+                q / len,
+                Vec3::from(translation),
+            )
+        }
+    };
+    if !m.is_finite() {
+        return Err(format!("{what}: transform is not finite"));
+    }
+    Ok(m)
+}
+
+impl Loader<'_> {
+    fn load_buffers(&mut self, bin: Option<&[u8]>) -> Result<(), String> {
+        let doc = self.doc;
+        for buffer in doc.buffers() {
+            let what = format!("buffer {}", buffer.index());
+            let len = buffer.length();
+            let mut data = match buffer.source() {
+                gltf::buffer::Source::Bin => bin
+                    .ok_or_else(|| {
+                        format!("{what} refers to the GLB binary chunk, which is missing")
+                    })?
+                    .to_vec(),
+                gltf::buffer::Source::Uri(uri) => {
+                    container::load_uri(uri, self.base_dir, &what, MAX_FILE_BYTES)?
+                }
+            };
+            if data.len() < len {
+                return Err(format!(
+                    "{what}: byteLength is {len} but only {} bytes are available",
+                    data.len()
+                ));
+            }
+            data.truncate(len);
+            self.buffers.push(data);
+        }
+        Ok(())
+    }
+
+    fn load_scene(&mut self) -> Result<(), String> {
+        let doc = self.doc;
+        let roots: Vec<gltf::Node> = match doc.default_scene().or_else(|| doc.scenes().next()) {
+            Some(scene) => scene.nodes().collect(),
+            None => {
+                // No scene: show every root node rather than nothing.
+                let mut is_child = vec![false; doc.nodes().len()];
+                for n in doc.nodes() {
+                    for c in n.children() {
+                        if let Some(f) = is_child.get_mut(c.index()) {
+                            *f = true;
+                        }
+                    }
+                }
+                if doc.nodes().len() > 0 {
+                    self.warn("the file has no scene; all root nodes are shown".into());
+                }
+                doc.nodes()
+                    .filter(|n| !is_child.get(n.index()).copied().unwrap_or(false))
+                    .collect()
+            }
+        };
+        let mut visited = vec![false; doc.nodes().len()];
+        let mut stack: Vec<(gltf::Node, Mat4)> = roots
+            .into_iter()
+            .rev()
+            .map(|n| (n, Mat4::IDENTITY))
+            .collect();
+        while let Some((node, parent)) = stack.pop() {
+            let ni = node.index();
+            match visited.get_mut(ni) {
+                Some(v) if !*v => *v = true,
+                _ => {
+                    return Err(format!(
+                        "node {ni} is reached twice: the node hierarchy has a cycle or a node with two parents"
+                    ))
+                }
+            }
+            let world = parent * node_matrix(&node)?;
+            if !world.is_finite() {
+                return Err(format!("node {ni}: world transform is not finite"));
+            }
+            let node_name = node
+                .name()
+                .map(str::to_string)
+                .unwrap_or_else(|| format!("node {ni}"));
+            if let Some(mesh) = node.mesh() {
+                self.place_mesh(&node, &mesh, &node_name, world)?;
+            }
+            if let Some(cam) = node.camera() {
+                self.add_camera(&cam, &node, world)?;
+            }
+            if let Some(light) = node.light() {
+                self.add_light(&light, world)?;
+            }
+            if node.skin().is_some() {
+                self.warn(format!("node {ni}: skinning is ignored (bind pose)"));
+            }
+            let children: Vec<gltf::Node> = node.children().collect();
+            for child in children.into_iter().rev() {
+                stack.push((child, world));
+            }
+        }
+        Ok(())
+    }
+
+    fn place_mesh(
+        &mut self,
+        node: &gltf::Node,
+        mesh: &gltf::Mesh,
+        node_name: &str,
+        world: Mat4,
+    ) -> Result<(), String> {
+        let singular = world.determinant().abs() < 1e-30;
+        if singular {
+            self.warn(format!(
+                "node {}: transform is singular (zero scale); its mesh is not shown",
+                node.index()
+            ));
+            return Ok(());
+        }
+        let nprims = mesh.primitives().len();
+        for prim in mesh.primitives() {
+            let key = (mesh.index(), prim.index());
+            let mat = prim.material();
+            let mesh_index = match self.mesh_cache.get(&key) {
+                Some(&m) => m,
+                None => {
+                    let tangent_uv = self.normal_map_uv(&mat);
+                    let m = match self.load_primitive(mesh, &prim, tangent_uv)? {
+                        Some(md) => {
+                            self.desc.meshes.push(md);
+                            Some(self.desc.meshes.len() - 1)
+                        }
+                        None => None,
+                    };
+                    self.mesh_cache.insert(key, m);
+                    m
+                }
+            };
+            let Some(mesh_index) = mesh_index else {
+                continue;
+            };
+            let material = self.material(&mat)?;
+            self.charge(
+                std::mem::size_of::<ObjectDesc>() + node_name.len() + 16,
+                &format!("node {}", node.index()),
+            )?;
+            let name = if nprims > 1 {
+                format!("{node_name} primitive {}", prim.index())
+            } else {
+                node_name.to_string()
+            };
+            self.desc.objects.push(ObjectDesc {
+                name,
+                shape: ShapeDesc::Mesh { mesh: mesh_index },
+                material,
+                transform: world,
+            });
+        }
+        Ok(())
+    }
+
+    fn add_camera(
+        &mut self,
+        cam: &gltf::Camera,
+        node: &gltf::Node,
+        world: Mat4,
+    ) -> Result<(), String> {
+        let what = format!("camera {}", cam.index());
+        let name = cam
+            .name()
+            .or(node.name())
+            .map(str::to_string)
+            .unwrap_or_else(|| what.clone());
+        let (projection, aspect) = match cam.projection() {
+            gltf::camera::Projection::Perspective(p) => {
+                let yfov = p.yfov();
+                if !(yfov > 0.0 && yfov < std::f32::consts::PI) {
+                    return Err(format!("{what}: yfov {yfov} must be in (0, π)"));
+                }
+                let aspect = p.aspect_ratio();
+                if let Some(a) = aspect {
+                    if !(a.is_finite() && a > 0.0) {
+                        return Err(format!("{what}: aspectRatio {a} must be positive"));
+                    }
+                }
+                (
+                    Projection::Perspective {
+                        yfov,
+                        aperture_radius: 0.0,
+                        focus_distance: 1.0,
+                    },
+                    aspect,
+                )
+            }
+            gltf::camera::Projection::Orthographic(o) => {
+                let (xmag, ymag) = (o.xmag(), o.ymag());
+                if !(ymag.is_finite() && ymag != 0.0 && xmag.is_finite() && xmag != 0.0) {
+                    return Err(format!("{what}: xmag and ymag must be finite and non-zero"));
+                }
+                (
+                    Projection::Orthographic {
+                        half_height: ymag.abs(),
+                    },
+                    Some(xmag.abs() / ymag.abs()),
+                )
+            }
+        };
+        self.desc.cameras.push(CameraDesc {
+            name,
+            transform: world,
+            projection,
+            aspect,
+        });
+        Ok(())
+    }
+
+    fn add_light(
+        &mut self,
+        light: &gltf::khr_lights_punctual::Light,
+        world: Mat4,
+    ) -> Result<(), String> {
+        let what = format!("light {}", light.index());
+        let color = Vec3::from(light.color());
+        let intensity = light.intensity();
+        let power = color * intensity;
+        if !power.is_finite() || power.min_element() < 0.0 {
+            return Err(format!(
+                "{what}: colour × intensity must be finite and non-negative"
+            ));
+        }
+        let range = light.range().unwrap_or(f32::INFINITY);
+        if range.is_nan() || range <= 0.0 {
+            return Err(format!("{what}: range must be positive"));
+        }
+        let position = world.transform_point3(Vec3::ZERO);
+        let direction = world.transform_vector3(Vec3::NEG_Z).normalize_or_zero();
+        let needs_dir = !matches!(light.kind(), gltf::khr_lights_punctual::Kind::Point);
+        if needs_dir && direction == Vec3::ZERO {
+            return Err(format!("{what}: the node's transform gives no direction"));
+        }
+        let desc = match light.kind() {
+            gltf::khr_lights_punctual::Kind::Point => LightDesc::Point {
+                position,
+                intensity: power,
+                range,
+            },
+            gltf::khr_lights_punctual::Kind::Directional => LightDesc::Directional {
+                direction,
+                irradiance: power,
+            },
+            gltf::khr_lights_punctual::Kind::Spot {
+                inner_cone_angle,
+                outer_cone_angle,
+            } => {
+                let ok = inner_cone_angle >= 0.0
+                    && inner_cone_angle < outer_cone_angle
+                    && outer_cone_angle <= std::f32::consts::FRAC_PI_2 + 1e-6;
+                if !ok {
+                    return Err(format!(
+                        "{what}: spot cone angles must satisfy 0 ≤ inner ({inner_cone_angle}) < outer ({outer_cone_angle}) ≤ π/2"
+                    ));
+                }
+                LightDesc::Spot {
+                    position,
+                    direction,
+                    intensity: power,
+                    inner_angle: inner_cone_angle,
+                    outer_angle: outer_cone_angle,
+                    range,
+                }
+            }
+        };
+        self.desc.lights.push(desc);
+        Ok(())
+    }
+
+    /// Default camera and default light.
+    fn finish(&mut self, opts: &GltfOptions) -> Result<(), String> {
+        if self.desc.cameras.is_empty() {
+            let camera = default_camera(&self.desc);
+            self.desc.cameras.push(camera);
+        }
+        let emissive = self.desc.objects.iter().any(|o| {
+            self.desc
+                .materials
+                .get(o.material)
+                .is_some_and(|m| m.emission.max_element() > 0.0)
+        });
+        if opts.default_light && self.desc.lights.is_empty() && !emissive {
+            self.desc.environment = Some(EnvironmentDesc::Constant {
+                radiance: Vec3::ONE,
+            });
+            self.warn(
+                "the scene has no light (no punctual light, no emissive material): a constant white environment was added".into(),
+            );
+        }
+        Ok(())
+    }
+}
+
+/// The world bounds of every object's mesh, or `None` for an empty scene.
+fn world_bounds(desc: &SceneDesc) -> Option<(Vec3, Vec3)> {
+    let local: Vec<Option<(Vec3, Vec3)>> = desc
+        .meshes
+        .iter()
+        .map(|m| {
+            let first = *m.positions.first()?;
+            Some(
+                m.positions
+                    .iter()
+                    .fold((first, first), |(lo, hi), &p| (lo.min(p), hi.max(p))),
+            )
+        })
+        .collect();
+    let mut out: Option<(Vec3, Vec3)> = None;
+    for o in &desc.objects {
+        let ShapeDesc::Mesh { mesh } = o.shape else {
+            continue;
+        };
+        let Some(Some((lo, hi))) = local.get(mesh) else {
+            continue;
+        };
+        for i in 0..8 {
+            let c = Vec3::new(
+                if i & 1 == 0 { lo.x } else { hi.x },
+                if i & 2 == 0 { lo.y } else { hi.y },
+                if i & 4 == 0 { lo.z } else { hi.z },
+            );
+            let p = o.transform.transform_point3(c);
+            out = Some(match out {
+                None => (p, p),
+                Some((a, b)) => (a.min(p), b.max(p)),
+            });
+        }
+    }
+    out
+}
+
+/// A perspective camera looking down −Z from +Z, yfov 45°, far enough that the bounding
+/// sphere of the scene fits the view.
+fn default_camera(desc: &SceneDesc) -> CameraDesc {
+    let yfov = 45f32.to_radians();
+    let (center, radius) = match world_bounds(desc) {
+        Some((lo, hi)) if (hi - lo).is_finite() => ((lo + hi) * 0.5, ((hi - lo) * 0.5).length()),
+        _ => (Vec3::ZERO, 1.0),
+    };
+    let radius = if radius > 0.0 { radius } else { 1.0 };
+    let distance = radius / (yfov * 0.5).sin();
+    let eye = center + Vec3::Z * distance;
+    CameraDesc {
+        name: "default".into(),
+        transform: Mat4::from_translation(eye),
+        projection: Projection::Perspective {
+            yfov,
+            aperture_radius: 0.0,
+            focus_distance: distance,
+        },
+        aspect: None,
+    }
+}

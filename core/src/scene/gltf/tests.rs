@@ -1,0 +1,841 @@
+//! Unit tests with small glTF documents built in memory (data URIs only).
+
+use super::*;
+use crate::scene::desc::{AlphaMode, BsdfDesc, PbrDesc};
+use base64::Engine as _;
+use serde_json::json;
+
+/// Builds a glTF document: binary data appended to one data-URI buffer, with views and
+/// accessors.
+#[derive(Default)]
+struct Doc {
+    bin: Vec<u8>,
+    views: Vec<Value>,
+    accessors: Vec<Value>,
+}
+
+impl Doc {
+    /// Appends `bytes` as a new buffer view; returns its index.
+    fn view(&mut self, bytes: &[u8]) -> usize {
+        while self.bin.len() & 3 != 0 {
+            self.bin.push(0);
+        }
+        let offset = self.bin.len();
+        self.bin.extend_from_slice(bytes);
+        self.views
+            .push(json!({"buffer": 0, "byteOffset": offset, "byteLength": bytes.len()}));
+        self.views.len() - 1
+    }
+    /// Adds an accessor over a new view; returns its index.
+    fn accessor(&mut self, bytes: &[u8], component_type: u32, ty: &str, count: usize) -> usize {
+        let v = self.view(bytes);
+        self.accessors.push(
+            json!({"bufferView": v, "componentType": component_type, "type": ty, "count": count}),
+        );
+        self.accessors.len() - 1
+    }
+    fn floats(&mut self, v: &[f32], ty: &str, per: usize) -> usize {
+        let bytes: Vec<u8> = v.iter().flat_map(|x| x.to_le_bytes()).collect();
+        self.accessor(&bytes, 5126, ty, v.len() / per)
+    }
+    fn positions(&mut self, v: &[[f32; 3]]) -> usize {
+        self.floats(&v.concat(), "VEC3", 3)
+    }
+    fn indices_u16(&mut self, v: &[u16]) -> usize {
+        let bytes: Vec<u8> = v.iter().flat_map(|x| x.to_le_bytes()).collect();
+        self.accessor(&bytes, 5123, "SCALAR", v.len())
+    }
+    /// The final JSON, with `root`'s members added.
+    fn finish(self, root: Value) -> Vec<u8> {
+        let mut out = json!({
+            "asset": {"version": "2.0"},
+            "buffers": [{
+                "byteLength": self.bin.len(),
+                "uri": format!("data:application/octet-stream;base64,{}",
+                    base64::engine::general_purpose::STANDARD.encode(&self.bin)),
+            }],
+            "bufferViews": self.views,
+            "accessors": self.accessors,
+        });
+        if let (Some(o), Value::Object(r)) = (out.as_object_mut(), root) {
+            o.extend(r);
+        }
+        serde_json::to_vec(&out).unwrap()
+    }
+}
+
+const TRI: [[f32; 3]; 3] = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+const QUAD: [[f32; 3]; 4] = [
+    [0.0, 0.0, 0.0],
+    [1.0, 0.0, 0.0],
+    [0.0, 1.0, 0.0],
+    [1.0, 1.0, 0.0],
+];
+
+fn load(bytes: &[u8]) -> Result<SceneDesc, String> {
+    load_gltf_slice(bytes, None, "test.gltf", &GltfOptions::default()).map_err(|e| e.to_string())
+}
+
+/// A one-triangle scene whose primitive is `prim` (POSITION is accessor 0) plus `extra`.
+fn one_prim(doc: Doc, prim: Value, extra: Value) -> Vec<u8> {
+    let mut root = json!({
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [prim]}],
+    });
+    if let (Some(o), Value::Object(e)) = (root.as_object_mut(), extra) {
+        o.extend(e);
+    }
+    doc.finish(root)
+}
+
+fn tri_scene(extra_prim: Value, extra: Value) -> Vec<u8> {
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    let mut prim = json!({"attributes": {"POSITION": 0}});
+    if let (Some(o), Value::Object(e)) = (prim.as_object_mut(), extra_prim) {
+        o.extend(e);
+    }
+    one_prim(d, prim, extra)
+}
+
+fn pbr(m: &crate::scene::desc::MaterialDesc) -> &PbrDesc {
+    match &m.bsdf {
+        BsdfDesc::Pbr(p) => p,
+        other => panic!("not PBR: {other:?}"),
+    }
+}
+
+fn expect_err(bytes: &[u8], needles: &[&str]) {
+    let e = load(bytes).expect_err("loaded a bad file");
+    for n in needles {
+        assert!(e.contains(n), "error {e:?} does not mention {n:?}");
+    }
+}
+
+#[test]
+fn minimal_triangle_gets_defaults() {
+    let s = load(&tri_scene(json!({}), json!({}))).unwrap();
+    assert_eq!(s.meshes.len(), 1);
+    assert_eq!(s.meshes[0].indices, vec![[0, 1, 2]]);
+    assert!(
+        s.meshes[0].normals.is_empty(),
+        "flat shading when NORMAL is absent"
+    );
+    // Default material: base colour 1, metallic 1, roughness 1.
+    let p = pbr(&s.materials[0]);
+    assert_eq!(
+        (p.base_color, p.metallic, p.roughness),
+        ([1.0; 4], 1.0, 1.0)
+    );
+    // No light: constant environment with a warning; no camera: a default one.
+    assert!(
+        matches!(s.environment, Some(EnvironmentDesc::Constant { radiance }) if radiance == Vec3::ONE)
+    );
+    assert!(s.warnings.iter().any(|w| w.contains("no light")));
+    assert_eq!(s.cameras.len(), 1);
+    assert_eq!(s.cameras[0].name, "default");
+    let eye = s.cameras[0].transform.transform_point3(Vec3::ZERO);
+    assert!((eye.x - 0.5).abs() < 1e-5 && (eye.y - 0.5).abs() < 1e-5 && eye.z > 1.0);
+
+    let off = GltfOptions {
+        default_light: false,
+        ..GltfOptions::default()
+    };
+    let s = load_gltf_slice(&tri_scene(json!({}), json!({})), None, "t", &off).unwrap();
+    assert!(s.environment.is_none());
+}
+
+#[test]
+fn transforms_compose_through_the_hierarchy() {
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    let q = std::f32::consts::FRAC_1_SQRT_2;
+    let bytes = d.finish(json!({
+        "scenes": [{"nodes": [0]}],
+        "nodes": [
+            {"translation": [1, 0, 0], "scale": [2, 1, 1], "children": [1]},
+            {"rotation": [0, 0, q, q], "scale": [1, 1, -1], "children": [2], "mesh": 0},
+            {"matrix": [1,0,0,0, 0,3,0,0, 0,0,1,0, 0,0,5,1], "mesh": 0},
+        ],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+    }));
+    let s = load(&bytes).unwrap();
+    assert_eq!(s.meshes.len(), 1);
+    assert_eq!(s.objects.len(), 2);
+    let child = s.objects[0].transform;
+    // (1,0,0): rotated a quarter turn about Z to (0,1,0), parent scale keeps it, then +x 1.
+    let p = child.transform_point3(Vec3::X);
+    assert!((p - Vec3::new(1.0, 1.0, 0.0)).length() < 1e-5, "{p}");
+    // (0,1,0) → (-1,0,0) → scaled by 2 in x → (-2,0,0) → (-1,0,0).
+    let p = child.transform_point3(Vec3::Y);
+    assert!((p - Vec3::new(-1.0, 0.0, 0.0)).length() < 1e-5, "{p}");
+    assert!(child.determinant() < 0.0, "mirror kept in the transform");
+    let grandchild = s.objects[1].transform;
+    // (0,1,0) → matrix: (0,3,5) → child transform.
+    let expect = child.transform_point3(Vec3::new(0.0, 3.0, 5.0));
+    assert!((grandchild.transform_point3(Vec3::Y) - expect).length() < 1e-5);
+    // Indices stay as stored even for the mirrored object.
+    assert_eq!(s.meshes[0].indices, vec![[0, 1, 2]]);
+}
+
+#[test]
+fn instanced_mesh_is_loaded_once() {
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    let bytes = d.finish(json!({
+        "scene": 0,
+        "scenes": [{"nodes": [0, 1]}],
+        "nodes": [{"mesh": 0, "name": "a"}, {"mesh": 0, "translation": [3, 0, 0]}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+    }));
+    let s = load(&bytes).unwrap();
+    assert_eq!(s.meshes.len(), 1);
+    assert_eq!(s.objects.len(), 2);
+    assert_eq!(s.objects[0].name, "a");
+    assert_eq!(s.objects[1].name, "node 1");
+    assert!(matches!(s.objects[1].shape, ShapeDesc::Mesh { mesh: 0 }));
+}
+
+fn png_data_uri() -> String {
+    let img = image::RgbaImage::from_fn(2, 2, |x, y| {
+        image::Rgba([x as u8 * 255, y as u8 * 255, 128, 255])
+    });
+    let mut png = Vec::new();
+    img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .unwrap();
+    format!(
+        "data:image/png;base64,{}",
+        base64::engine::general_purpose::STANDARD.encode(png)
+    )
+}
+
+#[test]
+fn colour_textures_are_srgb_and_data_textures_linear() {
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    d.floats(&[0.0, 0.0, 1.0, 0.0, 0.0, 1.0], "VEC2", 2);
+    let bytes = one_prim(
+        d,
+        json!({"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "material": 0}),
+        json!({
+            "images": [{"uri": png_data_uri()}],
+            "samplers": [{"magFilter": 9728, "wrapS": 33071, "wrapT": 33648}],
+            "textures": [{"source": 0, "sampler": 0}],
+            "materials": [{
+                "pbrMetallicRoughness": {
+                    "baseColorTexture": {"index": 0},
+                    "metallicRoughnessTexture": {"index": 0},
+                },
+                "normalTexture": {"index": 0, "scale": 0.5},
+                "emissiveTexture": {"index": 0},
+            }],
+        }),
+    );
+    let s = load(&bytes).unwrap();
+    let m = &s.materials[0];
+    let p = pbr(m);
+    let base = &s.textures[p.base_color_texture.unwrap().texture];
+    let mr = &s.textures[p.metallic_roughness_texture.unwrap().texture];
+    assert!(base.srgb);
+    assert!(!mr.srgb);
+    assert!(s.textures[m.emission_texture.unwrap().texture].srgb);
+    let (n, scale) = m.normal_texture.unwrap();
+    assert!(!s.textures[n.texture].srgb);
+    assert_eq!(scale, 0.5);
+    assert_eq!(s.textures.len(), 2, "one decoded copy per colour space");
+    assert_eq!((base.width, base.height), (2, 2));
+    assert_eq!(base.texels[1], [1.0, 0.0, 128.0 / 255.0, 1.0]);
+    assert_eq!(
+        (base.wrap_u, base.wrap_v),
+        (WrapMode::Clamp, WrapMode::MirroredRepeat)
+    );
+    assert!(!base.bilinear);
+    // Normal map without TANGENT: tangents generated.
+    assert_eq!(s.meshes[0].tangents.len(), 3);
+    let t = s.meshes[0].tangents[0];
+    assert!(
+        (Vec3::new(t[0], t[1], t[2]) - Vec3::X).length() < 1e-4,
+        "{t:?}"
+    );
+}
+
+use crate::scene::desc::WrapMode;
+
+#[test]
+fn alpha_modes_and_double_sided() {
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    let bytes = d.finish(json!({
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [
+            {"attributes": {"POSITION": 0}, "material": 0},
+            {"attributes": {"POSITION": 0}, "material": 1},
+            {"attributes": {"POSITION": 0}, "material": 2},
+            {"attributes": {"POSITION": 0}, "material": 3},
+        ]}],
+        "materials": [
+            {"name": "o"},
+            {"alphaMode": "MASK", "alphaCutoff": 0.3, "doubleSided": true},
+            {"alphaMode": "BLEND"},
+            {"alphaMode": "MASK"},
+        ],
+    }));
+    let s = load(&bytes).unwrap();
+    let modes: Vec<AlphaMode> = s
+        .objects
+        .iter()
+        .map(|o| s.materials[o.material].alpha_mode)
+        .collect();
+    assert_eq!(
+        modes,
+        vec![
+            AlphaMode::Opaque,
+            AlphaMode::Mask(0.3),
+            AlphaMode::Blend,
+            AlphaMode::Mask(0.5)
+        ]
+    );
+    assert!(!s.materials[s.objects[0].material].two_sided);
+    assert!(s.materials[s.objects[1].material].two_sided);
+    assert_eq!(s.meshes.len(), 4);
+    assert_eq!(s.objects[1].name, "node 0 primitive 1");
+}
+
+#[test]
+fn thin_walled_and_solid_transmission() {
+    let bytes = |materials: Value| {
+        tri_scene(
+            json!({"material": 0}),
+            json!({
+                "extensionsUsed": ["KHR_materials_transmission", "KHR_materials_volume", "KHR_materials_ior",
+                    "KHR_materials_specular", "KHR_materials_clearcoat", "KHR_materials_emissive_strength"],
+                "materials": [materials],
+            }),
+        )
+    };
+    let s = load(&bytes(json!({"extensions": {
+        "KHR_materials_transmission": {"transmissionFactor": 1.0},
+        "KHR_materials_volume": {"thicknessFactor": 0.5, "attenuationColor": [1.0, 0.5, 0.25], "attenuationDistance": 2.0},
+        "KHR_materials_ior": {"ior": 1.33},
+        "KHR_materials_specular": {"specularFactor": 0.5, "specularColorFactor": [1.0, 0.0, 0.0]},
+        "KHR_materials_clearcoat": {"clearcoatFactor": 0.75, "clearcoatRoughnessFactor": 0.25},
+    }})))
+    .unwrap();
+    let p = pbr(&s.materials[0]);
+    assert_eq!(p.transmission, 1.0);
+    assert!(!p.thin_walled);
+    assert_eq!(p.attenuation_color, Vec3::new(1.0, 0.5, 0.25));
+    assert_eq!(p.attenuation_distance, 2.0);
+    assert_eq!(p.ior, 1.33);
+    assert_eq!((p.specular, p.specular_color), (0.5, Vec3::X));
+    assert_eq!((p.clearcoat, p.clearcoat_roughness), (0.75, 0.25));
+
+    let s = load(&bytes(json!({"extensions": {
+        "KHR_materials_transmission": {"transmissionFactor": 0.9},
+        "KHR_materials_volume": {"thicknessFactor": 0.0},
+    }})))
+    .unwrap();
+    assert!(pbr(&s.materials[0]).thin_walled);
+    let s = load(&bytes(
+        json!({"extensions": {"KHR_materials_transmission": {"transmissionFactor": 0.9}}}),
+    ))
+    .unwrap();
+    let p = pbr(&s.materials[0]);
+    assert!(p.thin_walled);
+    assert_eq!(p.attenuation_distance, f32::INFINITY);
+
+    // Emission = factor × strength; an emitter means no default light.
+    let s = load(&bytes(json!({"emissiveFactor": [1.0, 0.5, 0.0],
+        "extensions": {"KHR_materials_emissive_strength": {"emissiveStrength": 4.0}}})))
+    .unwrap();
+    assert_eq!(s.materials[0].emission, Vec3::new(4.0, 2.0, 0.0));
+    assert!(s.environment.is_none());
+}
+
+#[test]
+fn strips_fans_and_index_widths() {
+    let strip_fan = |mode: u32| {
+        let mut d = Doc::default();
+        d.positions(&QUAD);
+        d.indices_u16(&[0, 1, 2, 3]);
+        one_prim(
+            d,
+            json!({"attributes": {"POSITION": 0}, "indices": 1, "mode": mode}),
+            json!({}),
+        )
+    };
+    let s = load(&strip_fan(5)).unwrap();
+    assert_eq!(s.meshes[0].indices, vec![[0, 1, 2], [1, 3, 2]]);
+    let s = load(&strip_fan(6)).unwrap();
+    assert_eq!(s.meshes[0].indices, vec![[1, 2, 0], [2, 3, 0]]);
+    // Non-indexed strip.
+    let mut d = Doc::default();
+    d.positions(&QUAD);
+    let s = load(&one_prim(
+        d,
+        json!({"attributes": {"POSITION": 0}, "mode": 5}),
+        json!({}),
+    ))
+    .unwrap();
+    assert_eq!(s.meshes[0].indices, vec![[0, 1, 2], [1, 3, 2]]);
+
+    for (ctype, width) in [(5121u32, 1usize), (5123, 2), (5125, 4)] {
+        let mut d = Doc::default();
+        d.positions(&QUAD);
+        let bytes: Vec<u8> = [0u32, 1, 2, 2, 1, 3]
+            .iter()
+            .flat_map(|&i| i.to_le_bytes()[..width].to_vec())
+            .collect();
+        d.accessor(&bytes, ctype, "SCALAR", 6);
+        let s = load(&one_prim(
+            d,
+            json!({"attributes": {"POSITION": 0}, "indices": 1}),
+            json!({}),
+        ))
+        .unwrap();
+        assert_eq!(
+            s.meshes[0].indices,
+            vec![[0, 1, 2], [2, 1, 3]],
+            "component type {ctype}"
+        );
+    }
+}
+
+#[test]
+fn sparse_normalized_and_interleaved_accessors() {
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    let idx = d.view(&[2u8, 0, 0, 0]);
+    let vals = d.view(
+        &[5.0f32, 6.0, 7.0]
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect::<Vec<_>>(),
+    );
+    d.accessors[0]["sparse"] = json!({
+        "count": 1,
+        "indices": {"bufferView": idx, "componentType": 5121},
+        "values": {"bufferView": vals},
+    });
+    // Interleaved: TEXCOORD_0 as normalized u16 pairs with a stride of 8 bytes.
+    let uv_bytes: Vec<u8> = [[65535u16, 0, 9, 9], [0, 65535, 9, 9], [32768, 32768, 9, 9]]
+        .iter()
+        .flat_map(|e| e.iter().flat_map(|x| x.to_le_bytes()))
+        .collect();
+    let v = d.view(&uv_bytes);
+    d.views[v]["byteStride"] = json!(8);
+    d.accessors.push(json!({"bufferView": v, "componentType": 5123, "normalized": true, "type": "VEC2", "count": 3}));
+    let bytes = one_prim(
+        d,
+        json!({"attributes": {"POSITION": 0, "TEXCOORD_0": 1}}),
+        json!({}),
+    );
+    let s = load(&bytes).unwrap();
+    let m = &s.meshes[0];
+    assert_eq!(m.positions[2], Vec3::new(5.0, 6.0, 7.0));
+    assert_eq!(m.positions[1], Vec3::X);
+    assert_eq!(m.uvs[0][0], glam::Vec2::new(1.0, 0.0));
+    assert!((m.uvs[0][2].x - 0.5).abs() < 1e-4);
+
+    // Sparse index out of range.
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    let idx = d.view(&[7u8, 0, 0, 0]);
+    let vals = d.view(&[0u8; 12]);
+    d.accessors[0]["sparse"] = json!({
+        "count": 1,
+        "indices": {"bufferView": idx, "componentType": 5121},
+        "values": {"bufferView": vals},
+    });
+    expect_err(
+        &one_prim(d, json!({"attributes": {"POSITION": 0}}), json!({})),
+        &["sparse index 7"],
+    );
+}
+
+#[test]
+fn points_and_lines_are_skipped_with_a_warning() {
+    let s = load(&tri_scene(json!({"mode": 0}), json!({}))).unwrap();
+    assert!(s.objects.is_empty() && s.meshes.is_empty());
+    assert!(s
+        .warnings
+        .iter()
+        .any(|w| w.contains("mesh 0 primitive 0") && w.contains("Points")));
+}
+
+#[test]
+fn required_extensions_are_checked() {
+    for ext in [
+        "KHR_draco_mesh_compression",
+        "KHR_mesh_quantization",
+        "EXT_made_up",
+    ] {
+        expect_err(
+            &tri_scene(
+                json!({}),
+                json!({"extensionsUsed": [ext], "extensionsRequired": [ext]}),
+            ),
+            &[ext],
+        );
+    }
+    for ext in [
+        "KHR_materials_volume",
+        "KHR_materials_specular",
+        "KHR_texture_transform",
+        "KHR_materials_clearcoat",
+    ] {
+        load(&tri_scene(
+            json!({}),
+            json!({"extensionsUsed": [ext], "extensionsRequired": [ext]}),
+        ))
+        .unwrap_or_else(|e| panic!("{ext}: {e}"));
+    }
+    let s = load(&tri_scene(
+        json!({}),
+        json!({"extensionsUsed": ["EXT_optional_thing"]}),
+    ))
+    .unwrap();
+    assert!(s.warnings.iter().any(|w| w.contains("EXT_optional_thing")));
+}
+
+#[test]
+fn malformed_data_is_refused() {
+    // Accessor past the end of its view.
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    d.accessors[0]["count"] = json!(4);
+    expect_err(
+        &one_prim(d, json!({"attributes": {"POSITION": 0}}), json!({})),
+        &[
+            "mesh 0 primitive 0",
+            "accessor 0",
+            "POSITION",
+            "past the end",
+        ],
+    );
+    // Absurd count: must not allocate.
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    d.accessors[0]["count"] = json!(u32::MAX);
+    expect_err(
+        &one_prim(d, json!({"attributes": {"POSITION": 0}}), json!({})),
+        &["accessor 0"],
+    );
+    // Absurd count on an accessor with only sparse values.
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    let idx = d.view(&[0u8; 4]);
+    let vals = d.view(&[0u8; 12]);
+    d.accessors[0] = json!({"componentType": 5126, "type": "VEC3", "count": u32::MAX, "sparse": {
+        "count": 1, "indices": {"bufferView": idx, "componentType": 5121}, "values": {"bufferView": vals}}});
+    expect_err(
+        &one_prim(d, json!({"attributes": {"POSITION": 0}}), json!({})),
+        &["accessor 0"],
+    );
+    // View past the end of the buffer.
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    d.views[0]["byteLength"] = json!(1000);
+    expect_err(
+        &one_prim(d, json!({"attributes": {"POSITION": 0}}), json!({})),
+        &["buffer view 0", "buffer 0"],
+    );
+    // Index out of range.
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    d.indices_u16(&[0, 1, 3]);
+    expect_err(
+        &one_prim(
+            d,
+            json!({"attributes": {"POSITION": 0}, "indices": 1}),
+            json!({}),
+        ),
+        &["index 3", "out of range"],
+    );
+    // NaN position.
+    let mut d = Doc::default();
+    d.positions(&[[0.0, 0.0, 0.0], [f32::NAN, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+    expect_err(
+        &one_prim(d, json!({"attributes": {"POSITION": 0}}), json!({})),
+        &["POSITION", "element 1", "not finite"],
+    );
+    // Bad references, cycles, not JSON.
+    expect_err(
+        &tri_scene(json!({"material": 9}), json!({})),
+        &["invalid glTF"],
+    );
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    let cyc = d.finish(
+        json!({"scenes": [{"nodes": [0]}], "nodes": [{"children": [1]}, {"children": [0]}]}),
+    );
+    expect_err(&cyc, &["node 0", "twice"]);
+    expect_err(b"{\"asset\": ", &["invalid JSON"]);
+    expect_err(b"[]", &["not an object"]);
+    // Buffer shorter than byteLength.
+    let mut v: Value = serde_json::from_slice(&tri_scene(json!({}), json!({}))).unwrap();
+    v["buffers"][0]["byteLength"] = json!(1 << 20);
+    expect_err(
+        &serde_json::to_vec(&v).unwrap(),
+        &["buffer 0", "byteLength"],
+    );
+}
+
+/// The GLB form of `json` with `bin` as its binary chunk.
+fn glb(json: &[u8], bin: &[u8]) -> Vec<u8> {
+    let mut j = json.to_vec();
+    while j.len() & 3 != 0 {
+        j.push(b' ');
+    }
+    let mut out = b"glTF".to_vec();
+    out.extend_from_slice(&2u32.to_le_bytes());
+    let total = 12 + 8 + j.len() + if bin.is_empty() { 0 } else { 8 + bin.len() };
+    out.extend_from_slice(&(total as u32).to_le_bytes());
+    out.extend_from_slice(&(j.len() as u32).to_le_bytes());
+    out.extend_from_slice(&0x4E4F_534Au32.to_le_bytes());
+    out.extend_from_slice(&j);
+    if !bin.is_empty() {
+        out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+        out.extend_from_slice(&0x004E_4942u32.to_le_bytes());
+        out.extend_from_slice(bin);
+    }
+    out
+}
+
+#[test]
+fn glb_containers() {
+    let bin: Vec<u8> = TRI.concat().iter().flat_map(|x| x.to_le_bytes()).collect();
+    let json = serde_json::to_vec(&json!({
+        "asset": {"version": "2.0"},
+        "buffers": [{"byteLength": 36}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "type": "VEC3", "count": 3}],
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+    }))
+    .unwrap();
+    let good = glb(&json, &bin);
+    let s = load(&good).unwrap();
+    assert_eq!(s.meshes[0].positions[1], Vec3::X);
+    // Truncated anywhere: an error, never a panic.
+    for cut in [0, 4, 11, 12, 19, 20, good.len() / 2, good.len() - 1] {
+        assert!(load(&good[..cut]).is_err(), "cut at {cut}");
+    }
+    expect_err(&good[..good.len() - 1], &["truncated"]);
+    // No binary chunk although buffer 0 needs it.
+    expect_err(&glb(&json, &[]), &["buffer 0", "binary chunk"]);
+    // Wrong magic for a .glb path.
+    let dir = temp_dir("magic");
+    let p = dir.join("bad.glb");
+    let mut bad = good.clone();
+    bad[0] = b'X';
+    std::fs::write(&p, &bad).unwrap();
+    let e = load_gltf(&p).unwrap_err().to_string();
+    assert!(e.contains("bad.glb") && e.contains("magic"), "{e}");
+    std::fs::remove_dir_all(dir).ok();
+}
+
+fn temp_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("raytile-gltf-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+#[test]
+fn hostile_uris_are_refused() {
+    let root = temp_dir("uris");
+    let scene_dir = root.join("scene");
+    std::fs::create_dir_all(&scene_dir).unwrap();
+    // A file outside the scene folder that a careless loader would read.
+    std::fs::write(root.join("secret.bin"), [0u8; 64]).unwrap();
+    std::fs::write(scene_dir.join("ok.bin"), [0u8; 36]).unwrap();
+    let scene = |uri: &str| {
+        json!({
+            "asset": {"version": "2.0"},
+            "buffers": [{"byteLength": 36, "uri": uri}],
+            "bufferViews": [{"buffer": 0, "byteLength": 36}],
+            "accessors": [{"bufferView": 0, "componentType": 5126, "type": "VEC3", "count": 3}],
+            "scenes": [{"nodes": [0]}],
+            "nodes": [{"mesh": 0}],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        })
+    };
+    let path = scene_dir.join("scene.gltf");
+    for uri in [
+        "../secret.bin",
+        "/etc/passwd",
+        "file:///etc/passwd",
+        "http://x/y.bin",
+        "%2e%2e/secret.bin",
+        "%2E%2E%2Fsecret.bin",
+        "ok%ff.bin",
+        "sub/../../secret.bin",
+    ] {
+        std::fs::write(&path, serde_json::to_vec(&scene(uri)).unwrap()).unwrap();
+        let e = load_gltf(&path).expect_err(uri).to_string();
+        assert!(
+            e.contains("buffer 0") && e.contains("refused"),
+            "{uri}: {e}"
+        );
+        assert!(
+            e.contains(&format!("{uri:?}")),
+            "{uri}: {e} does not name the URI"
+        );
+    }
+    // A symbolic link inside the folder pointing outside it.
+    #[cfg(unix)]
+    {
+        std::os::unix::fs::symlink(root.join("secret.bin"), scene_dir.join("link.bin")).unwrap();
+        std::fs::write(&path, serde_json::to_vec(&scene("link.bin")).unwrap()).unwrap();
+        let e = load_gltf(&path).unwrap_err().to_string();
+        assert!(e.contains("outside"), "{e}");
+    }
+    // The same file inside the folder is fine; from memory, external URIs are refused.
+    std::fs::write(&path, serde_json::to_vec(&scene("ok.bin")).unwrap()).unwrap();
+    load_gltf(&path).unwrap();
+    let e = load(&serde_json::to_vec(&scene("ok.bin")).unwrap()).unwrap_err();
+    assert!(e.contains("refused"), "{e}");
+    // A missing file names the URI.
+    std::fs::write(&path, serde_json::to_vec(&scene("missing.bin")).unwrap()).unwrap();
+    let e = load_gltf(&path).unwrap_err().to_string();
+    assert!(e.contains("\"missing.bin\""), "{e}");
+    std::fs::remove_dir_all(root).ok();
+}
+
+#[test]
+fn lights_cameras_and_units() {
+    let q = std::f32::consts::FRAC_1_SQRT_2;
+    let bytes = tri_scene(
+        json!({}),
+        json!({
+            "extensionsUsed": ["KHR_lights_punctual"],
+            "extensions": {"KHR_lights_punctual": {"lights": [
+                {"type": "point", "color": [1.0, 0.5, 0.0], "intensity": 10.0},
+                {"type": "spot", "intensity": 2.0, "range": 5.0, "spot": {"innerConeAngle": 0.1, "outerConeAngle": 0.5}},
+                {"type": "directional", "intensity": 3.0},
+            ]}},
+            "scenes": [{"nodes": [0, 1, 2, 3, 4, 5]}],
+            "nodes": [
+                {"mesh": 0},
+                {"translation": [1, 2, 3], "extensions": {"KHR_lights_punctual": {"light": 0}}},
+                {"rotation": [-q, 0, 0, q], "extensions": {"KHR_lights_punctual": {"light": 1}}},
+                {"rotation": [-q, 0, 0, q], "extensions": {"KHR_lights_punctual": {"light": 2}}},
+                {"name": "cam node", "translation": [0, 0, 5], "camera": 0},
+                {"camera": 1},
+            ],
+            "cameras": [
+                {"type": "perspective", "perspective": {"yfov": 0.7, "znear": 0.1, "aspectRatio": 1.5}},
+                {"type": "orthographic", "name": "ortho", "orthographic": {"xmag": 2, "ymag": 1, "znear": 0.1, "zfar": 10}},
+            ],
+        }),
+    );
+    let s = load(&bytes).unwrap();
+    assert_eq!(
+        s.lights[0],
+        LightDesc::Point {
+            position: Vec3::new(1.0, 2.0, 3.0),
+            intensity: Vec3::new(10.0, 5.0, 0.0),
+            range: f32::INFINITY
+        }
+    );
+    let LightDesc::Spot {
+        direction,
+        inner_angle,
+        outer_angle,
+        range,
+        ..
+    } = &s.lights[1]
+    else {
+        panic!("{:?}", s.lights[1]);
+    };
+    // −Z rotated −90° about X points down.
+    assert!((*direction - Vec3::NEG_Y).length() < 1e-5, "{direction}");
+    assert_eq!((*inner_angle, *outer_angle, *range), (0.1, 0.5, 5.0));
+    assert!(
+        matches!(s.lights[2], LightDesc::Directional { irradiance, .. } if irradiance == Vec3::splat(3.0))
+    );
+    assert!(s.environment.is_none(), "punctual lights: no default light");
+    assert_eq!(s.cameras.len(), 2);
+    assert_eq!(s.cameras[0].name, "cam node");
+    assert_eq!(s.cameras[0].aspect, Some(1.5));
+    assert!(matches!(s.cameras[0].projection, Projection::Perspective { yfov, .. } if yfov == 0.7));
+    assert_eq!(s.cameras[1].name, "ortho");
+    assert_eq!(
+        s.cameras[1].projection,
+        Projection::Orthographic { half_height: 1.0 }
+    );
+
+    // Bad cone angles are refused.
+    let bad = tri_scene(
+        json!({}),
+        json!({
+            "extensions": {"KHR_lights_punctual": {"lights": [
+                {"type": "spot", "spot": {"innerConeAngle": 0.5, "outerConeAngle": 0.5}}]}},
+            "nodes": [{"mesh": 0, "extensions": {"KHR_lights_punctual": {"light": 0}}}],
+        }),
+    );
+    expect_err(&bad, &["light 0", "cone"]);
+}
+
+#[test]
+fn memory_limit_is_enforced() {
+    let opts = GltfOptions {
+        memory_limit: 16,
+        ..GltfOptions::default()
+    };
+    let e = load_gltf_slice(&tri_scene(json!({}), json!({})), None, "t", &opts).unwrap_err();
+    assert!(e.to_string().contains("memory"), "{e}");
+}
+
+#[test]
+fn byte_order_mark_is_tolerated() {
+    let mut bytes = b"\xEF\xBB\xBF".to_vec();
+    bytes.extend(tri_scene(json!({}), json!({})));
+    assert_eq!(load(&bytes).unwrap().meshes.len(), 1);
+}
+
+#[test]
+fn camera_type_must_match_its_projection() {
+    // Regression: the gltf crate's `Camera::projection` panics on this.
+    let bytes = tri_scene(
+        json!({}),
+        json!({
+            "scenes": [{"nodes": [0, 1]}],
+            "nodes": [{"mesh": 0}, {"camera": 0}],
+            "cameras": [{"type": "orthographic", "perspective": {"yfov": 0.5, "znear": 0.1}}],
+        }),
+    );
+    expect_err(&bytes, &["cameras[0]", "type"]);
+}
+
+#[test]
+fn position_accessor_out_of_range_is_refused() {
+    // Regression (fuzz): the gltf crate's validation indexes accessors with it and panics.
+    expect_err(
+        &tri_scene(json!({"attributes": {"POSITION": 2}}), json!({})),
+        &["mesh 0 primitive 0", "POSITION accessor 2"],
+    );
+    // No POSITION at all: skipped with a warning.
+    let s = load(&tri_scene(json!({"attributes": {}}), json!({}))).unwrap();
+    assert!(s.objects.is_empty());
+    assert!(s.warnings.iter().any(|w| w.contains("no POSITION")));
+}
+
+#[test]
+fn images_need_a_source() {
+    // Regressions (fuzz): the gltf crate's `Image::source` panics on these.
+    for image in [json!({}), json!({"bufferView": 0})] {
+        let bytes = tri_scene(
+            json!({"material": 0}),
+            json!({
+                "images": [image],
+                "textures": [{"source": 0}],
+                "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
+            }),
+        );
+        expect_err(&bytes, &["image 0"]);
+    }
+}

@@ -1,0 +1,146 @@
+//! Render-level glTF checks: loaded scenes render as their authors meant. They need the
+//! renderer (`Scene::build`, `render`), so they are behind the `render-tests` feature.
+
+use glam::Vec3;
+use raytile_core::scene::desc::{BsdfDesc, SceneDesc};
+use raytile_core::scene::load_scene;
+use raytile_core::{render, IntegratorKind, RenderSettings, Scene};
+use std::path::Path;
+
+const SAMPLES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/gltf-samples");
+const SCENES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/scenes");
+
+fn load(base: &str, rel: &str) -> Option<SceneDesc> {
+    let p = Path::new(base).join(rel);
+    if !p.exists() {
+        println!("skipped: {} missing", p.display());
+        return None;
+    }
+    Some(load_scene(&p).unwrap_or_else(|e| panic!("{e}")))
+}
+
+/// Renders `desc` and returns linear RGB pixels, row-major from the top.
+fn render_desc(desc: &SceneDesc, size: u32, spp: u32, integrator: IntegratorKind) -> Vec<Vec3> {
+    let settings = RenderSettings {
+        width: size,
+        height: size,
+        spp,
+        max_depth: 8,
+        integrator,
+        ..Default::default()
+    };
+    let scene = Scene::build(desc, &settings).unwrap_or_else(|e| panic!("{e}"));
+    let film = render(&scene, &settings, &());
+    let px: Vec<Vec3> = film.resolve().into_iter().map(Vec3::from).collect();
+    assert_eq!(px.len(), (size * size) as usize);
+    assert!(px.iter().all(|p| p.is_finite()), "non-finite pixel");
+    px
+}
+
+fn is_red(p: Vec3) -> bool {
+    p.x > 0.3 && p.y < 0.1 && p.z < 0.1
+}
+
+/// The red Box seen by the default camera (bounding sphere fits the view, yfov 45°): its front
+/// face covers a centred square of about 68% of the image width.
+#[test]
+fn box_covers_the_expected_pixels() {
+    let Some(desc) = load(SAMPLES, "Box/Box.glb") else {
+        return;
+    };
+    let n = 64;
+    let px = render_desc(&desc, n, 4, IntegratorKind::Albedo);
+    let at = |x: u32, y: u32| px[(y * n + x) as usize];
+    assert!(is_red(at(n / 2, n / 2)), "centre {}", at(n / 2, n / 2));
+    for (x, y) in [(2, 2), (n - 3, 2), (2, n - 3), (n - 3, n - 3), (n / 2, 1)] {
+        assert!(
+            !is_red(at(x, y)),
+            "({x}, {y}) should be background: {}",
+            at(x, y)
+        );
+    }
+    let red = px.iter().filter(|p| is_red(**p)).count() as f32 / px.len() as f32;
+    assert!((0.35..0.6).contains(&red), "red coverage {red}");
+}
+
+/// BoxTextured shows the texture's colours (decoded from sRGB) on the box.
+#[test]
+fn textured_box_shows_texture_colours() {
+    let Some(desc) = load(SAMPLES, "BoxTextured/BoxTextured.gltf") else {
+        return;
+    };
+    let BsdfDesc::Pbr(p) = &desc.materials[desc.objects[0].material].bsdf else {
+        panic!("not PBR");
+    };
+    let tex = &desc.textures[p.base_color_texture.unwrap().texture];
+    let to_linear = |c: f32| {
+        if c <= 0.04045 {
+            c / 12.92
+        } else {
+            ((c + 0.055) / 1.055).powf(2.4)
+        }
+    };
+    let tint = Vec3::from_slice(&p.base_color[..3]);
+    let texels: Vec<Vec3> = tex
+        .texels
+        .iter()
+        .step_by(7)
+        .map(|t| Vec3::new(to_linear(t[0]), to_linear(t[1]), to_linear(t[2])) * tint)
+        .collect();
+    let n = 48;
+    let px = render_desc(&desc, n, 16, IntegratorKind::Albedo);
+    // The central third of the image is on the box.
+    let centre: Vec<Vec3> = (n / 3..2 * n / 3)
+        .flat_map(|y| (n / 3..2 * n / 3).map(move |x| (x, y)))
+        .map(|(x, y)| px[(y * n + x) as usize])
+        .collect();
+    let near_texel = centre
+        .iter()
+        .filter(|c| texels.iter().any(|t| (*t - **c).abs().max_element() < 0.1))
+        .count();
+    assert!(
+        near_texel * 2 >= centre.len(),
+        "{near_texel} of {} pixels match texel colours",
+        centre.len()
+    );
+    let (lo, hi) = centre
+        .iter()
+        .fold((Vec3::splat(f32::MAX), Vec3::ZERO), |(lo, hi), c| {
+            (lo.min(*c), hi.max(*c))
+        });
+    assert!(
+        (hi - lo).max_element() > 0.3,
+        "the texture should show contrast: {lo} .. {hi}"
+    );
+}
+
+/// The Cornell box: lit by its emissive quad only, red wall on the left, green on the right.
+#[test]
+fn cornell_box_walls_have_their_colours() {
+    let Some(desc) = load(SCENES, "cornell-box.gltf") else {
+        return;
+    };
+    assert!(desc.environment.is_none());
+    let n = 48;
+    let px = render_desc(&desc, n, 32, IntegratorKind::Path);
+    let mean = |x0: u32, x1: u32| {
+        let mut s = Vec3::ZERO;
+        let mut k = 0.0;
+        for y in n / 3..2 * n / 3 {
+            for x in x0..x1 {
+                s += px[(y * n + x) as usize];
+                k += 1.0;
+            }
+        }
+        s / k
+    };
+    let left = mean(1, n / 8);
+    let right = mean(n - n / 8, n - 1);
+    assert!(left.x > 2.0 * left.y, "left wall should be red: {left}");
+    assert!(
+        right.y > 1.5 * right.x,
+        "right wall should be green: {right}"
+    );
+    let all = px.iter().copied().sum::<Vec3>() / px.len() as f32;
+    assert!(all.min_element() > 0.01, "the box is lit: {all}");
+}
