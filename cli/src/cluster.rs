@@ -46,13 +46,15 @@ pub fn run(a: ClusterArgs) -> anyhow::Result<()> {
 async fn cluster(a: ClusterArgs) -> anyhow::Result<()> {
     let _ = tracing_subscriber::fmt()
         .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| "warn".into()),
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()),
         )
         .with_writer(std::io::stderr)
         .try_init();
     let tmp = tempfile::tempdir()?;
-    let data_dir = a.data_dir.clone().unwrap_or_else(|| tmp.path().join("data"));
+    let data_dir = a
+        .data_dir
+        .clone()
+        .unwrap_or_else(|| tmp.path().join("data"));
     let mut cfg = raytile_coordinator::Config::new(&data_dir);
     cfg.token = a.token.clone().filter(|t| !t.is_empty());
     cfg.startup_grace = std::time::Duration::from_secs(5);
@@ -69,7 +71,11 @@ async fn cluster(a: ClusterArgs) -> anyhow::Result<()> {
     let stopped = |mut rx: tokio::sync::watch::Receiver<bool>| async move {
         let _ = rx.wait_for(|v| *v).await;
     };
-    let coord = tokio::spawn(raytile_coordinator::run(listener, cfg, stopped(stop_rx.clone())));
+    let coord = tokio::spawn(raytile_coordinator::run(
+        listener,
+        cfg,
+        stopped(stop_rx.clone()),
+    ));
     let total = a
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
@@ -81,7 +87,10 @@ async fn cluster(a: ClusterArgs) -> anyhow::Result<()> {
         wc.threads = (total / n + usize::from(i < total % n)).max(1);
         wc.name = format!("local-{i}");
         wc.cache_dir = tmp.path().join(format!("cache-{i}"));
-        workers.push(tokio::spawn(raytile_worker::run(wc, stopped(stop_rx.clone()))));
+        workers.push(tokio::spawn(raytile_worker::run(
+            wc,
+            stopped(stop_rx.clone()),
+        )));
     }
     let result = match &a.render {
         Some(scene) => {

@@ -74,7 +74,11 @@ pub struct SubmitArgs {
     /// Scene file (.gltf, .glb, .json) or folder.
     pub scene: PathBuf,
     /// Coordinator URL.
-    #[arg(long, env = "RAYTILE_COORDINATOR", default_value = "http://127.0.0.1:8080")]
+    #[arg(
+        long,
+        env = "RAYTILE_COORDINATOR",
+        default_value = "http://127.0.0.1:8080"
+    )]
     pub coordinator: String,
     /// Bearer token.
     #[arg(long, env = "RAYTILE_TOKEN", hide_env_values = true)]
@@ -98,7 +102,8 @@ pub fn run(args: SubmitArgs) -> anyhow::Result<()> {
     rt.block_on(async {
         let c = Api::new(&args.coordinator, args.token.clone())?;
         let wait = args.wait || args.output.is_some();
-        let job = submit_and_follow(&c, &args.scene, &args.job, wait, args.output.as_deref()).await?;
+        let job =
+            submit_and_follow(&c, &args.scene, &args.job, wait, args.output.as_deref()).await?;
         if !wait {
             println!("{}", job.id);
         }
@@ -154,21 +159,21 @@ fn gltf_has_external_files(path: &Path) -> anyhow::Result<bool> {
     let v: serde_json::Value =
         serde_json::from_slice(&text).with_context(|| format!("{} is not JSON", path.display()))?;
     let external = |key: &str| {
-        v.get(key)
-            .and_then(|a| a.as_array())
-            .is_some_and(|a| {
-                a.iter().any(|b| {
-                    b.get("uri")
-                        .and_then(|u| u.as_str())
-                        .is_some_and(|u| !u.starts_with("data:"))
-                })
+        v.get(key).and_then(|a| a.as_array()).is_some_and(|a| {
+            a.iter().any(|b| {
+                b.get("uri")
+                    .and_then(|u| u.as_str())
+                    .is_some_and(|u| !u.starts_with("data:"))
             })
+        })
     };
     Ok(external("buffers") || external("images"))
 }
 
 /// Reads a scene for upload: (bytes, format hint, entry).
-pub fn scene_upload(path: &Path) -> anyhow::Result<(Vec<u8>, Option<&'static str>, Option<String>)> {
+pub fn scene_upload(
+    path: &Path,
+) -> anyhow::Result<(Vec<u8>, Option<&'static str>, Option<String>)> {
     if path.is_dir() {
         return Ok((pkg::pack_folder(path)?, Some("tar"), None));
     }
@@ -178,10 +183,12 @@ pub fn scene_upload(path: &Path) -> anyhow::Result<(Vec<u8>, Option<&'static str
         .map(str::to_ascii_lowercase);
     if ext.as_deref() == Some("gltf") && gltf_has_external_files(path)? {
         let dir = path.parent().unwrap_or(Path::new("."));
-        let dir = if dir.as_os_str().is_empty() { Path::new(".") } else { dir };
-        let entry = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned());
+        let dir = if dir.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            dir
+        };
+        let entry = path.file_name().map(|n| n.to_string_lossy().into_owned());
         return Ok((pkg::pack_folder(dir)?, Some("tar"), entry));
     }
     let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
@@ -214,7 +221,11 @@ pub async fn submit_and_follow(
         q.push(("entry", e));
     }
     let created: proto::SceneCreated = c
-        .send(c.req(reqwest::Method::POST, "/v1/scenes").query(&q).body(bytes))
+        .send(
+            c.req(reqwest::Method::POST, "/v1/scenes")
+                .query(&q)
+                .body(bytes),
+        )
         .await
         .context("uploading the scene")?
         .json()
@@ -231,8 +242,10 @@ pub async fn submit_and_follow(
     }
     let bar = ProgressBar::new(job.tasks_total);
     bar.set_style(
-        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} tile passes {msg}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} tile passes {msg}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     while !job.state.is_final() {
         tokio::time::sleep(Duration::from_millis(300)).await;
@@ -242,7 +255,11 @@ pub async fn submit_and_follow(
             .json()
             .await?;
         bar.set_position(job.tasks_done);
-        bar.set_message(format!("{} ({} workers)", job.state.name(), job.workers.len()));
+        bar.set_message(format!(
+            "{} ({} workers)",
+            job.state.name(),
+            job.workers.len()
+        ));
     }
     bar.finish_and_clear();
     match job.state {

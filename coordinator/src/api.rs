@@ -108,7 +108,10 @@ async fn metrics(State(state): State<AppState>) -> Response {
     let workers = s.workers.len();
     drop(s);
     let mut out = String::new();
-    let _ = writeln!(out, "# HELP raytile_jobs Jobs by state.\n# TYPE raytile_jobs gauge");
+    let _ = writeln!(
+        out,
+        "# HELP raytile_jobs Jobs by state.\n# TYPE raytile_jobs gauge"
+    );
     for st in JobState::ALL {
         let n = by_state.get(&st).copied().unwrap_or(0);
         let _ = writeln!(out, "raytile_jobs{{state=\"{}\"}} {n}", st.name());
@@ -116,12 +119,27 @@ async fn metrics(State(state): State<AppState>) -> Response {
     for (name, help, v) in [
         ("raytile_tiles_leased_total", "Leases granted.", c.leased),
         ("raytile_tiles_done_total", "Tile results accepted.", c.done),
-        ("raytile_tiles_expired_total", "Leases expired and re-queued.", c.expired),
-        ("raytile_tiles_failed_total", "Failures reported by workers.", c.failed),
-        ("raytile_tiles_duplicate_total", "Duplicate or late results ignored.", c.duplicates),
+        (
+            "raytile_tiles_expired_total",
+            "Leases expired and re-queued.",
+            c.expired,
+        ),
+        (
+            "raytile_tiles_failed_total",
+            "Failures reported by workers.",
+            c.failed,
+        ),
+        (
+            "raytile_tiles_duplicate_total",
+            "Duplicate or late results ignored.",
+            c.duplicates,
+        ),
         ("raytile_samples_total", "Samples accepted.", c.samples),
     ] {
-        let _ = writeln!(out, "# HELP {name} {help}\n# TYPE {name} counter\n{name} {v}");
+        let _ = writeln!(
+            out,
+            "# HELP {name} {help}\n# TYPE {name} counter\n{name} {v}"
+        );
     }
     let _ = writeln!(
         out,
@@ -131,11 +149,7 @@ async fn metrics(State(state): State<AppState>) -> Response {
         out,
         "# HELP raytile_samples_per_second Samples accepted per second over the last 10 s.\n# TYPE raytile_samples_per_second gauge\nraytile_samples_per_second {sps}"
     );
-    (
-        [(header::CONTENT_TYPE, "text/plain; version=0.0.4")],
-        out,
-    )
-        .into_response()
+    ([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], out).into_response()
 }
 
 async fn upload_scene(
@@ -164,18 +178,30 @@ async fn download_scene(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Response, AppError> {
-    let m = scenes::meta(&state, &id).ok_or_else(|| AppError::NotFound(format!("no scene '{id}'")))?;
+    let m =
+        scenes::meta(&state, &id).ok_or_else(|| AppError::NotFound(format!("no scene '{id}'")))?;
     let path = scenes::scene_dir(&state, &id).join("blob");
-    let f = tokio::fs::File::open(&path).await.map_err(AppError::internal)?;
+    let f = tokio::fs::File::open(&path)
+        .await
+        .map_err(AppError::internal)?;
     let len = f.metadata().await.map_err(AppError::internal)?.len();
     let body = Body::from_stream(tokio_util::io::ReaderStream::new(f));
     Ok((
         [
             (header::CONTENT_TYPE, "application/octet-stream".to_string()),
             (header::CONTENT_LENGTH, len.to_string()),
-            (header::HeaderName::from_static("x-raytile-sha256"), m.sha256.clone()),
-            (header::HeaderName::from_static("x-raytile-format"), m.format.clone()),
-            (header::HeaderName::from_static("x-raytile-entry"), m.entry.clone()),
+            (
+                header::HeaderName::from_static("x-raytile-sha256"),
+                m.sha256.clone(),
+            ),
+            (
+                header::HeaderName::from_static("x-raytile-format"),
+                m.format.clone(),
+            ),
+            (
+                header::HeaderName::from_static("x-raytile-entry"),
+                m.entry.clone(),
+            ),
         ],
         body,
     )
@@ -228,7 +254,10 @@ async fn create_job(
     if u64::from(settings.width) * u64::from(settings.height) > lim.max_pixels {
         return Err(AppError::invalid(
             "width",
-            format!("width × height must be at most {} pixels on this coordinator", lim.max_pixels),
+            format!(
+                "width × height must be at most {} pixels on this coordinator",
+                lim.max_pixels
+            ),
         ));
     }
     if settings.spp > lim.max_spp {
@@ -296,19 +325,28 @@ async fn job_image(
     Query(q): Query<ImageQuery>,
 ) -> Result<Response, AppError> {
     let name = q.format.unwrap_or_else(|| "png".into());
-    let format = Format::from_name(&name)
-        .ok_or_else(|| AppError::invalid("format", format!("unknown image format '{name}' (expected png, exr or hdr)")))?;
+    let format = Format::from_name(&name).ok_or_else(|| {
+        AppError::invalid(
+            "format",
+            format!("unknown image format '{name}' (expected png, exr or hdr)"),
+        )
+    })?;
     let (layout, conn) = {
         let s = state.sched();
         let job = s.jobs.get(&id).ok_or_else(|| no_job(&id))?;
-        (Layout::of(job), s.store().reader().map_err(AppError::internal)?)
+        (
+            Layout::of(job),
+            s.store().reader().map_err(AppError::internal)?,
+        )
     };
     let job_id = id.clone();
     let bytes = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, AppError> {
         let mut results = Vec::new();
-        crate::store::for_each_result(&conn, &job_id, |idx, data| match proto::tile::decode(data) {
-            Ok((acc, _)) => results.push((idx, acc)),
-            Err(e) => tracing::error!(job = %job_id, idx, "stored result unreadable: {e}"),
+        crate::store::for_each_result(&conn, &job_id, |idx, data| {
+            match proto::tile::decode(data) {
+                Ok((acc, _)) => results.push((idx, acc)),
+                Err(e) => tracing::error!(job = %job_id, idx, "stored result unreadable: {e}"),
+            }
         })
         .map_err(AppError::internal)?;
         let film = compose::compose(&layout, results);

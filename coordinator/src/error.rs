@@ -90,11 +90,9 @@ impl IntoResponse for AppError {
             AppError::NotFound(_) => (StatusCode::NOT_FOUND, "not_found", None),
             AppError::Conflict(_) => (StatusCode::CONFLICT, "conflict", None),
             AppError::TooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, "too_large", None),
-            AppError::Invalid { field, .. } => (
-                StatusCode::UNPROCESSABLE_ENTITY,
-                "invalid",
-                field.clone(),
-            ),
+            AppError::Invalid { field, .. } => {
+                (StatusCode::UNPROCESSABLE_ENTITY, "invalid", field.clone())
+            }
             AppError::TooMany(_) => (StatusCode::TOO_MANY_REQUESTS, "too_many", None),
             AppError::Unavailable => (StatusCode::SERVICE_UNAVAILABLE, "unavailable", None),
             AppError::Internal(e) => {

@@ -147,7 +147,10 @@ pub async fn upload(
     }
     let hinted = match q.format.as_deref() {
         Some(f) => Some(SceneFormat::from_name(f).ok_or_else(|| {
-            AppError::invalid("format", format!("unknown format '{f}' (expected gltf, glb, json, tar or zip)"))
+            AppError::invalid(
+                "format",
+                format!("unknown format '{f}' (expected gltf, glb, json, tar or zip)"),
+            )
         })?),
         None => content_type.and_then(SceneFormat::from_content_type),
     };
@@ -158,7 +161,12 @@ pub async fn upload(
     }
     let format = match hinted.or_else(|| pkg::sniff(&head)) {
         Some(f) => f,
-        None => return Err(AppError::invalid("body", pkg::PackageError::UnknownFormat.to_string())),
+        None => {
+            return Err(AppError::invalid(
+                "body",
+                pkg::PackageError::UnknownFormat.to_string(),
+            ))
+        }
     };
     let entry = q.entry.filter(|_| format.is_archive());
     let id = pkg::scene_id(&sha, entry.as_deref());
@@ -211,10 +219,14 @@ fn store_scene(
         max_bytes: state.cfg.limits.max_unpacked_bytes,
         ..UnpackLimits::default()
     };
-    let scene_file = pkg::unpack(&blob, format, entry.as_deref(), &root, limits).map_err(|e| match e {
-        pkg::PackageError::Io(e) => AppError::internal(e),
-        e => AppError::invalid(if entry.is_some() { "entry" } else { "body" }, e.to_string()),
-    })?;
+    let scene_file =
+        pkg::unpack(&blob, format, entry.as_deref(), &root, limits).map_err(|e| match e {
+            pkg::PackageError::Io(e) => AppError::internal(e),
+            e => AppError::invalid(
+                if entry.is_some() { "entry" } else { "body" },
+                e.to_string(),
+            ),
+        })?;
     let rel = scene_file
         .strip_prefix(&root)
         .unwrap_or(&scene_file)

@@ -128,11 +128,14 @@ pub fn transition(task: &mut Task, ev: TaskEvent) -> Outcome {
         (Done { .. }, TaskEvent::Complete { .. }) => return Outcome::AlreadyDone,
         (Done { .. } | Failed, _) => return Outcome::Ignored,
         (_, TaskEvent::Complete { worker }) => Done { worker },
-        (Queued, TaskEvent::Lease {
-            worker,
-            lease,
-            deadline,
-        }) => Leased {
+        (
+            Queued,
+            TaskEvent::Lease {
+                worker,
+                lease,
+                deadline,
+            },
+        ) => Leased {
             worker,
             lease,
             deadline,
@@ -479,7 +482,8 @@ impl Sched {
                     "failed" => TaskState::Failed,
                     "leased" => match (tr.worker, tr.lease) {
                         (Some(worker), Some(lease)) => {
-                            s.leases.insert(lease.clone(), (row.id.clone(), tr.idx as usize));
+                            s.leases
+                                .insert(lease.clone(), (row.id.clone(), tr.idx as usize));
                             TaskState::Leased {
                                 worker,
                                 lease,
@@ -675,7 +679,11 @@ impl Sched {
     }
 
     /// Renews a lease. Returns `Err(reason)` in the Ok when the worker should stop.
-    pub fn heartbeat(&mut self, lease: &str, now: Instant) -> Result<Result<(), String>, SchedError> {
+    pub fn heartbeat(
+        &mut self,
+        lease: &str,
+        now: Instant,
+    ) -> Result<Result<(), String>, SchedError> {
         let Some((job_id, idx)) = self.leases.get(lease).cloned() else {
             return Ok(Err("unknown or expired lease".into()));
         };

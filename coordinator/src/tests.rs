@@ -1,7 +1,9 @@
 //! Coordinator unit tests with synthetic results: fake workers post made-up tile sums, so
 //! nothing here needs the renderer.
 
-use crate::sched::{transition, Outcome, ResultOutcome, Sched, SchedConfig, Task, TaskEvent, TaskState};
+use crate::sched::{
+    transition, Outcome, ResultOutcome, Sched, SchedConfig, Task, TaskEvent, TaskState,
+};
 use crate::store::Store;
 use crate::{app, AppState, Config, LoadedScene};
 use axum::body::Body;
@@ -44,14 +46,21 @@ fn fake_result(s: &Sched, job: &str, idx: usize) -> (TileAccum, u32, Vec<u8>) {
 }
 
 fn open(dir: &std::path::Path, now: Instant) -> Sched {
-    Sched::restore(cfg(), Store::open(dir).unwrap(), now, Duration::from_secs(5)).unwrap()
+    Sched::restore(
+        cfg(),
+        Store::open(dir).unwrap(),
+        now,
+        Duration::from_secs(5),
+    )
+    .unwrap()
 }
 
 fn finish(s: &mut Sched, w: &str, now: Instant) -> Option<(String, usize)> {
     let (job, idx, _) = s.lease(w, now).unwrap()?;
     let (acc, pass, bytes) = fake_result(s, &job, idx);
     assert_eq!(
-        s.complete(&job, idx as u32, w, &acc, pass, &bytes, now).unwrap(),
+        s.complete(&job, idx as u32, w, &acc, pass, &bytes, now)
+            .unwrap(),
         ResultOutcome::Accepted
     );
     Some((job, idx))
@@ -78,9 +87,15 @@ fn state_machine_refuses_stale_events() {
         deadline: now,
     };
     assert_eq!(transition(&mut t, renew_b), Outcome::Ignored);
-    assert_eq!(transition(&mut t, TaskEvent::Expire { now }), Outcome::Ignored);
+    assert_eq!(
+        transition(&mut t, TaskEvent::Expire { now }),
+        Outcome::Ignored
+    );
     let later = now + Duration::from_secs(2);
-    assert_eq!(transition(&mut t, TaskEvent::Expire { now: later }), Outcome::Changed);
+    assert_eq!(
+        transition(&mut t, TaskEvent::Expire { now: later }),
+        Outcome::Changed
+    );
     assert_eq!(t.state, TaskState::Queued);
     let done = TaskEvent::Complete { worker: "w".into() };
     assert_eq!(transition(&mut t, done.clone()), Outcome::Changed);
@@ -122,7 +137,15 @@ fn centre_tiles_go_first() {
     };
     let tiles = s.tiles();
     let order = crate::sched::centre_out(&s, &tiles);
-    assert_eq!(tiles[order[0] as usize], raytile_core::Tile { x0: 16, y0: 16, x1: 32, y1: 32 });
+    assert_eq!(
+        tiles[order[0] as usize],
+        raytile_core::Tile {
+            x0: 16,
+            y0: 16,
+            x1: 32,
+            y1: 32
+        }
+    );
 }
 
 #[test]
@@ -135,22 +158,38 @@ fn expired_leases_are_requeued_and_late_results_are_duplicates() {
     let job = s.create_job("s".into(), small(1), 0).unwrap().id;
     let (_, idx, lease) = s.lease(&w1, t0).unwrap().unwrap();
     assert_eq!(s.expire(t0 + Duration::from_secs(5)).unwrap(), 0);
-    assert_eq!(s.heartbeat(&lease, t0 + Duration::from_secs(5)).unwrap(), Ok(()));
+    assert_eq!(
+        s.heartbeat(&lease, t0 + Duration::from_secs(5)).unwrap(),
+        Ok(())
+    );
     // Renewed at 5 s: still alive at 14 s, gone at 15 s.
     assert_eq!(s.expire(t0 + Duration::from_secs(14)).unwrap(), 0);
     assert_eq!(s.expire(t0 + Duration::from_secs(15)).unwrap(), 1);
-    assert!(s.heartbeat(&lease, t0 + Duration::from_secs(15)).unwrap().is_err());
+    assert!(s
+        .heartbeat(&lease, t0 + Duration::from_secs(15))
+        .unwrap()
+        .is_err());
     let (_, idx2, _) = s.lease(&w2, t0 + Duration::from_secs(15)).unwrap().unwrap();
     assert_eq!(idx, idx2, "the expired task is leased again first");
     let (acc, pass, bytes) = fake_result(&s, &job, idx);
     let now = t0 + Duration::from_secs(16);
-    assert_eq!(s.complete(&job, idx as u32, &w2, &acc, pass, &bytes, now).unwrap(), ResultOutcome::Accepted);
+    assert_eq!(
+        s.complete(&job, idx as u32, &w2, &acc, pass, &bytes, now)
+            .unwrap(),
+        ResultOutcome::Accepted
+    );
     // The first worker's late result, and a plain duplicate.
-    assert_eq!(s.complete(&job, idx as u32, &w1, &acc, pass, &bytes, now).unwrap(), ResultOutcome::Duplicate);
+    assert_eq!(
+        s.complete(&job, idx as u32, &w1, &acc, pass, &bytes, now)
+            .unwrap(),
+        ResultOutcome::Duplicate
+    );
     assert_eq!(s.counters.duplicates, 1);
     // A result for the wrong pixels is refused.
     let (other, _, _) = fake_result(&s, &job, idx + 1);
-    assert!(s.complete(&job, idx as u32, &w1, &other, pass, &bytes, now).is_err());
+    assert!(s
+        .complete(&job, idx as u32, &w1, &other, pass, &bytes, now)
+        .is_err());
 }
 
 #[test]
@@ -165,13 +204,19 @@ fn repeated_failures_fail_the_job_and_block_the_worker() {
         let (_, _, l) = s.lease(&bad, now).unwrap().unwrap();
         assert!(s.fail(&l, "out of memory").unwrap());
     }
-    assert!(s.lease(&bad, now).unwrap().is_none(), "blocked after two failures");
+    assert!(
+        s.lease(&bad, now).unwrap().is_none(),
+        "blocked after two failures"
+    );
     let (_, _, l) = s.lease(&good, now).unwrap().unwrap();
     assert!(s.fail(&l, "disk full").unwrap());
     let j = &s.jobs[&job];
     assert_eq!(j.state, JobState::Failed);
     let err = j.error.as_deref().unwrap();
-    assert!(err.contains("failed 3 times") && err.contains("disk full"), "{err}");
+    assert!(
+        err.contains("failed 3 times") && err.contains("disk full"),
+        "{err}"
+    );
     assert!(s.lease(&good, now).unwrap().is_none());
 }
 
@@ -198,12 +243,20 @@ fn restart_resumes_without_redoing_finished_tasks() {
     // The old lease survives the restart with a grace period, and can still deliver.
     assert_eq!(s.heartbeat(&lease, t1).unwrap(), Ok(()));
     let (acc, pass, bytes) = fake_result(&s, &job, idx);
-    assert_eq!(s.complete(&job, idx as u32, &w, &acc, pass, &bytes, t1).unwrap(), ResultOutcome::Accepted);
+    assert_eq!(
+        s.complete(&job, idx as u32, &w, &acc, pass, &bytes, t1)
+            .unwrap(),
+        ResultOutcome::Accepted
+    );
     let mut leased = std::collections::HashSet::new();
     while let Some((_, i)) = finish(&mut s, &w, t1) {
         assert!(leased.insert(i));
     }
-    assert_eq!(leased.len() as u64, s.jobs[&job].tasks.len() as u64 - 4, "no finished task redone");
+    assert_eq!(
+        leased.len() as u64,
+        s.jobs[&job].tasks.len() as u64 - 4,
+        "no finished task redone"
+    );
     assert_eq!(s.jobs[&job].state, JobState::Done);
 }
 
@@ -220,8 +273,13 @@ fn test_state(dir: &std::path::Path, token: Option<&str>) -> AppState {
 async fn call(state: &AppState, req: Request<Body>) -> (StatusCode, serde_json::Value) {
     let resp = app(state.clone()).oneshot(req).await.unwrap();
     let status = resp.status();
-    let bytes = axum::body::to_bytes(resp.into_body(), usize::MAX).await.unwrap();
-    (status, serde_json::from_slice(&bytes).unwrap_or(serde_json::Value::Null))
+    let bytes = axum::body::to_bytes(resp.into_body(), usize::MAX)
+        .await
+        .unwrap();
+    (
+        status,
+        serde_json::from_slice(&bytes).unwrap_or(serde_json::Value::Null),
+    )
 }
 
 fn get(uri: &str) -> Request<Body> {
@@ -229,7 +287,10 @@ fn get(uri: &str) -> Request<Body> {
 }
 
 fn post(uri: &str, body: impl Into<Body>) -> Request<Body> {
-    Request::post(uri).header("content-type", "application/json").body(body.into()).unwrap()
+    Request::post(uri)
+        .header("content-type", "application/json")
+        .body(body.into())
+        .unwrap()
 }
 
 #[tokio::test]
@@ -238,7 +299,10 @@ async fn every_route_is_documented_and_routed() {
     let st = test_state(dir.path(), None);
     let doc = crate::openapi::document();
     for (method, path) in crate::api::ROUTES {
-        assert!(doc["paths"][path][method].is_object(), "{method} {path} missing from OpenAPI");
+        assert!(
+            doc["paths"][path][method].is_object(),
+            "{method} {path} missing from OpenAPI"
+        );
         let uri = path
             .replace("{id}", "x")
             .replace("{task}", "0")
@@ -250,15 +314,29 @@ async fn every_route_is_documented_and_routed() {
             .body(Body::from("{}"))
             .unwrap();
         let resp = app(st.clone()).oneshot(req).await.unwrap();
-        assert_ne!(resp.status(), StatusCode::METHOD_NOT_ALLOWED, "{method} {path}");
+        assert_ne!(
+            resp.status(),
+            StatusCode::METHOD_NOT_ALLOWED,
+            "{method} {path}"
+        );
         if resp.status() == StatusCode::NOT_FOUND {
-            let b = axum::body::to_bytes(resp.into_body(), usize::MAX).await.unwrap();
+            let b = axum::body::to_bytes(resp.into_body(), usize::MAX)
+                .await
+                .unwrap();
             let v: serde_json::Value = serde_json::from_slice(&b).unwrap();
-            assert_ne!(v["error"]["message"], "no such endpoint", "{method} {path} not routed");
+            assert_ne!(
+                v["error"]["message"], "no such endpoint",
+                "{method} {path} not routed"
+            );
         }
     }
     // And every documented path is a route.
-    let n: usize = doc["paths"].as_object().unwrap().values().map(|p| p.as_object().unwrap().len()).sum();
+    let n: usize = doc["paths"]
+        .as_object()
+        .unwrap()
+        .values()
+        .map(|p| p.as_object().unwrap().len())
+        .sum();
     assert_eq!(n, crate::api::ROUTES.len());
 }
 
@@ -270,9 +348,15 @@ async fn token_is_required_except_for_healthz() {
     let (code, body) = call(&st, get("/v1/jobs")).await;
     assert_eq!(code, StatusCode::UNAUTHORIZED);
     assert_eq!(body["error"]["code"], "unauthorized");
-    let wrong = Request::get("/v1/jobs").header("authorization", "Bearer nope").body(Body::empty()).unwrap();
+    let wrong = Request::get("/v1/jobs")
+        .header("authorization", "Bearer nope")
+        .body(Body::empty())
+        .unwrap();
     assert_eq!(call(&st, wrong).await.0, StatusCode::UNAUTHORIZED);
-    let right = Request::get("/v1/jobs").header("authorization", "Bearer sesame").body(Body::empty()).unwrap();
+    let right = Request::get("/v1/jobs")
+        .header("authorization", "Bearer sesame")
+        .body(Body::empty())
+        .unwrap();
     assert_eq!(call(&st, right).await.0, StatusCode::OK);
 }
 
@@ -284,7 +368,10 @@ async fn jobs_validate_fields_and_scenes() {
     assert_eq!(code, StatusCode::CREATED, "{body}");
     let id = body["id"].as_str().unwrap().to_string();
     let (code, again) = call(&st, post("/v1/scenes", r#"{"objects": []}"#)).await;
-    assert_eq!((code, again["id"].as_str().unwrap()), (StatusCode::OK, id.as_str()));
+    assert_eq!(
+        (code, again["id"].as_str().unwrap()),
+        (StatusCode::OK, id.as_str())
+    );
     let check = |json: String, code: StatusCode, field: Option<&'static str>| {
         let st = st.clone();
         async move {
@@ -296,14 +383,49 @@ async fn jobs_validate_fields_and_scenes() {
             b
         }
     };
-    check(format!(r#"{{"scene": "{id}", "spp": 0}}"#), StatusCode::UNPROCESSABLE_ENTITY, Some("spp")).await;
-    check(format!(r#"{{"scene": "{id}", "width": 0}}"#), StatusCode::UNPROCESSABLE_ENTITY, Some("width")).await;
-    check(format!(r#"{{"scene": "{id}", "spp": 4, "passes": 5}}"#), StatusCode::UNPROCESSABLE_ENTITY, Some("passes")).await;
-    check(r#"{"scene": "nope"}"#.into(), StatusCode::UNPROCESSABLE_ENTITY, Some("scene")).await;
-    check(format!(r#"{{"scene": "{id}", "integrator": "magic"}}"#), StatusCode::UNPROCESSABLE_ENTITY, None).await;
-    check(format!(r#"{{"scene": "{id}", "colour": 1}}"#), StatusCode::UNPROCESSABLE_ENTITY, None).await;
+    check(
+        format!(r#"{{"scene": "{id}", "spp": 0}}"#),
+        StatusCode::UNPROCESSABLE_ENTITY,
+        Some("spp"),
+    )
+    .await;
+    check(
+        format!(r#"{{"scene": "{id}", "width": 0}}"#),
+        StatusCode::UNPROCESSABLE_ENTITY,
+        Some("width"),
+    )
+    .await;
+    check(
+        format!(r#"{{"scene": "{id}", "spp": 4, "passes": 5}}"#),
+        StatusCode::UNPROCESSABLE_ENTITY,
+        Some("passes"),
+    )
+    .await;
+    check(
+        r#"{"scene": "nope"}"#.into(),
+        StatusCode::UNPROCESSABLE_ENTITY,
+        Some("scene"),
+    )
+    .await;
+    check(
+        format!(r#"{{"scene": "{id}", "integrator": "magic"}}"#),
+        StatusCode::UNPROCESSABLE_ENTITY,
+        None,
+    )
+    .await;
+    check(
+        format!(r#"{{"scene": "{id}", "colour": 1}}"#),
+        StatusCode::UNPROCESSABLE_ENTITY,
+        None,
+    )
+    .await;
     check("not json".into(), StatusCode::BAD_REQUEST, Some("body")).await;
-    let b = check(format!(r#"{{"scene": "{id}", "width": 20, "height": 10, "spp": 2}}"#), StatusCode::CREATED, None).await;
+    let b = check(
+        format!(r#"{{"scene": "{id}", "width": 20, "height": 10, "spp": 2}}"#),
+        StatusCode::CREATED,
+        None,
+    )
+    .await;
     assert_eq!(b["state"], "queued");
     assert_eq!(b["settings"]["max_depth"], 16);
     let (code, _) = call(&st, get("/v1/jobs/job-404")).await;

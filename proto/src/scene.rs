@@ -48,7 +48,12 @@ impl SceneFormat {
 
     /// Reads a `Content-Type` header value, if it names a format.
     pub fn from_content_type(ct: &str) -> Option<Self> {
-        let ct = ct.split(';').next().unwrap_or("").trim().to_ascii_lowercase();
+        let ct = ct
+            .split(';')
+            .next()
+            .unwrap_or("")
+            .trim()
+            .to_ascii_lowercase();
         match ct.as_str() {
             "model/gltf+json" => Some(Self::Gltf),
             "model/gltf-binary" => Some(Self::Glb),
@@ -135,7 +140,9 @@ pub fn scene_id(sha256: &str, entry: Option<&str>) -> String {
 
 /// Whether a string looks like a scene id (64 lowercase hex digits).
 pub fn is_scene_id(s: &str) -> bool {
-    s.len() == 64 && s.bytes().all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
+    s.len() == 64
+        && s.bytes()
+            .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
 }
 
 /// Tells the format from the first bytes of a blob (up to 4 KiB is plenty).
@@ -310,7 +317,10 @@ pub fn unpack(
 
 fn is_scene_file(p: &Path) -> bool {
     matches!(
-        p.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref(),
+        p.extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase)
+            .as_deref(),
         Some("gltf" | "glb" | "json")
     )
 }
@@ -333,10 +343,8 @@ fn pick_entry(files: &[PathBuf], entry: Option<&str>) -> Result<PathBuf, Package
     let mut found = at_depth(1);
     if found.is_empty() {
         // A folder archived with its own name: `scene/scene.gltf`.
-        let tops: std::collections::BTreeSet<_> = files
-            .iter()
-            .filter_map(|f| f.components().next())
-            .collect();
+        let tops: std::collections::BTreeSet<_> =
+            files.iter().filter_map(|f| f.components().next()).collect();
         if tops.len() == 1 {
             found = at_depth(2);
         }
@@ -408,9 +416,18 @@ mod tests {
         let out = t.path().join("out");
         std::fs::create_dir(&out).unwrap();
         let fmt = sniff(blob).ok_or("sniff")?;
-        unpack(&p, fmt, entry, &out, UnpackLimits { max_bytes: 1000, max_files: 10 })
-            .map(|p| p.strip_prefix(&out).unwrap().to_string_lossy().into_owned())
-            .map_err(|e| e.to_string())
+        unpack(
+            &p,
+            fmt,
+            entry,
+            &out,
+            UnpackLimits {
+                max_bytes: 1000,
+                max_files: 10,
+            },
+        )
+        .map(|p| p.strip_prefix(&out).unwrap().to_string_lossy().into_owned())
+        .map_err(|e| e.to_string())
     }
 
     #[test]
@@ -419,7 +436,10 @@ mod tests {
         assert_eq!(sniff(b" {\"asset\":{}}"), Some(SceneFormat::Gltf));
         assert_eq!(sniff(b"{\"objects\":[]}"), Some(SceneFormat::Json));
         assert_eq!(sniff(b"PK\x03\x04rest"), Some(SceneFormat::Zip));
-        assert_eq!(sniff(&tar_with(&[("a.gltf", b"{}")])), Some(SceneFormat::Tar));
+        assert_eq!(
+            sniff(&tar_with(&[("a.gltf", b"{}")])),
+            Some(SceneFormat::Tar)
+        );
         assert_eq!(sniff(b"hello"), None);
     }
 

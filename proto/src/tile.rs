@@ -157,7 +157,10 @@ mod tests {
     fn bad_input_is_an_error_not_a_panic() {
         let good = encode(&sample(), 0);
         assert_eq!(decode(&good[..10]).unwrap_err(), TileFormatError::Short(10));
-        assert!(matches!(decode(&good[..good.len() - 1]), Err(TileFormatError::Length { .. })));
+        assert!(matches!(
+            decode(&good[..good.len() - 1]),
+            Err(TileFormatError::Length { .. })
+        ));
         let mut bad = good.clone();
         bad[0] = b'X';
         assert_eq!(decode(&bad).unwrap_err(), TileFormatError::Magic);

@@ -43,7 +43,9 @@ mod support {
     impl Coord {
         /// Starts on `port` (0 = any) with `cfg`.
         pub async fn start(cfg: Config, port: u16) -> Coord {
-            let listener = tokio::net::TcpListener::bind(("127.0.0.1", port)).await.unwrap();
+            let listener = tokio::net::TcpListener::bind(("127.0.0.1", port))
+                .await
+                .unwrap();
             let port = listener.local_addr().unwrap().port();
             let (stop, rx) = watch::channel(false);
             let mut rx2 = rx.clone();
@@ -156,7 +158,12 @@ mod support {
     }
 
     /// Polls until `pred` holds (or panics after `secs`).
-    pub async fn wait_for(base: &str, id: &str, secs: u64, pred: impl Fn(&JobStatus) -> bool) -> JobStatus {
+    pub async fn wait_for(
+        base: &str,
+        id: &str,
+        secs: u64,
+        pred: impl Fn(&JobStatus) -> bool,
+    ) -> JobStatus {
         let end = tokio::time::Instant::now() + Duration::from_secs(secs);
         loop {
             let s = status(base, id).await;
@@ -196,7 +203,8 @@ mod support {
         let desc = raytile_core::load_scene(scene).unwrap();
         let built = raytile_core::Scene::build(&desc, s).unwrap();
         let film = raytile_core::render(&built, s, &());
-        raytile_coordinator::compose::encode(&film, raytile_coordinator::compose::Format::Exr).unwrap()
+        raytile_coordinator::compose::encode(&film, raytile_coordinator::compose::Format::Exr)
+            .unwrap()
     }
 
     /// Renders the cornell box with `workers` workers and `tile_size`, checks the EXR
@@ -214,7 +222,10 @@ mod support {
         assert_eq!(done.state, JobState::Done, "{done:?}");
         let got = image(&c.base, &j.id, "exr").await;
         let want = local_exr(&scene, &done.settings);
-        assert!(got == want, "{workers} workers, tile {tile_size}: EXR differs from the local render");
+        assert!(
+            got == want,
+            "{workers} workers, tile {tile_size}: EXR differs from the local render"
+        );
         for w in ws {
             w.stop().await;
         }
@@ -234,21 +245,31 @@ mod support {
             let http = reqwest::Client::new();
             let r: proto::Registered = http
                 .post(format!("{base}/v1/workers"))
-                .json(&proto::RegisterRequest { name: name.into(), threads: 1 })
+                .json(&proto::RegisterRequest {
+                    name: name.into(),
+                    threads: 1,
+                })
                 .send()
                 .await
                 .unwrap()
                 .json()
                 .await
                 .unwrap();
-            Fake { base: base.into(), id: r.worker_id, http }
+            Fake {
+                base: base.into(),
+                id: r.worker_id,
+                http,
+            }
         }
 
         /// Leases (short poll).
         pub async fn lease(&self) -> Option<proto::Lease> {
             let r = self
                 .http
-                .post(format!("{}/v1/workers/{}/lease?wait_ms=200", self.base, self.id))
+                .post(format!(
+                    "{}/v1/workers/{}/lease?wait_ms=200",
+                    self.base, self.id
+                ))
                 .send()
                 .await
                 .unwrap();
@@ -268,7 +289,10 @@ mod support {
             };
             let r = self
                 .http
-                .put(format!("{}/v1/jobs/{}/tasks/{}/result?worker={}", self.base, l.job, l.task, self.id))
+                .put(format!(
+                    "{}/v1/jobs/{}/tasks/{}/result?worker={}",
+                    self.base, l.job, l.task, self.id
+                ))
                 .body(proto::tile::encode(&acc, l.pass))
                 .send()
                 .await
@@ -341,12 +365,18 @@ mod faults {
         let victim = Worker::start(&c.base, 1, dir.path(), "victim");
         let id = upload(&c.base, std::fs::read(&scene).unwrap()).await;
         let j = submit(&c.base, &job(&id, 16)).await;
-        wait_for(&c.base, &j.id, 60, |s| s.tasks_leased > 0 || s.state.is_final()).await;
+        wait_for(&c.base, &j.id, 60, |s| {
+            s.tasks_leased > 0 || s.state.is_final()
+        })
+        .await;
         victim.handle.abort();
         let survivor = Worker::start(&c.base, 1, dir.path(), "survivor");
         let done = wait_for(&c.base, &j.id, 120, |s| s.state.is_final()).await;
         assert_eq!(done.state, JobState::Done);
-        assert_eq!(image(&c.base, &j.id, "exr").await, local_exr(&scene, &done.settings));
+        assert_eq!(
+            image(&c.base, &j.id, "exr").await,
+            local_exr(&scene, &done.settings)
+        );
         survivor.stop().await;
         c.stop().await;
     }
@@ -371,10 +401,23 @@ mod faults {
         let c = Coord::start(cfg, port).await;
         let done = wait_for(&c.base, &j.id, 120, |s| s.state.is_final()).await;
         assert_eq!(done.state, JobState::Done);
-        let renders: u64 = ws.iter().map(|w| w.stats.renders.load(Ordering::Relaxed)).sum();
-        let dups: u64 = ws.iter().map(|w| w.stats.duplicates.load(Ordering::Relaxed)).sum();
-        assert_eq!((renders, dups), (done.tasks_total, 0), "a finished tile was rendered twice");
-        assert_eq!(image(&c.base, &j.id, "exr").await, local_exr(&scene, &done.settings));
+        let renders: u64 = ws
+            .iter()
+            .map(|w| w.stats.renders.load(Ordering::Relaxed))
+            .sum();
+        let dups: u64 = ws
+            .iter()
+            .map(|w| w.stats.duplicates.load(Ordering::Relaxed))
+            .sum();
+        assert_eq!(
+            (renders, dups),
+            (done.tasks_total, 0),
+            "a finished tile was rendered twice"
+        );
+        assert_eq!(
+            image(&c.base, &j.id, "exr").await,
+            local_exr(&scene, &done.settings)
+        );
         for w in ws {
             w.stop().await;
         }
@@ -389,10 +432,19 @@ mod faults {
             return;
         }
         let Some(scene) = cornell() else { return };
-        let bin_dir = std::env::current_exe().unwrap().parent().unwrap().parent().unwrap().to_path_buf();
+        let bin_dir = std::env::current_exe()
+            .unwrap()
+            .parent()
+            .unwrap()
+            .parent()
+            .unwrap()
+            .to_path_buf();
         let worker_bin = bin_dir.join("raytile-worker");
         if !worker_bin.exists() {
-            eprintln!("skipping: {} not built (cargo build -p raytile-worker)", worker_bin.display());
+            eprintln!(
+                "skipping: {} not built (cargo build -p raytile-worker)",
+                worker_bin.display()
+            );
             return;
         }
         let dir = tempfile::tempdir().unwrap();
@@ -409,7 +461,10 @@ mod faults {
         let mut victim = spawn("victim");
         let id = upload(&c.base, std::fs::read(&scene).unwrap()).await;
         let j = submit(&c.base, &job(&id, 16)).await;
-        wait_for(&c.base, &j.id, 60, |s| s.tasks_leased > 0 || s.state.is_final()).await;
+        wait_for(&c.base, &j.id, 60, |s| {
+            s.tasks_leased > 0 || s.state.is_final()
+        })
+        .await;
         victim.kill().unwrap(); // SIGKILL
         let _ = victim.wait();
         let mut survivor = spawn("survivor");
@@ -417,7 +472,10 @@ mod faults {
         let _ = survivor.kill();
         let _ = survivor.wait();
         assert_eq!(done.state, JobState::Done);
-        assert_eq!(image(&c.base, &j.id, "exr").await, local_exr(&scene, &done.settings));
+        assert_eq!(
+            image(&c.base, &j.id, "exr").await,
+            local_exr(&scene, &done.settings)
+        );
         c.stop().await;
     }
 }
@@ -435,7 +493,11 @@ mod api {
         let w = Fake::register(&c.base, "w").await;
         let l = w.lease().await.unwrap();
         assert!(!w.heartbeat(&l).await.cancelled);
-        let r = reqwest::Client::new().delete(format!("{}/v1/jobs/{}", c.base, j.id)).send().await.unwrap();
+        let r = reqwest::Client::new()
+            .delete(format!("{}/v1/jobs/{}", c.base, j.id))
+            .send()
+            .await
+            .unwrap();
         assert_eq!(r.status(), 200);
         assert!(w.heartbeat(&l).await.cancelled);
         let (code, body) = w.upload(&l).await;
@@ -458,23 +520,49 @@ mod api {
         tokio::time::sleep(Duration::from_millis(800)).await;
         assert!(slow.heartbeat(&l1).await.cancelled, "lease expired");
         let l2 = fast.lease().await.unwrap();
-        assert_eq!((l2.job.clone(), l2.task), (l1.job.clone(), l1.task), "re-queued task first");
+        assert_eq!(
+            (l2.job.clone(), l2.task),
+            (l1.job.clone(), l1.task),
+            "re-queued task first"
+        );
         let (code, body) = fast.upload(&l2).await;
         assert_eq!((code, body["accepted"].as_bool()), (200, Some(true)));
         let (code, body) = slow.upload(&l1).await;
-        assert_eq!((code, body["duplicate"].as_bool()), (200, Some(true)), "late");
+        assert_eq!(
+            (code, body["duplicate"].as_bool()),
+            (200, Some(true)),
+            "late"
+        );
         let (code, body) = fast.upload(&l2).await;
-        assert_eq!((code, body["duplicate"].as_bool()), (200, Some(true)), "duplicate");
+        assert_eq!(
+            (code, body["duplicate"].as_bool()),
+            (200, Some(true)),
+            "duplicate"
+        );
         // Finish the job; the partial and final image are served.
         while let Some(l) = fast.lease().await {
             fast.upload(&l).await;
         }
         let s = status(&c.base, &j.id).await;
-        assert_eq!((s.state, s.tasks_done, s.tasks_total), (JobState::Done, 8, 8));
+        assert_eq!(
+            (s.state, s.tasks_done, s.tasks_total),
+            (JobState::Done, 8, 8)
+        );
         assert_eq!(&image(&c.base, &j.id, "png").await[1..4], b"PNG");
-        let metrics = reqwest::get(format!("{}/metrics", c.base)).await.unwrap().text().await.unwrap();
-        assert!(metrics.contains("raytile_tiles_duplicate_total 2"), "{metrics}");
-        assert!(metrics.contains("raytile_tiles_expired_total 1"), "{metrics}");
+        let metrics = reqwest::get(format!("{}/metrics", c.base))
+            .await
+            .unwrap()
+            .text()
+            .await
+            .unwrap();
+        assert!(
+            metrics.contains("raytile_tiles_duplicate_total 2"),
+            "{metrics}"
+        );
+        assert!(
+            metrics.contains("raytile_tiles_expired_total 1"),
+            "{metrics}"
+        );
         c.stop().await;
     }
 
@@ -488,29 +576,70 @@ mod api {
         let http = reqwest::Client::new();
         let url = |p: &str| format!("{}{p}", c.base);
         // Token.
-        assert_eq!(http.get(url("/healthz")).send().await.unwrap().status(), 200);
-        assert_eq!(http.get(url("/v1/jobs")).send().await.unwrap().status(), 401);
-        assert_eq!(http.get(url("/v1/jobs")).bearer_auth("wrong").send().await.unwrap().status(), 401);
+        assert_eq!(
+            http.get(url("/healthz")).send().await.unwrap().status(),
+            200
+        );
+        assert_eq!(
+            http.get(url("/v1/jobs")).send().await.unwrap().status(),
+            401
+        );
+        assert_eq!(
+            http.get(url("/v1/jobs"))
+                .bearer_auth("wrong")
+                .send()
+                .await
+                .unwrap()
+                .status(),
+            401
+        );
         let ok = |r: reqwest::RequestBuilder| r.bearer_auth("sesame");
         // Unknown ids.
-        for p in ["/v1/jobs/job-1-x", "/v1/jobs/job-1-x/image", "/v1/scenes/abc", "/v1/nothing"] {
-            assert_eq!(ok(http.get(url(p))).send().await.unwrap().status(), 404, "{p}");
+        for p in [
+            "/v1/jobs/job-1-x",
+            "/v1/jobs/job-1-x/image",
+            "/v1/scenes/abc",
+            "/v1/nothing",
+        ] {
+            assert_eq!(
+                ok(http.get(url(p))).send().await.unwrap().status(),
+                404,
+                "{p}"
+            );
         }
-        let r = ok(http.put(url("/v1/jobs/nope/tasks/0/result"))).body(vec![0u8; 10]).send().await.unwrap();
+        let r = ok(http.put(url("/v1/jobs/nope/tasks/0/result")))
+            .body(vec![0u8; 10])
+            .send()
+            .await
+            .unwrap();
         assert_eq!(r.status(), 404);
-        let r = ok(http.post(url("/v1/workers/nope/lease"))).send().await.unwrap();
+        let r = ok(http.post(url("/v1/workers/nope/lease")))
+            .send()
+            .await
+            .unwrap();
         assert_eq!(r.status(), 404);
         // Oversize upload.
-        let r = ok(http.post(url("/v1/scenes"))).body(vec![b' '; 1 << 20]).send().await;
+        let r = ok(http.post(url("/v1/scenes")))
+            .body(vec![b' '; 1 << 20])
+            .send()
+            .await;
         if let Ok(r) = r {
             assert_eq!(r.status(), 413);
         }
         // Malformed scenes: not a scene at all, and broken glTF.
-        let r = ok(http.post(url("/v1/scenes"))).body("garbage").send().await.unwrap();
+        let r = ok(http.post(url("/v1/scenes")))
+            .body("garbage")
+            .send()
+            .await
+            .unwrap();
         assert_eq!(r.status(), 422);
         let body: proto::ErrorBody = r.json().await.unwrap();
         assert_eq!(body.error.field.as_deref(), Some("body"));
-        let r = ok(http.post(url("/v1/scenes?format=gltf"))).body(r#"{"asset": {"version": "2.0"}, "meshes": 7}"#).send().await.unwrap();
+        let r = ok(http.post(url("/v1/scenes?format=gltf")))
+            .body(r#"{"asset": {"version": "2.0"}, "meshes": 7}"#)
+            .send()
+            .await
+            .unwrap();
         assert_eq!(r.status(), 422, "{:?}", r.text().await);
         // Hostile archive.
         let mut b = tar_builder();
@@ -518,9 +647,38 @@ mod api {
         h.as_old_mut().name[..14].copy_from_slice(b"../escape.gltf");
         h.set_cksum();
         b.append(&h, &b"{}\n"[..]).unwrap();
-        let r = ok(http.post(url("/v1/scenes"))).body(b.into_inner().unwrap()).send().await.unwrap();
+        let r = ok(http.post(url("/v1/scenes")))
+            .body(b.into_inner().unwrap())
+            .send()
+            .await
+            .unwrap();
         assert_eq!(r.status(), 422);
-        assert_eq!(ok(http.get(url("/v1/jobs"))).send().await.unwrap().status(), 200, "still serving");
+        assert_eq!(
+            ok(http.get(url("/v1/jobs"))).send().await.unwrap().status(),
+            200,
+            "still serving"
+        );
+        c.stop().await;
+    }
+
+    /// A worker that cannot render (the scene is refused by its loader) reports failures;
+    /// after three the job fails with the worker's message, and the worker carries on.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn failing_worker_fails_the_job_with_its_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let c = Coord::start(fake_config(&dir.path().join("data")), 0).await;
+        let w = Worker::start(&c.base, 1, dir.path(), "w");
+        // The coordinator's fake loader accepts it; the worker's real loader does not.
+        let j = fake_job(&c.base).await;
+        let s = wait_for(&c.base, &j.id, 30, |s| s.state.is_final()).await;
+        assert_eq!(s.state, JobState::Failed);
+        let err = s.error.unwrap_or_default();
+        assert!(
+            err.contains("failed 3 times") && err.contains("scene"),
+            "{err}"
+        );
+        assert_eq!(w.stats.failures.load(Ordering::Relaxed), 3);
+        w.stop().await;
         c.stop().await;
     }
 
@@ -551,7 +709,13 @@ mod api {
             .await
             .unwrap();
         assert_eq!(r.status(), 422, "{:?}", r.text().await);
-        assert_eq!(reqwest::get(format!("{}/healthz", c.base)).await.unwrap().status(), 200);
+        assert_eq!(
+            reqwest::get(format!("{}/healthz", c.base))
+                .await
+                .unwrap()
+                .status(),
+            200
+        );
         c.stop().await;
     }
 }

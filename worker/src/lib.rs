@@ -71,7 +71,11 @@ pub fn default_name() -> String {
     std::env::var("HOSTNAME")
         .ok()
         .filter(|s| !s.is_empty())
-        .or_else(|| std::fs::read_to_string("/etc/hostname").ok().map(|s| s.trim().to_string()))
+        .or_else(|| {
+            std::fs::read_to_string("/etc/hostname")
+                .ok()
+                .map(|s| s.trim().to_string())
+        })
         .filter(|s| !s.is_empty())
         .unwrap_or_else(|| "worker".into())
 }
@@ -138,9 +142,10 @@ struct Client {
 
 impl Client {
     fn req(&self, method: reqwest::Method, path: &str) -> reqwest::RequestBuilder {
-        let r = self
-            .http
-            .request(method, format!("{}{}", self.base.trim_end_matches('/'), path));
+        let r = self.http.request(
+            method,
+            format!("{}{}", self.base.trim_end_matches('/'), path),
+        );
         match &self.token {
             Some(t) => r.bearer_auth(t),
             None => r,
@@ -262,7 +267,11 @@ impl Worker {
             };
             let r = self
                 .client
-                .send(self.client.req(reqwest::Method::POST, "/v1/workers").json(&body))
+                .send(
+                    self.client
+                        .req(reqwest::Method::POST, "/v1/workers")
+                        .json(&body),
+                )
                 .await;
             match r {
                 Ok(resp) => match resp.json::<proto::Registered>().await {
@@ -563,7 +572,10 @@ impl Worker {
                 }
                 Err(e) => {
                     let d = self.backoff.step();
-                    tracing::warn!("result upload failed ({e}); retrying in {:.1} s", d.as_secs_f64());
+                    tracing::warn!(
+                        "result upload failed ({e}); retrying in {:.1} s",
+                        d.as_secs_f64()
+                    );
                     tokio::select! {
                         biased;
                         _ = &mut *shutdown, if attempts > 3 => return Flow::Exit,
