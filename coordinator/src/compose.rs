@@ -5,6 +5,7 @@
 //! and a partial frame takes for each tile only the passes before its first missing one.
 
 use crate::sched::Job;
+use raytile_core::film::{ImageFormat, OutputOptions};
 use raytile_core::{Film, TileAccum};
 
 /// Image formats the API serves.
@@ -91,85 +92,26 @@ pub fn compose(layout: &Layout, results: Vec<(u32, TileAccum)>) -> Film {
     film
 }
 
-// --- Film operations -------------------------------------------------------------------------
-// The core's `Film::new`, `Film::add_tile` and `film::encode` are being written by the lead; until
-// they land these mirror their documented behaviour. After merging `main`, replace the bodies
-// with the core calls (one place) so the coordinator and a local render share every bit.
+// --- Film operations: the core's own, so the coordinator and a local render share every bit.
 
 /// A zeroed film.
 pub fn film_new(width: u32, height: u32) -> Film {
-    Film {
-        width,
-        height,
-        pixels: vec![[0.0; 4]; width as usize * height as usize],
-        bad_samples: 0,
-    }
+    Film::new(width, height)
 }
 
 /// Adds a tile's per-pixel sums into the film.
 pub fn film_add_tile(film: &mut Film, acc: &TileAccum) {
-    let t = acc.tile;
-    if t.x1 > film.width || t.y1 > film.height || acc.pixels.len() != t.pixel_count() {
-        return;
-    }
-    let w = t.width() as usize;
-    for (row, y) in (t.y0..t.y1).enumerate() {
-        let base = y as usize * film.width as usize + t.x0 as usize;
-        for (dst, src) in film.pixels[base..base + w]
-            .iter_mut()
-            .zip(&acc.pixels[row * w..(row + 1) * w])
-        {
-            for c in 0..4 {
-                dst[c] += src[c];
-            }
-        }
-    }
-    film.bad_samples += acc.bad_samples;
+    film.add_tile(acc);
 }
 
-/// Encodes the film's resolved pixels.
+/// Encodes the film with the core's encoder and default output options.
 pub fn encode(film: &Film, format: Format) -> Result<Vec<u8>, String> {
-    let rgb: Vec<f32> = film
-        .pixels
-        .iter()
-        .flat_map(|p| {
-            let w = p[3];
-            if w > 0.0 {
-                [p[0] / w, p[1] / w, p[2] / w]
-            } else {
-                [0.0; 3]
-            }
-        })
-        .collect();
-    let mut out = std::io::Cursor::new(Vec::new());
-    let img = image::Rgb32FImage::from_raw(film.width, film.height, rgb)
-        .ok_or_else(|| "film size mismatch".to_string())?;
-    match format {
-        Format::Exr => image::DynamicImage::ImageRgb32F(img)
-            .write_to(&mut out, image::ImageFormat::OpenExr)
-            .map_err(|e| e.to_string())?,
-        Format::Hdr => image::DynamicImage::ImageRgb32F(img)
-            .write_to(&mut out, image::ImageFormat::Hdr)
-            .map_err(|e| e.to_string())?,
-        Format::Png => {
-            let srgb = |v: f32| {
-                let v = v.clamp(0.0, 1.0);
-                let s = if v <= 0.003_130_8 {
-                    12.92 * v
-                } else {
-                    1.055 * v.powf(1.0 / 2.4) - 0.055
-                };
-                (s * 255.0 + 0.5) as u8
-            };
-            let bytes: Vec<u8> = img.as_raw().iter().map(|&v| srgb(v)).collect();
-            let img8 = image::RgbImage::from_raw(film.width, film.height, bytes)
-                .ok_or_else(|| "film size mismatch".to_string())?;
-            image::DynamicImage::ImageRgb8(img8)
-                .write_to(&mut out, image::ImageFormat::Png)
-                .map_err(|e| e.to_string())?
-        }
-    }
-    Ok(out.into_inner())
+    let f = match format {
+        Format::Png => ImageFormat::Png,
+        Format::Exr => ImageFormat::Exr,
+        Format::Hdr => ImageFormat::Hdr,
+    };
+    raytile_core::film::encode(film, f, &OutputOptions::default()).map_err(|e| e.to_string())
 }
 
 #[cfg(test)]

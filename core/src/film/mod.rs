@@ -1,4 +1,14 @@
-//! The film: per-pixel accumulation, and image output.
+//! The film: per-pixel accumulation, reconstruction filters, tone mapping and image output.
+//!
+//! Pixels hold sums (RGB and weight). Filters are applied by *filter importance sampling*
+//! (pbrt-v4): each sample's position within its pixel is drawn from the filter's distribution
+//! and its weight is 1, so a pixel depends only on its own samples and tiles never overlap.
+
+pub mod filter;
+pub mod output;
+
+pub use filter::FilterSampler;
+pub use output::{encode, save, FilmError, ImageFormat, OutputOptions, ToneMap};
 
 use crate::Tile;
 
@@ -25,4 +35,98 @@ pub struct Film {
     pub pixels: Vec<[f32; 4]>,
     /// Samples dropped because they were NaN or infinite.
     pub bad_samples: u64,
+}
+
+impl Film {
+    /// An empty film.
+    pub fn new(width: u32, height: u32) -> Self {
+        Self {
+            width,
+            height,
+            pixels: vec![[0.0; 4]; width as usize * height as usize],
+            bad_samples: 0,
+        }
+    }
+
+    /// Adds a tile's sums. The caller adds the tiles of each pass in pass order, which is what
+    /// makes the result independent of who rendered which tile when.
+    pub fn add_tile(&mut self, t: &TileAccum) {
+        let tile = t.tile;
+        let w = tile.width() as usize;
+        if tile.x1 > self.width || tile.y1 > self.height || t.pixels.len() != tile.pixel_count() {
+            return;
+        }
+        for (row, src) in t.pixels.chunks(w.max(1)).enumerate() {
+            let y = tile.y0 as usize + row;
+            let start = y * self.width as usize + tile.x0 as usize;
+            for (dst, s) in self.pixels[start..start + w].iter_mut().zip(src) {
+                for k in 0..4 {
+                    dst[k] += s[k];
+                }
+            }
+        }
+        self.bad_samples += t.bad_samples;
+    }
+
+    /// Linear RGB per pixel (sum / weight; black where no sample landed).
+    pub fn resolve(&self) -> Vec<[f32; 3]> {
+        self.pixels
+            .iter()
+            .map(|p| {
+                if p[3] > 0.0 {
+                    [p[0] / p[3], p[1] / p[3], p[2] / p[3]]
+                } else {
+                    [0.0; 3]
+                }
+            })
+            .collect()
+    }
+
+    /// Mean of each channel over the image.
+    pub fn mean(&self) -> [f64; 3] {
+        let px = self.resolve();
+        let mut m = [0.0f64; 3];
+        for p in &px {
+            for k in 0..3 {
+                m[k] += p[k] as f64;
+            }
+        }
+        m.map(|v| v / px.len().max(1) as f64)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tiles_land_where_they_belong() {
+        let mut f = Film::new(4, 3);
+        let tile = Tile {
+            x0: 1,
+            y0: 1,
+            x1: 3,
+            y1: 3,
+        };
+        f.add_tile(&TileAccum {
+            tile,
+            pixels: vec![[2.0, 4.0, 6.0, 2.0]; 4],
+            bad_samples: 1,
+        });
+        let px = f.resolve();
+        assert_eq!(px[4 + 1], [1.0, 2.0, 3.0]);
+        assert_eq!(px[0], [0.0; 3]);
+        assert_eq!(f.bad_samples, 1);
+        // A tile that does not fit is refused, not a panic.
+        f.add_tile(&TileAccum {
+            tile: Tile {
+                x0: 3,
+                y0: 0,
+                x1: 9,
+                y1: 1,
+            },
+            pixels: vec![],
+            bad_samples: 0,
+        });
+    }
 }

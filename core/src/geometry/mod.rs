@@ -11,6 +11,8 @@ pub mod polygon;
 pub mod quadric;
 pub mod ray;
 pub mod sphere;
+#[cfg(test)]
+mod testutil;
 pub mod triangle;
 
 pub use ray::{offset_ray_origin, Ray};

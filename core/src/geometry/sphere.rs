@@ -85,3 +85,103 @@ impl Sphere {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::super::testutil::*;
+    use super::super::Analytic;
+    use super::*;
+
+    fn sphere() -> Sphere {
+        Sphere {
+            center: Vec3A::new(1.0, 2.0, 3.0),
+            radius: 2.0,
+        }
+    }
+
+    fn distance(s: Sphere) -> impl Fn(Vec3A) -> f32 {
+        move |p| ((p - s.center).length() - s.radius).abs()
+    }
+
+    #[test]
+    fn head_on_hit() {
+        let s = sphere();
+        let (o, d) = (Vec3A::new(1.0, 2.0, 10.0), -Vec3A::Z * 0.5);
+        let t = s.intersect(o, d, 0.0, f32::INFINITY).unwrap();
+        assert!((t - 10.0).abs() < 1e-5, "{t}");
+        let h = s.hit(o, d, t);
+        assert_close(h.p, Vec3A::new(1.0, 2.0, 5.0), 1e-6, "point");
+        assert_eq!(h.n, Vec3A::Z);
+        // +Z is φ = 3π/2 (φ runs from +X towards −Z), on the equator.
+        assert!((h.uv - Vec2::new(0.75, 0.5)).length() < 1e-6, "uv {}", h.uv);
+        assert_close(h.dpdu, Vec3A::X * (4.0 * PI), 1e-5, "dpdu");
+        // The north pole.
+        let t = s
+            .intersect(Vec3A::new(1.0, 7.0, 3.0), -Vec3A::Y, 0.0, 100.0)
+            .unwrap();
+        let h = s.hit(Vec3A::new(1.0, 7.0, 3.0), -Vec3A::Y, t);
+        assert!((t - 3.0).abs() < 1e-6 && h.n == Vec3A::Y && h.uv.y == 0.0);
+    }
+
+    #[test]
+    fn misses() {
+        let s = sphere();
+        assert_eq!(
+            s.intersect(Vec3A::new(3.01, 2.0, 10.0), -Vec3A::Z, 0.0, 100.0),
+            None
+        );
+        assert_eq!(
+            s.intersect(Vec3A::new(1.0, 2.0, 10.0), Vec3A::Z, 0.0, 100.0),
+            None
+        );
+        assert_eq!(
+            s.intersect(Vec3A::new(1.0, 2.0, 10.0), -Vec3A::Z, 0.0, 4.9),
+            None
+        );
+    }
+
+    #[test]
+    fn rays_from_inside_find_the_exit() {
+        let s = sphere();
+        let mut rng = Rng::new(90);
+        for _ in 0..500 {
+            let o = s.center + rng.unit() * rng.range(0.0, 1.99);
+            let d = rng.unit() * rng.range(0.1, 10.0);
+            let t = s.intersect(o, d, 0.0, f32::INFINITY).expect("exit");
+            let h = s.hit(o, d, t);
+            assert!(distance(s.clone())(o + d * t) < 1e-5 && h.n.dot(d) > 0.0);
+        }
+    }
+
+    #[test]
+    fn no_self_intersection() {
+        for s in [
+            sphere(),
+            Sphere {
+                center: Vec3A::new(1000.0, -500.0, 200.0),
+                radius: 3.0,
+            },
+            Sphere {
+                center: Vec3A::ZERO,
+                radius: 0.01,
+            },
+        ] {
+            let r = Vec3A::splat(s.radius);
+            let (lo, hi) = (s.center - r, s.center + r);
+            let a = Analytic::Sphere(s);
+            check_no_self_hit(&a, lo, hi, Leave::Never, Some(Leave::OnlyElsewhere), 91);
+        }
+    }
+
+    #[test]
+    fn properties() {
+        let s = sphere();
+        let b = s.bounds().unwrap();
+        let (lo, hi) = (b.min, b.max);
+        let a = Analytic::Sphere(s.clone());
+        check_grazing(&a, lo, hi, &distance(s.clone()), 1e-5, 92);
+        check_direction_scale(&a, lo, hi, 93);
+        check_sampling(&a, &distance(s.clone()), 4.0, s.center, Vec3A::ZERO);
+        check_bad_inputs(&a, Vec3A::new(1.0, 2.0, 10.0), -Vec3A::Z);
+    }
+}

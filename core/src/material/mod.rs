@@ -24,6 +24,8 @@ pub mod microfacet;
 pub mod mirror;
 pub mod pbr;
 pub mod rough_dielectric;
+#[cfg(test)]
+mod tests;
 
 use glam::{Vec2, Vec3A};
 
@@ -149,4 +151,48 @@ pub fn fresnel_dielectric(cos_i: f32, eta: f32) -> f32 {
     let r_parl = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
     let r_perp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
     0.5 * (r_parl * r_parl + r_perp * r_perp)
+}
+
+/// Mirror reflection of `wo` about the (unit) normal `n`: `-wo + 2 (wo·n) n`.
+#[inline]
+pub fn reflect(wo: Vec3A, n: Vec3A) -> Vec3A {
+    -wo + 2.0 * wo.dot(n) * n
+}
+
+/// Refraction of `wi` through an interface with normal `n` (on the outside) and relative index
+/// `eta` (inside/outside). `wi` may be on either side; returns the transmitted direction and the
+/// relative index η_t/η_i actually crossed, or `None` under total internal reflection.
+#[inline]
+pub fn refract(wi: Vec3A, n: Vec3A, eta: f32) -> Option<(Vec3A, f32)> {
+    let mut cos_i = n.dot(wi);
+    let mut eta = eta;
+    let mut n = n;
+    if cos_i < 0.0 {
+        eta = 1.0 / eta;
+        cos_i = -cos_i;
+        n = -n;
+    }
+    let sin2_i = (1.0 - cos_i * cos_i).max(0.0);
+    let sin2_t = sin2_i / (eta * eta);
+    if sin2_t >= 1.0 || sin2_t.is_nan() {
+        return None;
+    }
+    let cos_t = (1.0 - sin2_t).sqrt();
+    let wt = -wi / eta + (cos_i / eta - cos_t) * n;
+    if wt.is_finite() {
+        Some((wt, eta))
+    } else {
+        None
+    }
+}
+
+/// A usable relative index of refraction: NaN, infinite or non-positive values become 1
+/// (no interface), so that no BSDF divides by zero.
+#[inline]
+pub(crate) fn sanitize_eta(eta: f32) -> f32 {
+    if eta.is_finite() && eta > 0.0 {
+        eta
+    } else {
+        1.0
+    }
 }

@@ -1,10 +1,1169 @@
-//! raytile's JSON scene format.
+//! raytile's JSON scene format: analytic shapes, meshes, glTF includes, materials, lights,
+//! cameras and render settings in one readable file. The reference is `docs/scene-format.md`.
+//!
+//! Errors name the JSON path and line: syntax and type errors come from serde (with
+//! `serde_path_to_error` for the path), semantic ones (an unknown material name, a degenerate
+//! shape) from the conversion below, with the line of the offending value where it can be found.
 
-use super::{SceneDesc, SceneError};
-use std::path::Path;
+use super::desc::*;
+use super::SceneError;
+use glam::{EulerRot, Mat3, Mat4, Quat, Vec2, Vec3};
+use serde::Deserialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+type Rgb = [f32; 3];
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct File {
+    #[serde(default)]
+    render: RenderDefaults,
+    #[serde(default)]
+    camera: Option<JCamera>,
+    #[serde(default)]
+    cameras: Vec<JCamera>,
+    #[serde(default)]
+    textures: BTreeMap<String, JTexture>,
+    #[serde(default)]
+    materials: BTreeMap<String, JMaterial>,
+    #[serde(default)]
+    objects: Vec<JObject>,
+    #[serde(default)]
+    lights: Vec<JLight>,
+    #[serde(default)]
+    environment: Option<JEnvironment>,
+}
+
+fn default_up() -> [f32; 3] {
+    [0.0, 1.0, 0.0]
+}
+fn default_fov() -> f32 {
+    40.0
+}
+fn one() -> f32 {
+    1.0
+}
+fn white() -> Rgb {
+    [1.0; 3]
+}
+fn grey() -> Rgb {
+    [0.8; 3]
+}
+fn ior_glass() -> f32 {
+    1.5
+}
+fn yes() -> bool {
+    true
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct JCamera {
+    #[serde(default)]
+    name: Option<String>,
+    #[serde(default, rename = "type")]
+    kind: JCameraKind,
+    position: [f32; 3],
+    look_at: [f32; 3],
+    #[serde(default = "default_up")]
+    up: [f32; 3],
+    /// Vertical field of view, degrees.
+    #[serde(default = "default_fov")]
+    fov: f32,
+    /// Lens radius (thin lens); 0 is a pinhole.
+    #[serde(default)]
+    aperture: f32,
+    /// Distance to the focus plane; defaults to the distance to `look_at`.
+    #[serde(default)]
+    focus_distance: Option<f32>,
+    /// Orthographic: half the view height.
+    #[serde(default = "one")]
+    half_height: f32,
+}
+
+#[derive(Deserialize, Default, Clone, Copy)]
+#[serde(rename_all = "snake_case")]
+enum JCameraKind {
+    #[default]
+    Perspective,
+    Orthographic,
+}
+
+#[derive(Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+enum JTexture {
+    Image {
+        path: PathBuf,
+        #[serde(default = "yes")]
+        srgb: bool,
+        #[serde(default)]
+        wrap: WrapMode,
+        #[serde(default = "yes")]
+        bilinear: bool,
+    },
+    Checker {
+        #[serde(default = "white")]
+        even: Rgb,
+        #[serde(default)]
+        odd: Rgb,
+        /// Checks per unit of texture coordinate.
+        #[serde(default = "one")]
+        scale: f32,
+    },
+}
+
+#[derive(Deserialize)]
+struct JMaterial {
+    #[serde(flatten)]
+    bsdf: JBsdf,
+    #[serde(default)]
+    emission: Rgb,
+    #[serde(default)]
+    two_sided: bool,
+}
+
+#[derive(Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+enum JBsdf {
+    Diffuse {
+        #[serde(default = "grey")]
+        albedo: Rgb,
+        #[serde(default)]
+        texture: Option<String>,
+    },
+    Mirror {
+        #[serde(default = "white")]
+        reflectance: Rgb,
+    },
+    #[serde(alias = "glass")]
+    Dielectric {
+        #[serde(default = "ior_glass")]
+        ior: f32,
+        #[serde(default = "white")]
+        transmittance: Rgb,
+        #[serde(default)]
+        absorption: Rgb,
+        #[serde(default)]
+        thin: bool,
+    },
+    #[serde(alias = "metal")]
+    Conductor {
+        #[serde(default)]
+        preset: Option<String>,
+        #[serde(default)]
+        eta: Option<Rgb>,
+        #[serde(default)]
+        k: Option<Rgb>,
+        #[serde(default)]
+        roughness: f32,
+    },
+    #[serde(alias = "frosted_glass")]
+    RoughDielectric {
+        #[serde(default = "ior_glass")]
+        ior: f32,
+        #[serde(default = "default_roughness")]
+        roughness: f32,
+        #[serde(default = "white")]
+        transmittance: Rgb,
+    },
+    Pbr {
+        #[serde(default = "white")]
+        base_color: Rgb,
+        #[serde(default)]
+        texture: Option<String>,
+        #[serde(default)]
+        metallic: f32,
+        #[serde(default = "default_roughness")]
+        roughness: f32,
+        #[serde(default = "one")]
+        specular: f32,
+        #[serde(default = "ior_glass")]
+        ior: f32,
+        #[serde(default)]
+        transmission: f32,
+    },
+    /// Emits only (black surface): a light.
+    Emitter {},
+}
+
+fn default_roughness() -> f32 {
+    0.5
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct JTransform {
+    #[serde(default)]
+    translate: Option<[f32; 3]>,
+    /// Euler angles in degrees, applied about X, then Y, then Z.
+    #[serde(default)]
+    rotate: Option<[f32; 3]>,
+    #[serde(default)]
+    scale: Option<JScale>,
+    /// A full 4×4 matrix, rows as arrays (row-major, as written on paper).
+    #[serde(default)]
+    matrix: Option<[[f32; 4]; 4]>,
+}
+
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum JScale {
+    Uniform(f32),
+    Axes([f32; 3]),
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct JObject {
+    #[serde(default)]
+    name: Option<String>,
+    shape: JShape,
+    #[serde(default)]
+    material: Option<String>,
+    #[serde(default)]
+    transform: Option<JTransform>,
+}
+
+#[derive(Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+enum JShape {
+    Sphere {
+        #[serde(default)]
+        center: [f32; 3],
+        #[serde(default = "one")]
+        radius: f32,
+    },
+    Box {
+        min: [f32; 3],
+        max: [f32; 3],
+    },
+    Plane {
+        #[serde(default)]
+        point: [f32; 3],
+        #[serde(default = "default_up")]
+        normal: [f32; 3],
+    },
+    Disk {
+        #[serde(default)]
+        center: [f32; 3],
+        #[serde(default = "default_up")]
+        normal: [f32; 3],
+        #[serde(default = "one")]
+        radius: f32,
+    },
+    Rectangle {
+        corner: [f32; 3],
+        edge_u: [f32; 3],
+        edge_v: [f32; 3],
+    },
+    Polygon {
+        vertices: Vec<[f32; 3]>,
+    },
+    Quadric {
+        /// The symmetric matrix Q (rows), for pᵀQp = 0.
+        matrix: [[f32; 4]; 4],
+        clip_min: [f32; 3],
+        clip_max: [f32; 3],
+    },
+    /// x²/a² + y²/b² + z²/c² = 1.
+    Ellipsoid {
+        radii: [f32; 3],
+    },
+    /// x² + z² = r² about the Y axis, for y in [y_min, y_max].
+    Cylinder {
+        radius: f32,
+        y_min: f32,
+        y_max: f32,
+    },
+    /// x² + z² = (tan(angle)·y)², apex at the origin, for y in [y_min, y_max].
+    Cone {
+        /// Half-angle in degrees.
+        angle: f32,
+        y_min: f32,
+        y_max: f32,
+    },
+    /// y = a·(x² + z²), for y ≤ y_max.
+    Paraboloid {
+        a: f32,
+        y_max: f32,
+    },
+    /// x²/a² + z²/a² − y²/c² = 1 (one sheet), for y in [y_min, y_max].
+    Hyperboloid {
+        a: f32,
+        c: f32,
+        y_min: f32,
+        y_max: f32,
+    },
+    Mesh {
+        positions: Vec<[f32; 3]>,
+        indices: Vec<[u32; 3]>,
+        #[serde(default)]
+        normals: Vec<[f32; 3]>,
+        #[serde(default)]
+        uvs: Vec<[f32; 2]>,
+    },
+    /// Every object, light and camera of a glTF file (path relative to this file).
+    Gltf {
+        path: PathBuf,
+    },
+}
+
+#[derive(Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+enum JLight {
+    Point {
+        position: [f32; 3],
+        intensity: Rgb,
+        #[serde(default)]
+        range: Option<f32>,
+    },
+    Spot {
+        position: [f32; 3],
+        #[serde(default)]
+        direction: Option<[f32; 3]>,
+        #[serde(default)]
+        look_at: Option<[f32; 3]>,
+        intensity: Rgb,
+        /// Degrees.
+        #[serde(default)]
+        inner_angle: f32,
+        /// Degrees.
+        #[serde(default = "default_spot")]
+        outer_angle: f32,
+        #[serde(default)]
+        range: Option<f32>,
+    },
+    Directional {
+        direction: [f32; 3],
+        irradiance: Rgb,
+    },
+}
+
+fn default_spot() -> f32 {
+    30.0
+}
+
+#[derive(Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+enum JEnvironment {
+    Constant {
+        radiance: Rgb,
+    },
+    Map {
+        path: PathBuf,
+        #[serde(default = "one")]
+        scale: f32,
+        /// Degrees about +Y.
+        #[serde(default)]
+        rotation: f32,
+    },
+}
 
 /// Loads a JSON scene file.
 pub fn load_json(path: &Path) -> Result<SceneDesc, SceneError> {
-    let _ = path;
-    todo!()
+    let text = std::fs::read_to_string(path).map_err(|source| SceneError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    parse_json(&text, path.parent().unwrap_or(Path::new(".")), path)
+}
+
+/// Parses JSON scene text; relative paths resolve against `base`; `name` is used in messages.
+pub fn parse_json(text: &str, base: &Path, name: &Path) -> Result<SceneDesc, SceneError> {
+    let err = |message: String| SceneError::Json {
+        path: name.to_path_buf(),
+        message,
+    };
+    let mut de = serde_json::Deserializer::from_str(text);
+    let file: File = serde_path_to_error::deserialize(&mut de).map_err(|e| {
+        let inner = e.inner();
+        let path = e.path().to_string();
+        let msg = inner.to_string();
+        // serde_json appends " at line L column C" itself; keep one copy.
+        let msg = msg.split(" at line ").next().unwrap_or(&msg).to_string();
+        err(format!(
+            "at {path} (line {}, column {}): {msg}",
+            inner.line(),
+            inner.column()
+        ))
+    })?;
+    de.end().map_err(|e| {
+        err(format!(
+            "trailing characters (line {}, column {})",
+            e.line(),
+            e.column()
+        ))
+    })?;
+    let line_of = |needle: &str| -> String {
+        text.find(needle).map_or(String::new(), |pos| {
+            format!(" (line {})", text[..pos].matches('\n').count() + 1)
+        })
+    };
+    Converter {
+        base,
+        name,
+        line_of: &line_of,
+        desc: SceneDesc::default(),
+    }
+    .convert(file)
+}
+
+struct Converter<'a> {
+    base: &'a Path,
+    name: &'a Path,
+    line_of: &'a dyn Fn(&str) -> String,
+    desc: SceneDesc,
+}
+
+fn v3(a: [f32; 3]) -> Vec3 {
+    Vec3::from(a)
+}
+
+impl Converter<'_> {
+    fn err(&self, at: &str, msg: impl std::fmt::Display, needle: &str) -> SceneError {
+        SceneError::Json {
+            path: self.name.to_path_buf(),
+            message: format!("at {at}{}: {msg}", (self.line_of)(needle)),
+        }
+    }
+
+    fn resolve(&self, p: &Path) -> PathBuf {
+        if p.is_absolute() {
+            p.to_path_buf()
+        } else {
+            self.base.join(p)
+        }
+    }
+
+    fn convert(mut self, f: File) -> Result<SceneDesc, SceneError> {
+        self.desc.render = f.render;
+        if let Some(i) = &self.desc.render.integrator {
+            i.parse::<crate::IntegratorKind>()
+                .map_err(|e| self.err("render.integrator", e, i))?;
+        }
+        if let Some(fl) = &self.desc.render.filter {
+            fl.parse::<crate::settings::FilterKind>()
+                .map_err(|e| self.err("render.filter", e, fl))?;
+        }
+        // Textures.
+        let mut tex_index = BTreeMap::new();
+        for (name, t) in &f.textures {
+            let at = format!("textures.{name}");
+            let desc = match t {
+                JTexture::Image {
+                    path,
+                    srgb,
+                    wrap,
+                    bilinear,
+                } => {
+                    let full = self.resolve(path);
+                    let mut d =
+                        load_image(&full).map_err(|e| self.err(&at, e, &path.to_string_lossy()))?;
+                    d.name = name.clone();
+                    d.srgb = *srgb;
+                    d.wrap_u = *wrap;
+                    d.wrap_v = *wrap;
+                    d.bilinear = *bilinear;
+                    (d, Mat3::IDENTITY)
+                }
+                JTexture::Checker { even, odd, scale } => {
+                    if !(*scale > 0.0 && scale.is_finite()) {
+                        return Err(self.err(&at, "checker scale must be positive", name));
+                    }
+                    let (e, o) = (
+                        [even[0], even[1], even[2], 1.0],
+                        [odd[0], odd[1], odd[2], 1.0],
+                    );
+                    let d = TextureDesc {
+                        name: name.clone(),
+                        width: 2,
+                        height: 2,
+                        texels: vec![e, o, o, e],
+                        srgb: false,
+                        wrap_u: WrapMode::Repeat,
+                        wrap_v: WrapMode::Repeat,
+                        bilinear: false,
+                    };
+                    // Two texels per check pair: scale uv so `scale` checks fit one unit.
+                    (d, Mat3::from_scale(Vec2::splat(*scale * 0.5)))
+                }
+            };
+            tex_index.insert(name.clone(), (self.desc.textures.len(), desc.1));
+            self.desc.textures.push(desc.0);
+        }
+        let tex_ref = |this: &Self,
+                       at: &str,
+                       name: &Option<String>|
+         -> Result<Option<TextureRef>, SceneError> {
+            match name {
+                None => Ok(None),
+                Some(n) => match tex_index.get(n) {
+                    Some(&(texture, transform)) => Ok(Some(TextureRef {
+                        texture,
+                        texcoord: 0,
+                        transform,
+                    })),
+                    None => {
+                        Err(this.err(at, format!("unknown texture '{n}'"), &format!("\"{n}\"")))
+                    }
+                },
+            }
+        };
+        // Materials.
+        let mut mat_index = BTreeMap::new();
+        for (name, m) in &f.materials {
+            let at = format!("materials.{name}");
+            let bsdf = match &m.bsdf {
+                JBsdf::Diffuse { albedo, texture } => BsdfDesc::Diffuse {
+                    albedo: v3(*albedo),
+                    texture: tex_ref(&self, &format!("{at}.texture"), texture)?,
+                },
+                JBsdf::Mirror { reflectance } => BsdfDesc::Mirror {
+                    reflectance: v3(*reflectance),
+                },
+                JBsdf::Dielectric {
+                    ior,
+                    transmittance,
+                    absorption,
+                    thin,
+                } => {
+                    check_ior(*ior).map_err(|e| self.err(&format!("{at}.ior"), e, name))?;
+                    BsdfDesc::Dielectric {
+                        ior: *ior,
+                        transmittance: v3(*transmittance),
+                        absorption: v3(*absorption),
+                        thin: *thin,
+                    }
+                }
+                JBsdf::Conductor {
+                    preset,
+                    eta,
+                    k,
+                    roughness,
+                } => {
+                    let (pe, pk) = match preset.as_deref() {
+                        None => ([0.2, 0.92, 1.1], [3.9, 2.45, 2.14]),
+                        Some(p) => metal_preset(p).ok_or_else(|| {
+                            self.err(&format!("{at}.preset"), format!("unknown metal '{p}' (gold, silver, copper, aluminium, iron, chrome)"), p)
+                        })?,
+                    };
+                    BsdfDesc::Conductor {
+                        eta: v3(eta.unwrap_or(pe)),
+                        k: v3(k.unwrap_or(pk)),
+                        alpha: roughness.clamp(0.0, 1.0).powi(2),
+                    }
+                }
+                JBsdf::RoughDielectric {
+                    ior,
+                    roughness,
+                    transmittance,
+                } => {
+                    check_ior(*ior).map_err(|e| self.err(&format!("{at}.ior"), e, name))?;
+                    BsdfDesc::RoughDielectric {
+                        ior: *ior,
+                        alpha: roughness.clamp(0.0, 1.0).powi(2),
+                        transmittance: v3(*transmittance),
+                    }
+                }
+                JBsdf::Pbr {
+                    base_color,
+                    texture,
+                    metallic,
+                    roughness,
+                    specular,
+                    ior,
+                    transmission,
+                } => BsdfDesc::Pbr(Box::new(PbrDesc {
+                    base_color: [base_color[0], base_color[1], base_color[2], 1.0],
+                    base_color_texture: tex_ref(&self, &format!("{at}.texture"), texture)?,
+                    metallic: *metallic,
+                    roughness: *roughness,
+                    specular: *specular,
+                    ior: *ior,
+                    transmission: *transmission,
+                    ..PbrDesc::default()
+                })),
+                JBsdf::Emitter {} => BsdfDesc::Diffuse {
+                    albedo: Vec3::ZERO,
+                    texture: None,
+                },
+            };
+            let mut md = MaterialDesc::new(name.clone(), bsdf);
+            md.emission = v3(m.emission);
+            md.two_sided = m.two_sided;
+            if !md.emission.is_finite() || md.emission.min_element() < 0.0 {
+                return Err(self.err(
+                    &format!("{at}.emission"),
+                    "emission must be finite and non-negative",
+                    name,
+                ));
+            }
+            mat_index.insert(name.clone(), self.desc.materials.len());
+            self.desc.materials.push(md);
+        }
+        // Objects.
+        for (i, o) in f.objects.iter().enumerate() {
+            let at = format!("objects[{i}]");
+            let transform = match &o.transform {
+                Some(t) => transform(t)
+                    .map_err(|e| self.err(&format!("{at}.transform"), e, "\"transform\""))?,
+                None => Mat4::IDENTITY,
+            };
+            let name = o.name.clone().unwrap_or_else(|| format!("object {i}"));
+            if let JShape::Gltf { path } = &o.shape {
+                let full = self.resolve(path);
+                let inc = super::gltf::load_gltf(&full).map_err(|e| {
+                    self.err(&format!("{at}.shape.path"), e, &path.to_string_lossy())
+                })?;
+                self.merge(inc, transform);
+                continue;
+            }
+            let material = match &o.material {
+                Some(m) => *mat_index.get(m).ok_or_else(|| {
+                    let known: Vec<_> = mat_index.keys().map(String::as_str).collect();
+                    self.err(
+                        &format!("{at}.material"),
+                        format!("unknown material '{m}' (known: {})", known.join(", ")),
+                        &format!("\"{m}\""),
+                    )
+                })?,
+                None => {
+                    return Err(self.err(&at, "missing field `material`", &format!("\"{name}\"")))
+                }
+            };
+            let shape = self.shape(&o.shape, &name, &at)?;
+            self.desc.objects.push(ObjectDesc {
+                name,
+                shape,
+                material,
+                transform,
+            });
+        }
+        // Lights.
+        for (i, l) in f.lights.iter().enumerate() {
+            let at = format!("lights[{i}]");
+            let range = |r: &Option<f32>| r.unwrap_or(f32::INFINITY);
+            let light = match l {
+                JLight::Point {
+                    position,
+                    intensity,
+                    range: r,
+                } => LightDesc::Point {
+                    position: v3(*position),
+                    intensity: v3(*intensity),
+                    range: range(r),
+                },
+                JLight::Spot {
+                    position,
+                    direction,
+                    look_at,
+                    intensity,
+                    inner_angle,
+                    outer_angle,
+                    range: r,
+                } => {
+                    let dir = match (direction, look_at) {
+                        (Some(d), _) => v3(*d),
+                        (None, Some(t)) => v3(*t) - v3(*position),
+                        (None, None) => {
+                            return Err(self.err(
+                                &at,
+                                "a spot light needs `direction` or `look_at`",
+                                "\"spot\"",
+                            ))
+                        }
+                    };
+                    LightDesc::Spot {
+                        position: v3(*position),
+                        direction: dir,
+                        intensity: v3(*intensity),
+                        inner_angle: inner_angle.to_radians(),
+                        outer_angle: outer_angle.to_radians(),
+                        range: range(r),
+                    }
+                }
+                JLight::Directional {
+                    direction,
+                    irradiance,
+                } => LightDesc::Directional {
+                    direction: v3(*direction),
+                    irradiance: v3(*irradiance),
+                },
+            };
+            self.desc.lights.push(light);
+        }
+        // Environment.
+        if let Some(env) = &f.environment {
+            self.desc.environment = Some(match env {
+                JEnvironment::Constant { radiance } => EnvironmentDesc::Constant {
+                    radiance: v3(*radiance),
+                },
+                JEnvironment::Map {
+                    path,
+                    scale,
+                    rotation,
+                } => {
+                    let full = self.resolve(path);
+                    let mut texture = load_image(&full)
+                        .map_err(|e| self.err("environment.path", e, &path.to_string_lossy()))?;
+                    texture.srgb = false;
+                    texture.wrap_v = WrapMode::Clamp;
+                    EnvironmentDesc::Map {
+                        texture,
+                        scale: *scale,
+                        rotation_y: rotation.to_radians(),
+                    }
+                }
+            });
+        }
+        // Cameras: `camera` first, then `cameras`.
+        for (i, c) in f.camera.iter().chain(f.cameras.iter()).enumerate() {
+            let cam = self.camera(c, i)?;
+            self.desc
+                .cameras
+                .insert(self.desc.cameras.len().min(i), cam);
+        }
+        Ok(self.desc)
+    }
+
+    fn camera(&self, c: &JCamera, i: usize) -> Result<CameraDesc, SceneError> {
+        let at = format!("cameras[{i}]");
+        let (pos, target, up) = (v3(c.position), v3(c.look_at), v3(c.up));
+        let fwd = target - pos;
+        if fwd.length_squared() <= 0.0
+            || fwd.cross(up).length_squared() <= 1e-12
+            || !fwd.is_finite()
+        {
+            return Err(self.err(
+                &at,
+                "camera position, look_at and up must be distinct and not collinear",
+                "\"look_at\"",
+            ));
+        }
+        // Camera-to-world: the inverse of a right-handed view matrix (camera looks down −Z).
+        let f = fwd.normalize();
+        let r = f.cross(up).normalize();
+        let u = r.cross(f);
+        let transform = Mat4::from_cols(
+            r.extend(0.0),
+            u.extend(0.0),
+            (-f).extend(0.0),
+            pos.extend(1.0),
+        );
+        let projection = match c.kind {
+            JCameraKind::Perspective => {
+                if !(c.fov > 0.0 && c.fov < 180.0) {
+                    return Err(self.err(
+                        &format!("{at}.fov"),
+                        "fov must be between 0 and 180 degrees",
+                        "\"fov\"",
+                    ));
+                }
+                Projection::Perspective {
+                    yfov: c.fov.to_radians(),
+                    aperture_radius: c.aperture.max(0.0),
+                    focus_distance: c.focus_distance.unwrap_or(fwd.length()),
+                }
+            }
+            JCameraKind::Orthographic => Projection::Orthographic {
+                half_height: c.half_height,
+            },
+        };
+        Ok(CameraDesc {
+            name: c.name.clone().unwrap_or_else(|| format!("camera {i}")),
+            transform,
+            projection,
+            aspect: None,
+        })
+    }
+
+    fn shape(&mut self, s: &JShape, name: &str, at: &str) -> Result<ShapeDesc, SceneError> {
+        let q = |rows: [[f32; 4]; 4]| Mat4::from_cols_array_2d(&rows).transpose();
+        Ok(match s {
+            JShape::Sphere { center, radius } => ShapeDesc::Sphere {
+                center: v3(*center),
+                radius: *radius,
+            },
+            JShape::Box { min, max } => ShapeDesc::Box {
+                min: v3(*min),
+                max: v3(*max),
+            },
+            JShape::Plane { point, normal } => ShapeDesc::Plane {
+                point: v3(*point),
+                normal: v3(*normal),
+            },
+            JShape::Disk {
+                center,
+                normal,
+                radius,
+            } => ShapeDesc::Disk {
+                center: v3(*center),
+                normal: v3(*normal),
+                radius: *radius,
+            },
+            JShape::Rectangle {
+                corner,
+                edge_u,
+                edge_v,
+            } => ShapeDesc::Rectangle {
+                corner: v3(*corner),
+                edge_u: v3(*edge_u),
+                edge_v: v3(*edge_v),
+            },
+            JShape::Polygon { vertices } => ShapeDesc::Polygon {
+                vertices: vertices.iter().map(|&v| v3(v)).collect(),
+            },
+            JShape::Quadric {
+                matrix,
+                clip_min,
+                clip_max,
+            } => ShapeDesc::Quadric {
+                q: q(*matrix),
+                clip_min: v3(*clip_min),
+                clip_max: v3(*clip_max),
+            },
+            JShape::Ellipsoid { radii } => {
+                let r = v3(*radii);
+                if r.min_element() <= 0.0 {
+                    return Err(self.err(
+                        &format!("{at}.shape.radii"),
+                        "radii must be positive",
+                        "\"radii\"",
+                    ));
+                }
+                let inv = Vec3::ONE / (r * r);
+                ShapeDesc::Quadric {
+                    q: Mat4::from_diagonal(inv.extend(-1.0)),
+                    clip_min: -r * 1.001,
+                    clip_max: r * 1.001,
+                }
+            }
+            JShape::Cylinder {
+                radius,
+                y_min,
+                y_max,
+            } => {
+                let r2 = radius * radius;
+                let m = radius * 1.001;
+                ShapeDesc::Quadric {
+                    q: Mat4::from_diagonal(glam::Vec4::new(1.0 / r2, 0.0, 1.0 / r2, -1.0)),
+                    clip_min: Vec3::new(-m, *y_min, -m),
+                    clip_max: Vec3::new(m, *y_max, m),
+                }
+            }
+            JShape::Cone {
+                angle,
+                y_min,
+                y_max,
+            } => {
+                let t = angle.to_radians().tan();
+                let m = t * y_min.abs().max(y_max.abs()) * 1.001;
+                ShapeDesc::Quadric {
+                    q: Mat4::from_diagonal(glam::Vec4::new(1.0, -t * t, 1.0, 0.0)),
+                    clip_min: Vec3::new(-m, *y_min, -m),
+                    clip_max: Vec3::new(m, *y_max, m),
+                }
+            }
+            JShape::Paraboloid { a, y_max } => {
+                if !(*a > 0.0 && *y_max > 0.0) {
+                    return Err(self.err(
+                        &format!("{at}.shape"),
+                        "paraboloid needs a > 0 and y_max > 0",
+                        "\"paraboloid\"",
+                    ));
+                }
+                let m = (y_max / a).sqrt() * 1.001;
+                ShapeDesc::Quadric {
+                    q: q([
+                        [*a, 0.0, 0.0, 0.0],
+                        [0.0, 0.0, 0.0, -0.5],
+                        [0.0, 0.0, *a, 0.0],
+                        [0.0, -0.5, 0.0, 0.0],
+                    ]),
+                    clip_min: Vec3::new(-m, -1e-3, -m),
+                    clip_max: Vec3::new(m, *y_max, m),
+                }
+            }
+            JShape::Hyperboloid { a, c, y_min, y_max } => {
+                let ymax = y_min.abs().max(y_max.abs());
+                let m = a * (1.0 + ymax * ymax / (c * c)).sqrt() * 1.001;
+                ShapeDesc::Quadric {
+                    q: Mat4::from_diagonal(glam::Vec4::new(
+                        1.0 / (a * a),
+                        -1.0 / (c * c),
+                        1.0 / (a * a),
+                        -1.0,
+                    )),
+                    clip_min: Vec3::new(-m, *y_min, -m),
+                    clip_max: Vec3::new(m, *y_max, m),
+                }
+            }
+            JShape::Mesh {
+                positions,
+                indices,
+                normals,
+                uvs,
+            } => {
+                let mesh = MeshDesc {
+                    name: name.to_string(),
+                    positions: positions.iter().map(|&p| v3(p)).collect(),
+                    normals: normals.iter().map(|&p| v3(p)).collect(),
+                    tangents: Vec::new(),
+                    uvs: [uvs.iter().map(|&p| Vec2::from(p)).collect(), Vec::new()],
+                    indices: indices.clone(),
+                };
+                let n = mesh.positions.len();
+                if let Some(bad) = mesh.indices.iter().flatten().find(|&&i| i as usize >= n) {
+                    return Err(self.err(
+                        &format!("{at}.shape.indices"),
+                        format!("index {bad} out of range ({n} positions)"),
+                        "\"indices\"",
+                    ));
+                }
+                if !normals.is_empty() && normals.len() != n || !uvs.is_empty() && uvs.len() != n {
+                    return Err(self.err(
+                        &format!("{at}.shape"),
+                        "normals and uvs need one entry per position",
+                        "\"normals\"",
+                    ));
+                }
+                self.desc.meshes.push(mesh);
+                ShapeDesc::Mesh {
+                    mesh: self.desc.meshes.len() - 1,
+                }
+            }
+            JShape::Gltf { .. } => unreachable!("handled by the caller"),
+        })
+    }
+
+    /// Appends an included glTF scene under `transform`.
+    fn merge(&mut self, inc: SceneDesc, transform: Mat4) {
+        let (mo, to, mato) = (
+            self.desc.meshes.len(),
+            self.desc.textures.len(),
+            self.desc.materials.len(),
+        );
+        self.desc.meshes.extend(inc.meshes);
+        self.desc.textures.extend(inc.textures);
+        for mut m in inc.materials {
+            let shift = |r: &mut Option<TextureRef>| {
+                if let Some(r) = r {
+                    r.texture += to;
+                }
+            };
+            shift(&mut m.emission_texture);
+            if let Some((r, _)) = &mut m.normal_texture {
+                r.texture += to;
+            }
+            match &mut m.bsdf {
+                BsdfDesc::Diffuse { texture, .. } => shift(texture),
+                BsdfDesc::Pbr(p) => {
+                    shift(&mut p.base_color_texture);
+                    shift(&mut p.metallic_roughness_texture);
+                    shift(&mut p.transmission_texture);
+                }
+                _ => {}
+            }
+            self.desc.materials.push(m);
+        }
+        for mut o in inc.objects {
+            if let ShapeDesc::Mesh { mesh } = &mut o.shape {
+                *mesh += mo;
+            }
+            o.material += mato;
+            o.transform = transform * o.transform;
+            self.desc.objects.push(o);
+        }
+        for l in inc.lights {
+            self.desc.lights.push(match l {
+                LightDesc::Point {
+                    position,
+                    intensity,
+                    range,
+                } => LightDesc::Point {
+                    position: transform.transform_point3(position),
+                    intensity,
+                    range,
+                },
+                LightDesc::Spot {
+                    position,
+                    direction,
+                    intensity,
+                    inner_angle,
+                    outer_angle,
+                    range,
+                } => LightDesc::Spot {
+                    position: transform.transform_point3(position),
+                    direction: transform.transform_vector3(direction),
+                    intensity,
+                    inner_angle,
+                    outer_angle,
+                    range,
+                },
+                LightDesc::Directional {
+                    direction,
+                    irradiance,
+                } => LightDesc::Directional {
+                    direction: transform.transform_vector3(direction),
+                    irradiance,
+                },
+            });
+        }
+        for mut c in inc.cameras {
+            c.transform = transform * c.transform;
+            self.desc.cameras.push(c);
+        }
+        self.desc.warnings.extend(inc.warnings);
+    }
+}
+
+fn check_ior(ior: f32) -> Result<(), String> {
+    if ior.is_finite() && ior > 0.0 {
+        Ok(())
+    } else {
+        Err(format!("ior must be positive, got {ior}"))
+    }
+}
+
+/// Complex indices of refraction (η, k) at roughly 650/550/450 nm for common metals.
+fn metal_preset(name: &str) -> Option<(Rgb, Rgb)> {
+    Some(match name {
+        "gold" => ([0.143, 0.374, 1.442], [3.983, 2.385, 1.603]),
+        "silver" => ([0.155, 0.117, 0.138], [4.828, 3.122, 2.147]),
+        "copper" => ([0.200, 0.924, 1.102], [3.912, 2.452, 2.142]),
+        "aluminium" | "aluminum" => ([1.657, 0.880, 0.521], [9.224, 6.270, 4.837]),
+        "iron" => ([2.911, 2.950, 2.585], [3.089, 2.932, 2.767]),
+        "chrome" | "chromium" => ([3.175, 2.764, 2.131], [3.330, 3.320, 3.223]),
+        _ => return None,
+    })
+}
+
+fn transform(t: &JTransform) -> Result<Mat4, String> {
+    if let Some(m) = t.matrix {
+        if t.translate.is_some() || t.rotate.is_some() || t.scale.is_some() {
+            return Err("use either `matrix` or translate/rotate/scale, not both".into());
+        }
+        return Ok(Mat4::from_cols_array_2d(&m).transpose());
+    }
+    let s = match t.scale {
+        None => Vec3::ONE,
+        Some(JScale::Uniform(s)) => Vec3::splat(s),
+        Some(JScale::Axes(a)) => v3(a),
+    };
+    let r = t.rotate.map_or(Quat::IDENTITY, |[x, y, z]| {
+        Quat::from_euler(
+            EulerRot::ZYX,
+            z.to_radians(),
+            y.to_radians(),
+            x.to_radians(),
+        )
+    });
+    Ok(Mat4::from_scale_rotation_translation(
+        s,
+        r,
+        v3(t.translate.unwrap_or([0.0; 3])),
+    ))
+}
+
+/// Decodes an image file (PNG, JPEG, Radiance HDR, OpenEXR) into a texture description.
+pub fn load_image(path: &Path) -> Result<TextureDesc, String> {
+    let mut reader =
+        image::ImageReader::open(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(16384);
+    limits.max_image_height = Some(16384);
+    limits.max_alloc = Some(2 << 30);
+    reader.limits(limits);
+    let img = reader
+        .with_guessed_format()
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    let img = img
+        .decode()
+        .map_err(|e| format!("{}: {e}", path.display()))?
+        .into_rgba32f();
+    Ok(TextureDesc {
+        name: path.display().to_string(),
+        width: img.width(),
+        height: img.height(),
+        texels: img.pixels().map(|p| p.0).collect(),
+        srgb: true,
+        wrap_u: WrapMode::Repeat,
+        wrap_v: WrapMode::Repeat,
+        bilinear: true,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Result<SceneDesc, String> {
+        parse_json(text, Path::new("."), Path::new("test.json")).map_err(|e| e.to_string())
+    }
+
+    #[test]
+    fn a_small_scene_parses() {
+        let d = parse(
+            r#"{
+              "render": {"width": 64, "height": 48, "spp": 4},
+              "camera": {"position": [0, 1, 5], "look_at": [0, 1, 0], "fov": 40},
+              "textures": {"check": {"type": "checker", "scale": 8, "odd": [0.1, 0.1, 0.1]}},
+              "materials": {
+                "floor": {"type": "diffuse", "texture": "check"},
+                "glass": {"type": "glass", "ior": 1.5},
+                "lamp": {"type": "emitter", "emission": [10, 10, 10]}
+              },
+              "objects": [
+                {"shape": {"type": "plane"}, "material": "floor"},
+                {"name": "ball", "shape": {"type": "sphere", "radius": 0.5}, "material": "glass",
+                 "transform": {"translate": [0, 0.5, 0]}},
+                {"shape": {"type": "rectangle", "corner": [-1, 3, -1], "edge_u": [2, 0, 0], "edge_v": [0, 0, 2]},
+                 "material": "lamp"}
+              ],
+              "lights": [{"type": "point", "position": [0, 4, 0], "intensity": [5, 5, 5]}],
+              "environment": {"type": "constant", "radiance": [0.1, 0.1, 0.1]}
+            }"#,
+        )
+        .unwrap();
+        assert_eq!(d.objects.len(), 3);
+        assert_eq!(d.objects[1].name, "ball");
+        assert_eq!(d.render.width, Some(64));
+        assert_eq!(d.cameras.len(), 1);
+        assert_eq!(d.materials.len(), 3);
+        assert_eq!(d.textures[0].width, 2);
+    }
+
+    #[test]
+    fn errors_name_the_path_and_line() {
+        let e = parse("{\n \"objects\": [\n  {\"shape\": {\"type\": \"sphere\", \"radius\": \"big\"}, \"material\": \"m\"}\n ]\n}").unwrap_err();
+        assert!(
+            e.contains("objects[0].shape") && e.contains("line 3"),
+            "{e}"
+        );
+        let e = parse("{\"materials\": {\"m\": {\"type\": \"diffuse\"}},\n\"objects\": [{\"shape\": {\"type\": \"sphere\"},\n \"material\": \"nope\"}]}").unwrap_err();
+        assert!(
+            e.contains("objects[0].material") && e.contains("nope") && e.contains("line 3"),
+            "{e}"
+        );
+        let e = parse("{\"render\": {\"integrator\": \"magic\"}}").unwrap_err();
+        assert!(e.contains("render.integrator"), "{e}");
+        let e = parse("{\"objekts\": []}").unwrap_err();
+        assert!(e.contains("unknown field"), "{e}");
+        assert!(parse("{").is_err());
+        assert!(parse("{\"objects\": [{\"shape\": {\"type\": \"sphere\", \"radius\": 1e999}, \"material\": \"m\"}]}").is_err());
+    }
+
+    #[test]
+    fn transforms_compose_scale_then_rotate_then_translate() {
+        let t = JTransform {
+            translate: Some([1.0, 2.0, 3.0]),
+            rotate: Some([0.0, 90.0, 0.0]),
+            scale: Some(JScale::Uniform(2.0)),
+            matrix: None,
+        };
+        let m = transform(&t).unwrap();
+        let p = m.transform_point3(Vec3::X);
+        assert!((p - Vec3::new(1.0, 2.0, 1.0)).length() < 1e-5, "{p}");
+    }
 }

@@ -1,0 +1,222 @@
+//! `raytile bench`: the speed figures the project tracks, as a table.
+//!
+//! - samples/s of the path tracer on the Cornell box (256×256 by default);
+//! - ray throughput (Mrays/s) through the scene for coherent rays (camera rays in scanline
+//!   order) and incoherent rays (random origins inside the box, random directions);
+//! - BVH build time and ray throughput on a procedural mesh of ≥ 1 M triangles for every obvhs
+//!   build preset.
+
+use anyhow::{Context, Result};
+use clap::Args;
+use glam::{Vec2, Vec3A};
+use rayon::prelude::*;
+use raytile_core::accel::{Bvh, PRESETS};
+use raytile_core::geometry::triangle::TriangleGeom;
+use raytile_core::geometry::{Aabb, Ray};
+use raytile_core::sampling::hash_u32;
+use raytile_core::{load_scene, render, RenderSettings, Scene};
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// Arguments of `raytile bench`.
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    /// Scene for the samples/s and scene ray figures.
+    #[arg(long, default_value = "scenes/cornell-box.json")]
+    pub scene: PathBuf,
+    /// Image edge for the samples/s figure.
+    #[arg(long, default_value_t = 256)]
+    pub size: u32,
+    /// Samples per pixel for the samples/s figure.
+    #[arg(long, default_value_t = 64)]
+    pub spp: u32,
+    /// Maximum depth for the samples/s figure.
+    #[arg(long, default_value_t = 64)]
+    pub max_depth: u32,
+    /// Triangles in the BVH mesh (rounded to a grid).
+    #[arg(long, default_value_t = 1 << 20)]
+    pub triangles: usize,
+    /// Rays per throughput measurement.
+    #[arg(long, default_value_t = 2_000_000)]
+    pub rays: usize,
+    /// Skip the BVH build benchmark.
+    #[arg(long)]
+    pub no_bvh: bool,
+}
+
+fn rnd(i: u32) -> f32 {
+    (hash_u32(i) >> 8) as f32 / (1u32 << 24) as f32
+}
+
+fn mrays(n: usize, secs: f64) -> f64 {
+    n as f64 / secs / 1e6
+}
+
+/// Runs `raytile bench`.
+pub fn run(args: BenchArgs) -> Result<()> {
+    println!("raytile bench ({} threads)", rayon::current_num_threads());
+    let desc =
+        load_scene(&args.scene).with_context(|| format!("loading {}", args.scene.display()))?;
+    let settings = RenderSettings {
+        width: args.size,
+        height: args.size,
+        spp: args.spp,
+        max_depth: args.max_depth,
+        ..Default::default()
+    };
+    let scene = Scene::build(&desc, &settings)?;
+    // Warm-up pass (page faults, thread start), then the measured render.
+    render(
+        &scene,
+        &RenderSettings {
+            spp: 1,
+            ..settings.clone()
+        },
+        &(),
+    );
+    let t = Instant::now();
+    let film = render(&scene, &settings, &());
+    let secs = t.elapsed().as_secs_f64();
+    let samples = settings.width as f64 * settings.height as f64 * settings.spp as f64;
+    let m = film.mean();
+    println!("| benchmark | figure |");
+    println!("|---|---|");
+    println!(
+        "| path tracer, {} {}x{} {} spp, depth {} | {:.3} s, {:.3} Msamples/s (mean {:.4} {:.4} {:.4}) |",
+        args.scene.display(), settings.width, settings.height, settings.spp, settings.max_depth, secs, samples / secs / 1e6, m[0], m[1], m[2]
+    );
+
+    // Scene ray throughput.
+    let n = args.rays;
+    let cam = scene.camera();
+    let side = (n as f64).sqrt() as u32;
+    let coherent: Vec<Ray> = (0..side * side)
+        .map(|i| {
+            let (x, y) = (i % side, i / side);
+            let film = Vec2::new(
+                (x as f32 + 0.5) / side as f32 * settings.width as f32,
+                (y as f32 + 0.5) / side as f32 * settings.height as f32,
+            );
+            cam.generate_ray(film, Vec2::splat(0.5))
+        })
+        .collect();
+    let b = scene.bounds();
+    let incoherent: Vec<Ray> = (0..n as u32)
+        .map(|i| {
+            let u = Vec3A::new(rnd(6 * i), rnd(6 * i + 1), rnd(6 * i + 2));
+            let o = b.min + (b.max - b.min) * (u * 0.98 + 0.01);
+            let d = Vec3A::new(
+                rnd(6 * i + 3) - 0.5,
+                rnd(6 * i + 4) - 0.5,
+                rnd(6 * i + 5) - 0.5,
+            )
+            .normalize_or(Vec3A::X);
+            Ray::new(o, d)
+        })
+        .collect();
+    for (name, rays) in [("coherent", &coherent), ("incoherent", &incoherent)] {
+        let t = Instant::now();
+        let hits: usize = rays
+            .par_chunks(4096)
+            .map(|c| {
+                c.iter()
+                    .filter(|r| scene.intersect(r, f32::INFINITY).is_some())
+                    .count()
+            })
+            .sum();
+        let secs = t.elapsed().as_secs_f64();
+        println!(
+            "| scene closest-hit, {name} rays | {:.2} Mrays/s ({} of {} hit) |",
+            mrays(rays.len(), secs),
+            hits,
+            rays.len()
+        );
+    }
+    if args.no_bvh {
+        return Ok(());
+    }
+
+    // BVH on a procedural mesh: a bumpy sphere tessellated as a lat-long grid.
+    let grid = ((args.triangles / 2) as f64).sqrt().ceil() as usize;
+    let vert = |i: usize, j: usize| {
+        let (th, ph) = (
+            std::f32::consts::PI * i as f32 / grid as f32,
+            2.0 * std::f32::consts::PI * j as f32 / grid as f32,
+        );
+        let r = 1.0 + 0.05 * (7.0 * th).sin() * (9.0 * ph).cos();
+        Vec3A::new(
+            r * th.sin() * ph.cos(),
+            r * th.cos(),
+            r * th.sin() * ph.sin(),
+        )
+    };
+    let mut tris = Vec::with_capacity(grid * grid * 2);
+    for i in 0..grid {
+        for j in 0..grid {
+            let (a, b2, c, d) = (
+                vert(i, j),
+                vert(i + 1, j),
+                vert(i + 1, j + 1),
+                vert(i, j + 1),
+            );
+            tris.push(TriangleGeom::new([a, b2, c]));
+            tris.push(TriangleGeom::new([a, c, d]));
+        }
+    }
+    let bounds: Vec<Aabb> = tris
+        .iter()
+        .map(|t| Aabb::from_points(&[t.v0, t.v0 + t.e1, t.v0 + t.e2]))
+        .collect();
+    let coherent: Vec<Ray> = (0..side * side)
+        .map(|i| {
+            let (x, y) = (
+                (i % side) as f32 / side as f32 * 2.4 - 1.2,
+                (i / side) as f32 / side as f32 * 2.4 - 1.2,
+            );
+            Ray::new(Vec3A::new(x, y, 3.0), Vec3A::new(0.0, 0.0, -1.0))
+        })
+        .collect();
+    let incoherent: Vec<Ray> = (0..n as u32)
+        .map(|i| {
+            let o = Vec3A::new(rnd(6 * i) - 0.5, rnd(6 * i + 1) - 0.5, rnd(6 * i + 2) - 0.5) * 1.6;
+            let d = Vec3A::new(
+                rnd(6 * i + 3) - 0.5,
+                rnd(6 * i + 4) - 0.5,
+                rnd(6 * i + 5) - 0.5,
+            )
+            .normalize_or(Vec3A::X);
+            Ray::new(o, d)
+        })
+        .collect();
+    for (name, params) in PRESETS {
+        let t = Instant::now();
+        let (bvh, order) = Bvh::build_with(&bounds, params);
+        let build = t.elapsed().as_secs_f64();
+        let ordered: Vec<TriangleGeom> = order.iter().map(|&i| tris[i as usize]).collect();
+        let mut figures = Vec::new();
+        for rays in [&coherent, &incoherent] {
+            let t = Instant::now();
+            let hits: usize = rays
+                .par_chunks(4096)
+                .map(|c| {
+                    c.iter()
+                        .filter(|r| {
+                            bvh.closest(r, f32::INFINITY, |slot, tmax| {
+                                ordered[slot]
+                                    .intersect(r.o, r.d, 0.0, tmax)
+                                    .map_or(f32::INFINITY, |h| h.0)
+                            })
+                            .is_some()
+                        })
+                        .count()
+                })
+                .sum();
+            figures.push((mrays(rays.len(), t.elapsed().as_secs_f64()), hits));
+        }
+        println!(
+            "| BVH {name}, {} triangles | build {:.3} s; {:.2} Mrays/s coherent, {:.2} Mrays/s incoherent |",
+            tris.len(), build, figures[0].0, figures[1].0
+        );
+    }
+    Ok(())
+}

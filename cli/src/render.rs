@@ -1,0 +1,196 @@
+//! `raytile render`: one scene, one machine, one image.
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use raytile_core::film::{self, OutputOptions, ToneMap};
+use raytile_core::settings::FilterKind;
+use raytile_core::{load_scene, IntegratorKind, RenderProgress, RenderSettings, Scene};
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Mutex;
+use std::time::Instant;
+
+/// Render settings shared by `render` and `submit`: each overrides the scene's own setting.
+#[derive(Args, Clone, Debug, Default)]
+pub struct RenderFlags {
+    /// Image width in pixels.
+    #[arg(long)]
+    pub width: Option<u32>,
+    /// Image height in pixels.
+    #[arg(long)]
+    pub height: Option<u32>,
+    /// Samples per pixel.
+    #[arg(long)]
+    pub spp: Option<u32>,
+    /// Maximum path depth (bounces).
+    #[arg(long)]
+    pub max_depth: Option<u32>,
+    /// Integrator: path, whitted, normals, albedo, depth, ao.
+    #[arg(long)]
+    pub integrator: Option<IntegratorKind>,
+    /// Random seed.
+    #[arg(long)]
+    pub seed: Option<u32>,
+    /// Camera name or index.
+    #[arg(long)]
+    pub camera: Option<String>,
+    /// Pixel filter: box, gaussian, blackman-harris.
+    #[arg(long)]
+    pub filter: Option<FilterKind>,
+    /// Tile edge in pixels (scheduling only; never changes the image).
+    #[arg(long)]
+    pub tile_size: Option<u32>,
+    /// Progressive passes the samples are split into (part of the job: same passes, same bits).
+    #[arg(long)]
+    pub passes: Option<u32>,
+}
+
+impl RenderFlags {
+    /// raytile's defaults, overridden by the scene's settings, overridden by these flags.
+    pub fn resolve(
+        &self,
+        scene: &raytile_core::scene::desc::RenderDefaults,
+    ) -> Result<RenderSettings> {
+        let mut s = RenderSettings::default();
+        let d = scene;
+        s.width = self.width.or(d.width).unwrap_or(s.width);
+        s.height = self.height.or(d.height).unwrap_or(s.height);
+        s.spp = self.spp.or(d.spp).unwrap_or(s.spp);
+        s.max_depth = self.max_depth.or(d.max_depth).unwrap_or(s.max_depth);
+        s.seed = self.seed.or(d.seed).unwrap_or(s.seed);
+        s.camera = self.camera.clone().or_else(|| d.camera.clone());
+        s.integrator = match (self.integrator, &d.integrator) {
+            (Some(i), _) => i,
+            (None, Some(name)) => name.parse().map_err(anyhow::Error::msg)?,
+            (None, None) => s.integrator,
+        };
+        s.filter = match (self.filter, &d.filter) {
+            (Some(f), _) => f,
+            (None, Some(name)) => name.parse().map_err(anyhow::Error::msg)?,
+            (None, None) => s.filter,
+        };
+        s.tile_size = self.tile_size.unwrap_or(s.tile_size);
+        s.passes = self.passes.unwrap_or(s.passes);
+        if let Err((field, msg)) = s.validate() {
+            bail!("--{}: {msg}", field.replace('_', "-"));
+        }
+        Ok(s)
+    }
+}
+
+/// Arguments of `raytile render`.
+#[derive(Args, Debug)]
+pub struct RenderArgs {
+    /// Scene file: .json (raytile format), .gltf or .glb.
+    pub scene: PathBuf,
+    /// Output image: .png, .exr or .hdr.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    #[command(flatten)]
+    pub flags: RenderFlags,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Exposure in stops for PNG output.
+    #[arg(long, default_value_t = 0.0)]
+    pub exposure: f32,
+    /// Tone map for PNG output: clamp or aces.
+    #[arg(long, default_value = "clamp")]
+    pub tonemap: ToneMap,
+}
+
+struct Progress {
+    bar: Option<ProgressBar>,
+    done: AtomicU64,
+    total: u64,
+    last_line: Mutex<u64>,
+}
+
+impl RenderProgress for Progress {
+    fn tile_done(&self, samples: u64) {
+        let done = self.done.fetch_add(samples, Ordering::Relaxed) + samples;
+        match &self.bar {
+            Some(b) => b.set_position(done),
+            None => {
+                // Not a terminal: a plain line every 10%.
+                let pct = done * 10 / self.total.max(1);
+                let mut last = self.last_line.lock().unwrap_or_else(|e| e.into_inner());
+                if pct > *last {
+                    *last = pct;
+                    eprintln!("raytile: {}% rendered", pct * 10);
+                }
+            }
+        }
+    }
+}
+
+/// Runs `raytile render`.
+pub fn run(args: RenderArgs) -> Result<()> {
+    let start = Instant::now();
+    film::ImageFormat::from_path(&args.output)?;
+    let desc = load_scene(&args.scene)?;
+    for w in &desc.warnings {
+        eprintln!("raytile: warning: {w}");
+    }
+    let settings = args.flags.resolve(&desc.render)?;
+    let mut pool = rayon::ThreadPoolBuilder::new();
+    if let Some(t) = args.threads {
+        if t == 0 {
+            bail!("--threads must be at least 1");
+        }
+        pool = pool.num_threads(t);
+    }
+    let pool = pool.build().context("starting worker threads")?;
+    let scene = pool.install(|| Scene::build(&desc, &settings))?;
+    let total = settings.width as u64 * settings.height as u64 * settings.spp as u64;
+    let bar = std::io::stderr().is_terminal().then(|| {
+        let b = ProgressBar::new(total);
+        b.set_style(
+            ProgressStyle::with_template(
+                "{spinner} [{elapsed_precise}] {wide_bar} {percent}% eta {eta}",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        b
+    });
+    let progress = Progress {
+        bar,
+        done: AtomicU64::new(0),
+        total,
+        last_line: Mutex::new(0),
+    };
+    let render_start = Instant::now();
+    let film = pool.install(|| raytile_core::render(&scene, &settings, &progress));
+    let secs = render_start.elapsed().as_secs_f64();
+    if let Some(b) = &progress.bar {
+        b.finish_and_clear();
+    }
+    film::save(
+        &film,
+        &args.output,
+        &OutputOptions {
+            exposure: args.exposure,
+            tonemap: args.tonemap,
+        },
+    )?;
+    if film.bad_samples > 0 {
+        eprintln!(
+            "raytile: warning: {} NaN/infinite samples were dropped",
+            film.bad_samples
+        );
+    }
+    eprintln!(
+        "raytile: {}x{}, {} spp, {} integrator, {:.3} s render ({:.3} s total), {:.3} Msamples/s -> {}",
+        settings.width,
+        settings.height,
+        settings.spp,
+        settings.integrator.name(),
+        secs,
+        start.elapsed().as_secs_f64(),
+        total as f64 / secs.max(1e-9) / 1e6,
+        args.output.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,210 @@
+//! Image output: linear OpenEXR and Radiance HDR, and tone-mapped 8-bit sRGB PNG.
+
+use super::Film;
+use crate::texture::linear_to_srgb;
+use image::{ExtendedColorType, ImageEncoder};
+use std::io::Cursor;
+use std::path::Path;
+
+/// Why an image could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum FilmError {
+    /// The extension is not one raytile writes.
+    #[error("{0}: unknown image format (expected .png, .exr or .hdr)")]
+    UnknownFormat(String),
+    /// Encoding failed.
+    #[error("encoding {format}: {message}")]
+    Encode {
+        /// The format.
+        format: &'static str,
+        /// The encoder's message.
+        message: String,
+    },
+    /// Writing the file failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// The OS error.
+        source: std::io::Error,
+    },
+}
+
+/// Output file formats.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ImageFormat {
+    /// 8-bit sRGB PNG, tone-mapped.
+    Png,
+    /// 32-bit float linear OpenEXR.
+    Exr,
+    /// Radiance RGBE, linear.
+    Hdr,
+}
+
+impl ImageFormat {
+    /// From a file extension (case-insensitive).
+    pub fn from_extension(ext: &str) -> Option<Self> {
+        match ext.to_ascii_lowercase().as_str() {
+            "png" => Some(Self::Png),
+            "exr" => Some(Self::Exr),
+            "hdr" => Some(Self::Hdr),
+            _ => None,
+        }
+    }
+
+    /// From a path's extension.
+    pub fn from_path(path: &Path) -> Result<Self, FilmError> {
+        path.extension()
+            .and_then(|e| e.to_str())
+            .and_then(Self::from_extension)
+            .ok_or_else(|| FilmError::UnknownFormat(path.display().to_string()))
+    }
+}
+
+/// Tone-mapping operators for 8-bit output.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ToneMap {
+    /// Clip to [0, 1] (what "Standard" view transforms do).
+    #[default]
+    Clamp,
+    /// The ACES filmic curve (Narkowicz's fit): soft highlights, richer contrast.
+    Aces,
+}
+
+impl std::str::FromStr for ToneMap {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "clamp" | "none" => Ok(Self::Clamp),
+            "aces" | "filmic" => Ok(Self::Aces),
+            _ => Err(format!("unknown tone map '{s}' (expected clamp or aces)")),
+        }
+    }
+}
+
+/// How linear radiance becomes display pixels (PNG only; EXR and HDR are written linear).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct OutputOptions {
+    /// Exposure in stops: pixels are multiplied by 2^exposure before tone mapping.
+    pub exposure: f32,
+    /// Tone-mapping curve.
+    pub tonemap: ToneMap,
+}
+
+#[inline]
+fn aces(x: f32) -> f32 {
+    let (a, b, c, d, e) = (2.51, 0.03, 2.43, 0.59, 0.14);
+    ((x * (a * x + b)) / (x * (c * x + d) + e)).clamp(0.0, 1.0)
+}
+
+/// Encodes the film in `format`.
+pub fn encode(
+    film: &Film,
+    format: ImageFormat,
+    opts: &OutputOptions,
+) -> Result<Vec<u8>, FilmError> {
+    let px = film.resolve();
+    let (w, h) = (film.width, film.height);
+    let mut out = Cursor::new(Vec::new());
+    let err = |format: &'static str| {
+        move |e: image::ImageError| FilmError::Encode {
+            format,
+            message: e.to_string(),
+        }
+    };
+    match format {
+        ImageFormat::Exr => {
+            let bytes: Vec<u8> = px.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
+            image::codecs::openexr::OpenExrEncoder::new(&mut out)
+                .write_image(&bytes, w, h, ExtendedColorType::Rgb32F)
+                .map_err(err("OpenEXR"))?;
+        }
+        ImageFormat::Hdr => {
+            let data: Vec<image::Rgb<f32>> = px
+                .iter()
+                .map(|p| image::Rgb(p.map(|v| v.max(0.0))))
+                .collect();
+            image::codecs::hdr::HdrEncoder::new(&mut out)
+                .encode(&data, w as usize, h as usize)
+                .map_err(err("HDR"))?;
+        }
+        ImageFormat::Png => {
+            let scale = opts.exposure.exp2();
+            let bytes: Vec<u8> = px
+                .iter()
+                .flatten()
+                .map(|&v| {
+                    let v = (v * scale).max(0.0);
+                    let v = match opts.tonemap {
+                        ToneMap::Clamp => v.min(1.0),
+                        ToneMap::Aces => aces(v),
+                    };
+                    (linear_to_srgb(v) * 255.0 + 0.5) as u8
+                })
+                .collect();
+            image::codecs::png::PngEncoder::new(&mut out)
+                .write_image(&bytes, w, h, ExtendedColorType::Rgb8)
+                .map_err(err("PNG"))?;
+        }
+    }
+    Ok(out.into_inner())
+}
+
+/// Writes the film to `path`, the format chosen by its extension.
+pub fn save(film: &Film, path: &Path, opts: &OutputOptions) -> Result<(), FilmError> {
+    let format = ImageFormat::from_path(path)?;
+    let bytes = encode(film, format, opts)?;
+    std::fs::write(path, bytes).map_err(|source| FilmError::Io {
+        path: path.display().to_string(),
+        source,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{Tile, TileAccum};
+
+    fn film() -> Film {
+        let mut f = Film::new(3, 2);
+        f.add_tile(&TileAccum {
+            tile: Tile {
+                x0: 0,
+                y0: 0,
+                x1: 3,
+                y1: 2,
+            },
+            pixels: (0..6).map(|i| [i as f32 * 0.25, 0.5, 2.0, 1.0]).collect(),
+            bad_samples: 0,
+        });
+        f
+    }
+
+    #[test]
+    fn exr_round_trips_exactly() {
+        let bytes = encode(&film(), ImageFormat::Exr, &OutputOptions::default()).unwrap();
+        let img = image::load_from_memory_with_format(&bytes, image::ImageFormat::OpenExr)
+            .unwrap()
+            .into_rgb32f();
+        assert_eq!(img.dimensions(), (3, 2));
+        assert_eq!(img.get_pixel(2, 1).0, [1.25, 0.5, 2.0]);
+    }
+
+    #[test]
+    fn png_and_hdr_encode() {
+        let png = encode(
+            &film(),
+            ImageFormat::Png,
+            &OutputOptions {
+                exposure: 0.0,
+                tonemap: ToneMap::Aces,
+            },
+        )
+        .unwrap();
+        let img = image::load_from_memory(&png).unwrap().into_rgb8();
+        assert_eq!(img.get_pixel(0, 0).0[0], 0);
+        let hdr = encode(&film(), ImageFormat::Hdr, &OutputOptions::default()).unwrap();
+        assert!(hdr.starts_with(b"#?RADIANCE"));
+        assert!(ImageFormat::from_path(Path::new("x.jpg")).is_err());
+    }
+}

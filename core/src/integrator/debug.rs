@@ -1,0 +1,54 @@
+//! Debug and auxiliary outputs: shading normals, albedo, depth and ambient occlusion.
+//! Fast previews, and the buffers a denoiser needs.
+
+use super::spawn_ray;
+use crate::geometry::Ray;
+use crate::sampling::warp::{cosine_hemisphere, Frame};
+use crate::sampling::Sampler;
+use crate::{IntegratorKind, Scene};
+use glam::Vec3A;
+
+/// Value of debug integrator `kind` along `ray`.
+pub fn li(scene: &Scene, ray: Ray, sampler: &mut Sampler, kind: IntegratorKind) -> Vec3A {
+    let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
+        return match kind {
+            IntegratorKind::Albedo => scene
+                .environment
+                .as_ref()
+                .map_or(Vec3A::ZERO, |e| e.radiance(ray.d)),
+            _ => Vec3A::ZERO,
+        };
+    };
+    let it = scene.interaction(&ray, &hit);
+    match kind {
+        // World-space shading normal mapped from [-1, 1] to [0, 1].
+        IntegratorKind::Normals => it.ns * 0.5 + 0.5,
+        IntegratorKind::Albedo => {
+            let e = scene.emitted(&it, -ray.d);
+            if e != Vec3A::ZERO {
+                e
+            } else {
+                scene.bsdf(&it).albedo()
+            }
+        }
+        // Distance along the primary ray, in scene units.
+        IntegratorKind::Depth => Vec3A::splat(hit.t),
+        IntegratorKind::Ao => {
+            // One cosine-distributed occlusion ray, reaching a fifth of the scene's size:
+            // the estimate of the cosine-weighted visible fraction of the hemisphere.
+            let radius = (scene.bounds().diagonal().length() * 0.2).max(1e-3);
+            let n = if it.ng.dot(ray.d) > 0.0 {
+                -it.ns
+            } else {
+                it.ns
+            };
+            let d = Frame::from_z(n).to_world(cosine_hemisphere(sampler.next_2d()));
+            if scene.occluded(&spawn_ray(&it, d), radius) {
+                Vec3A::ZERO
+            } else {
+                Vec3A::ONE
+            }
+        }
+        IntegratorKind::Path | IntegratorKind::Whitted => Vec3A::ZERO,
+    }
+}

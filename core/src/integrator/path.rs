@@ -1,0 +1,195 @@
+//! Unidirectional path tracing with next-event estimation and multiple importance sampling.
+//!
+//! At each vertex: add emission found by BSDF sampling (MIS-weighted against light sampling),
+//! sample one light (chosen ∝ power) and add its contribution if unoccluded (MIS-weighted
+//! against BSDF sampling; delta lights and delta BSDFs take full weight), then continue the
+//! path by sampling the BSDF. Russian roulette from the third bounce keeps long paths cheap
+//! and unbiased. Each bounce draws a fixed number of sample dimensions, so the Sobol
+//! dimensions line up across samples.
+
+use super::{power_heuristic, spawn_ray, spawn_ray_to};
+use crate::geometry::Ray;
+use crate::light::Light;
+use crate::material::Bsdf;
+use crate::sampling::warp::Frame;
+use crate::sampling::Sampler;
+use crate::scene::build::Interaction;
+use crate::Scene;
+use glam::Vec3A;
+
+/// Direct light from one light chosen by `u_select`, MIS-weighted. Returns the contribution
+/// (to be multiplied by the path throughput).
+#[inline]
+pub(crate) fn sample_one_light(
+    scene: &Scene,
+    it: &Interaction,
+    bsdf: &Bsdf,
+    frame: &Frame,
+    wo: Vec3A,
+    u_select: f32,
+    u: glam::Vec2,
+) -> Vec3A {
+    let Some((li_index, pmf, _)) = scene.lights.choose(u_select) else {
+        return Vec3A::ZERO;
+    };
+    light_contribution(scene, it, bsdf, frame, wo, li_index, u, true) / pmf
+}
+
+/// Contribution of light `index` sampled once with `u` (without the selection probability).
+/// With `mis`, weighted by the power heuristic against BSDF sampling (the path tracer also
+/// finds emitters by BSDF sampling); without, the full estimate (Whitted finds them only here).
+#[inline]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn light_contribution(
+    scene: &Scene,
+    it: &Interaction,
+    bsdf: &Bsdf,
+    frame: &Frame,
+    wo: Vec3A,
+    index: usize,
+    u: glam::Vec2,
+    mis: bool,
+) -> Vec3A {
+    let light = &scene.lights.lights[index];
+    let (wi, li, pdf, delta, shadow) = match *light {
+        Light::Area { object, prim, .. } => {
+            let Some((p, n, le, pdf)) = scene.sample_area(object, prim, it.p, u) else {
+                return Vec3A::ZERO;
+            };
+            if le == Vec3A::ZERO {
+                return Vec3A::ZERO;
+            }
+            let (ray, tmax) = spawn_ray_to(it, p, n);
+            ((p - it.p).normalize(), le, pdf, false, (ray, tmax))
+        }
+        Light::Environment => {
+            let Some(env) = scene.environment.as_ref() else {
+                return Vec3A::ZERO;
+            };
+            let Some((wi, le, pdf)) = env.sample(u) else {
+                return Vec3A::ZERO;
+            };
+            (wi, le, pdf, false, (spawn_ray(it, wi), f32::INFINITY))
+        }
+        _ => {
+            let Some(s) = light.sample_delta(it.p) else {
+                return Vec3A::ZERO;
+            };
+            let shadow = if s.dist.is_finite() {
+                spawn_ray_to(it, s.p_light, s.n_light)
+            } else {
+                (spawn_ray(it, s.wi), f32::INFINITY)
+            };
+            (s.wi, s.li, 1.0, true, shadow)
+        }
+    };
+    if !(pdf > 0.0) {
+        return Vec3A::ZERO;
+    }
+    let wi_local = frame.to_local(wi);
+    let f = bsdf.eval(wo, wi_local) * wi_local.z.abs();
+    if f.max_element() <= 0.0 {
+        return Vec3A::ZERO;
+    }
+    if scene.occluded(&shadow.0, shadow.1) {
+        return Vec3A::ZERO;
+    }
+    if delta || !mis {
+        f * li / pdf
+    } else {
+        let pmf = scene.lights.pmf(index);
+        let w = power_heuristic(pdf * pmf, bsdf.pdf(wo, wi_local));
+        f * li * (w / pdf)
+    }
+}
+
+/// Radiance along `ray`.
+pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, max_depth: u32) -> Vec3A {
+    let mut l = Vec3A::ZERO;
+    let mut beta = Vec3A::ONE;
+    let mut specular = true;
+    let mut prev_pdf = 0.0f32;
+    let mut prev_it: Option<Interaction> = None;
+    let mut eta_scale = 1.0f32;
+    let mut depth = 0u32;
+    loop {
+        let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
+            if let Some(env) = scene.environment.as_ref() {
+                let le = env.radiance(ray.d);
+                if specular || prev_it.is_none() {
+                    l += beta * le;
+                } else {
+                    let env_index = scene.lights.environment.map_or(0, |i| i as usize);
+                    let light_pdf = scene.lights.pmf(env_index) * env.pdf(ray.d);
+                    l += beta * le * power_heuristic(prev_pdf, light_pdf);
+                }
+            }
+            break;
+        };
+        let it = scene.interaction(&ray, &hit);
+        let wo_world = -ray.d;
+        // A ray that reaches a surface from its back side travelled inside that body.
+        if it.ng.dot(ray.d) > 0.0 {
+            let sigma = scene.absorption(it.object);
+            if sigma != Vec3A::ZERO {
+                beta *= (-sigma * hit.t).exp();
+            }
+        }
+        let le = scene.emitted(&it, wo_world);
+        if le != Vec3A::ZERO {
+            if specular {
+                l += beta * le;
+            } else if let Some(prev) = prev_it {
+                let light_pdf = scene.area_light_pdf(&it, prev.p);
+                l += beta * le * power_heuristic(prev_pdf, light_pdf);
+            }
+        }
+        if depth >= max_depth {
+            break;
+        }
+        let bsdf = scene.bsdf(&it);
+        let frame = Frame::from_zx(it.ns, it.dpdu);
+        let wo = frame.to_local(wo_world);
+
+        // Fixed dimension layout per bounce: light choice, light point, lobe, direction, roulette.
+        let u_light = sampler.next_1d();
+        let u_light2 = sampler.next_2d();
+        let u_lobe = sampler.next_1d();
+        let u_dir = sampler.next_2d();
+        let u_rr = sampler.next_1d();
+
+        if !bsdf.is_delta() {
+            l += beta * sample_one_light(scene, &it, &bsdf, &frame, wo, u_light, u_light2);
+        }
+        let Some(bs) = bsdf.sample(wo, u_lobe, u_dir) else {
+            break;
+        };
+        if !(bs.pdf > 0.0) {
+            break;
+        }
+        let weight = bs.f * bs.wi.z.abs() / bs.pdf;
+        if !weight.is_finite() || weight.max_element() <= 0.0 {
+            break;
+        }
+        beta *= weight;
+        specular = bs.lobe.is_delta();
+        prev_pdf = bs.pdf;
+        if bs.lobe.is_transmission() {
+            eta_scale *= bs.eta * bs.eta;
+        }
+        let wi = frame.to_world(bs.wi).normalize();
+        ray = spawn_ray(&it, wi);
+        prev_it = Some(it);
+        depth += 1;
+        // Russian roulette on the throughput without radiance scaling at refraction (pbrt-v4).
+        let rr_beta = beta * eta_scale;
+        if depth > 2 && rr_beta.max_element() < 1.0 {
+            let q = (1.0 - rr_beta.max_element()).max(0.0);
+            if u_rr < q {
+                break;
+            }
+            beta /= 1.0 - q;
+        }
+    }
+    l
+}

@@ -1,0 +1,209 @@
+//! Environment lighting: constant, or an equirectangular HDR map sampled by importance.
+//!
+//! Map convention: u = 0.5 + atan2(d.x, −d.z)/2π, v = acos(d.y)/π, so the centre of the image
+//! lies towards −Z (straight ahead of a default camera) and the top row is straight up (+Y).
+
+use crate::sampling::distrib::Distribution2D;
+use crate::sampling::warp::{uniform_sphere, UNIFORM_SPHERE_PDF};
+use crate::scene::desc::EnvironmentDesc;
+use crate::texture::Texture;
+use glam::{Vec2, Vec3A};
+use std::f32::consts::PI;
+
+/// Light from infinitely far away.
+#[derive(Clone, Debug)]
+pub enum Environment {
+    /// Uniform radiance.
+    Constant(Vec3A),
+    /// An importance-sampled lat-long map.
+    Map {
+        /// The image (linear).
+        texture: Texture,
+        /// Multiplier.
+        scale: f32,
+        /// Rotation about +Y (radians) applied to the map.
+        rotation: f32,
+        /// Sampling distribution ∝ luminance × sin θ.
+        distrib: Distribution2D,
+        /// Average luminance (for light selection).
+        average: f32,
+    },
+}
+
+impl Environment {
+    /// Builds from a description.
+    pub fn new(desc: &EnvironmentDesc) -> Self {
+        match desc {
+            EnvironmentDesc::Constant { radiance } => Environment::Constant(Vec3A::from(*radiance)),
+            EnvironmentDesc::Map {
+                texture,
+                scale,
+                rotation_y,
+            } => {
+                let tex = Texture::new(texture);
+                let (w, h) = (tex.width() as usize, tex.height() as usize);
+                let mut weights = Vec::with_capacity(w * h);
+                let mut total = 0.0f64;
+                for y in 0..h {
+                    let sin_t = (PI * (y as f32 + 0.5) / h as f32).sin();
+                    for x in 0..w {
+                        let c = tex.texel(x as i64, y as i64);
+                        let l = super::luminance(Vec3A::new(c.x, c.y, c.z)).max(0.0);
+                        total += (l * sin_t) as f64;
+                        weights.push(l * sin_t);
+                    }
+                }
+                let average = (total / (w * h) as f64) as f32 * scale.max(0.0);
+                Environment::Map {
+                    distrib: Distribution2D::new(&weights, w, h),
+                    texture: tex,
+                    scale: scale.max(0.0),
+                    rotation: *rotation_y,
+                    average,
+                }
+            }
+        }
+    }
+
+    /// Radiance arriving from direction `d` (unit, pointing away from the scene).
+    #[inline]
+    pub fn radiance(&self, d: Vec3A) -> Vec3A {
+        match self {
+            Environment::Constant(c) => *c,
+            Environment::Map {
+                texture,
+                scale,
+                rotation,
+                ..
+            } => {
+                let uv = dir_to_uv(d, *rotation);
+                let c = texture.lookup(uv);
+                Vec3A::new(c.x, c.y, c.z) * *scale
+            }
+        }
+    }
+
+    /// Samples a direction: (direction, radiance, solid-angle pdf).
+    #[inline]
+    pub fn sample(&self, u: Vec2) -> Option<(Vec3A, Vec3A, f32)> {
+        match self {
+            Environment::Constant(c) => Some((uniform_sphere(u), *c, UNIFORM_SPHERE_PDF)),
+            Environment::Map {
+                distrib, rotation, ..
+            } => {
+                let (uv, pdf_uv) = distrib.sample(u);
+                if pdf_uv <= 0.0 {
+                    return None;
+                }
+                let (d, sin_t) = uv_to_dir(uv, *rotation);
+                if sin_t <= 0.0 {
+                    return None;
+                }
+                let pdf = pdf_uv / (2.0 * PI * PI * sin_t);
+                Some((d, self.radiance(d), pdf))
+            }
+        }
+    }
+
+    /// Solid-angle density of [`Environment::sample`] for direction `d`.
+    #[inline]
+    pub fn pdf(&self, d: Vec3A) -> f32 {
+        match self {
+            Environment::Constant(_) => UNIFORM_SPHERE_PDF,
+            Environment::Map {
+                distrib, rotation, ..
+            } => {
+                let uv = dir_to_uv(d, *rotation);
+                let sin_t = (1.0 - d.y * d.y).max(0.0).sqrt();
+                if sin_t <= 0.0 {
+                    return 0.0;
+                }
+                distrib.pdf(uv) / (2.0 * PI * PI * sin_t)
+            }
+        }
+    }
+
+    /// Power estimate for light selection given the scene's bounding radius.
+    pub fn power(&self, radius: f32) -> f32 {
+        let avg = match self {
+            Environment::Constant(c) => super::luminance(*c),
+            Environment::Map { average, .. } => *average,
+        };
+        4.0 * PI * PI * radius * radius * avg
+    }
+}
+
+#[inline]
+fn dir_to_uv(d: Vec3A, rotation: f32) -> Vec2 {
+    let phi = d.x.atan2(-d.z) - rotation;
+    let u = (0.5 + phi / (2.0 * PI)).rem_euclid(1.0);
+    let v = d.y.clamp(-1.0, 1.0).acos() / PI;
+    Vec2::new(u, v)
+}
+
+#[inline]
+fn uv_to_dir(uv: Vec2, rotation: f32) -> (Vec3A, f32) {
+    let phi = (uv.x - 0.5) * 2.0 * PI + rotation;
+    let theta = uv.y * PI;
+    let (sin_t, cos_t) = theta.sin_cos();
+    (
+        Vec3A::new(sin_t * phi.sin(), cos_t, -sin_t * phi.cos()),
+        sin_t,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::desc::{TextureDesc, WrapMode};
+
+    #[test]
+    fn uv_and_direction_round_trip() {
+        for (u, v) in [(0.1, 0.2), (0.5, 0.5), (0.9, 0.7)] {
+            let (d, _) = uv_to_dir(Vec2::new(u, v), 0.3);
+            let uv = dir_to_uv(d, 0.3);
+            assert!((uv - Vec2::new(u, v)).length() < 1e-4, "{uv}");
+        }
+        assert!((uv_to_dir(Vec2::new(0.5, 0.5), 0.0).0 - (-Vec3A::Z)).length() < 1e-6);
+    }
+
+    #[test]
+    fn map_pdf_matches_sampling_and_integrates_to_one() {
+        let (w, h) = (16u32, 8u32);
+        let texels = (0..w * h).map(|i| {
+            let v = if i % 7 == 0 { 20.0 } else { 0.5 };
+            [v, v * 0.5, v, 1.0]
+        });
+        let env = Environment::new(&EnvironmentDesc::Map {
+            texture: TextureDesc {
+                name: "sky".into(),
+                width: w,
+                height: h,
+                texels: texels.collect(),
+                srgb: false,
+                wrap_u: WrapMode::Repeat,
+                wrap_v: WrapMode::Clamp,
+                bilinear: false,
+            },
+            scale: 1.0,
+            rotation_y: 0.0,
+        });
+        // ∫ pdf dω over the sphere = 1 (midpoint rule in (φ, cos θ)).
+        let n = 200;
+        let mut sum = 0.0;
+        for j in 0..n {
+            for i in 0..n {
+                let z = 1.0 - 2.0 * (j as f32 + 0.5) / n as f32;
+                let phi = 2.0 * PI * (i as f32 + 0.5) / n as f32;
+                let r = (1.0 - z * z).sqrt();
+                sum += env.pdf(Vec3A::new(r * phi.cos(), z, r * phi.sin()));
+            }
+        }
+        assert!(
+            (sum * 4.0 * PI / (n * n) as f32 - 1.0).abs() < 0.02,
+            "{sum}"
+        );
+        let (d, _, pdf) = env.sample(Vec2::new(0.37, 0.61)).unwrap();
+        assert!((env.pdf(d) - pdf).abs() < 1e-3 * pdf);
+    }
+}

@@ -1,0 +1,191 @@
+//! Piecewise-constant distributions for importance sampling (light selection, environment maps,
+//! pixel filters).
+
+use glam::Vec2;
+
+/// A discrete/piecewise-constant 1D distribution over [0, 1) with `n` equal bins.
+#[derive(Clone, Debug, Default)]
+pub struct Distribution1D {
+    func: Vec<f32>,
+    cdf: Vec<f32>,
+    integral: f32,
+}
+
+impl Distribution1D {
+    /// From non-negative bin weights. All-zero or non-finite weights become uniform.
+    pub fn new(weights: &[f32]) -> Self {
+        let n = weights.len().max(1);
+        let mut func: Vec<f32> = weights
+            .iter()
+            .map(|&w| if w.is_finite() && w > 0.0 { w } else { 0.0 })
+            .collect();
+        if func.is_empty() {
+            func.push(1.0);
+        }
+        let mut cdf = Vec::with_capacity(n + 1);
+        cdf.push(0.0f32);
+        let mut acc = 0.0f64;
+        for &f in &func {
+            acc += f as f64 / n as f64;
+            cdf.push(acc as f32);
+        }
+        let mut integral = acc as f32;
+        if integral <= 0.0 {
+            func.iter_mut().for_each(|f| *f = 1.0);
+            for (i, c) in cdf.iter_mut().enumerate() {
+                *c = i as f32 / n as f32;
+            }
+            integral = 1.0;
+        } else {
+            cdf.iter_mut().for_each(|c| *c /= integral);
+        }
+        *cdf.last_mut().unwrap() = 1.0;
+        Self {
+            func,
+            cdf,
+            integral,
+        }
+    }
+
+    /// Number of bins.
+    pub fn len(&self) -> usize {
+        self.func.len()
+    }
+
+    /// Whether there are no bins (never true: an empty input becomes one bin).
+    pub fn is_empty(&self) -> bool {
+        self.func.is_empty()
+    }
+
+    /// The integral of the (un-normalised) function over [0, 1).
+    pub fn integral(&self) -> f32 {
+        self.integral
+    }
+
+    /// Picks bin `i` with probability weight_i / Σ weight; returns (i, probability, u remapped
+    /// to [0, 1) within the bin for reuse).
+    #[inline]
+    pub fn sample_discrete(&self, u: f32) -> (usize, f32, f32) {
+        let i = self.find(u);
+        let (lo, hi) = (self.cdf[i], self.cdf[i + 1]);
+        let p = hi - lo;
+        let rem = if p > 0.0 {
+            ((u - lo) / p).clamp(0.0, 1.0 - f32::EPSILON)
+        } else {
+            0.0
+        };
+        (i, p, rem)
+    }
+
+    /// Probability of bin `i` under [`Self::sample_discrete`].
+    #[inline]
+    pub fn discrete_pdf(&self, i: usize) -> f32 {
+        self.cdf.get(i + 1).copied().unwrap_or(0.0) - self.cdf.get(i).copied().unwrap_or(0.0)
+    }
+
+    /// A continuous sample x ∈ [0, 1) with density pdf(x) = func(x)/integral; returns (x, pdf, bin).
+    #[inline]
+    pub fn sample_continuous(&self, u: f32) -> (f32, f32, usize) {
+        let (i, p, rem) = self.sample_discrete(u);
+        let n = self.func.len() as f32;
+        let x = ((i as f32 + rem) / n).min(1.0 - f32::EPSILON);
+        (x, p * n, i)
+    }
+
+    /// Density of [`Self::sample_continuous`] at x.
+    #[inline]
+    pub fn pdf(&self, x: f32) -> f32 {
+        let n = self.func.len();
+        let i = ((x * n as f32) as usize).min(n - 1);
+        self.discrete_pdf(i) * n as f32
+    }
+
+    fn find(&self, u: f32) -> usize {
+        // Largest i with cdf[i] <= u, within [0, n-1]; skips zero-probability bins.
+        let n = self.func.len();
+        let idx = self.cdf.partition_point(|&c| c <= u);
+        let mut i = idx.saturating_sub(1).min(n - 1);
+        while i + 1 < n && self.cdf[i + 1] <= self.cdf[i] {
+            i += 1;
+        }
+        while i > 0 && self.cdf[i + 1] <= self.cdf[i] {
+            i -= 1;
+        }
+        i
+    }
+}
+
+/// A piecewise-constant 2D distribution over [0, 1)² (rows: v, columns: u).
+#[derive(Clone, Debug, Default)]
+pub struct Distribution2D {
+    conditional: Vec<Distribution1D>,
+    marginal: Distribution1D,
+}
+
+impl Distribution2D {
+    /// From a row-major `width × height` table of non-negative weights.
+    pub fn new(weights: &[f32], width: usize, height: usize) -> Self {
+        let conditional: Vec<_> = weights
+            .chunks(width.max(1))
+            .take(height)
+            .map(Distribution1D::new)
+            .collect();
+        let row_weights: Vec<f32> = conditional.iter().map(|d| d.integral()).collect();
+        Self {
+            marginal: Distribution1D::new(&row_weights),
+            conditional,
+        }
+    }
+
+    /// A point with density `pdf` (with respect to area in [0,1)²).
+    #[inline]
+    pub fn sample(&self, u: Vec2) -> (Vec2, f32) {
+        let (v, pv, row) = self.marginal.sample_continuous(u.y);
+        let (x, pu, _) = self.conditional[row].sample_continuous(u.x);
+        (Vec2::new(x, v), pu * pv)
+    }
+
+    /// Density at `p`.
+    #[inline]
+    pub fn pdf(&self, p: Vec2) -> f32 {
+        let h = self.conditional.len();
+        let row = ((p.y * h as f32) as usize).min(h - 1);
+        self.marginal.pdf(p.y) * self.conditional[row].pdf(p.x)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn discrete_probabilities_match_weights() {
+        let d = Distribution1D::new(&[1.0, 0.0, 3.0]);
+        assert!((d.discrete_pdf(0) - 0.25).abs() < 1e-6);
+        assert_eq!(d.discrete_pdf(1), 0.0);
+        assert!((d.discrete_pdf(2) - 0.75).abs() < 1e-6);
+        for i in 0..100 {
+            let (bin, p, rem) = d.sample_discrete(i as f32 / 100.0);
+            assert_ne!(bin, 1, "zero-weight bin must never be chosen");
+            assert!(p > 0.0 && (0.0..1.0).contains(&rem));
+        }
+    }
+
+    #[test]
+    fn continuous_pdf_integrates_to_one() {
+        let d = Distribution2D::new(&[1.0, 2.0, 0.0, 5.0, 1.0, 1.0], 3, 2);
+        let n = 300;
+        let mut sum = 0.0;
+        for j in 0..n {
+            for i in 0..n {
+                sum += d.pdf(Vec2::new(
+                    (i as f32 + 0.5) / n as f32,
+                    (j as f32 + 0.5) / n as f32,
+                ));
+            }
+        }
+        assert!((sum / (n * n) as f32 - 1.0).abs() < 1e-3);
+        let (p, pdf) = d.sample(Vec2::new(0.3, 0.7));
+        assert!((pdf - d.pdf(p)).abs() < 1e-4 * pdf);
+    }
+}
