@@ -11,7 +11,13 @@ fn help_lists_the_flags() {
         .unwrap();
     assert!(out.status.success());
     let text = String::from_utf8_lossy(&out.stdout);
-    for flag in ["--coordinator", "--token", "--threads", "--name", "--cache-dir"] {
+    for flag in [
+        "--coordinator",
+        "--token",
+        "--threads",
+        "--name",
+        "--cache-dir",
+    ] {
         assert!(text.contains(flag), "{flag} missing from:\n{text}");
     }
 }
