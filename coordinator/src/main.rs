@@ -1,4 +1,98 @@
-fn main() {
-    eprintln!("raytile-coordinator: not built yet (see the farm issue)");
-    std::process::exit(1)
+//! `raytile-coordinator`: serves the farm's HTTP API.
+
+use clap::Parser;
+use raytile_coordinator::{run, Config};
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// The raytile coordinator: scene store, job queue, tile leases.
+#[derive(Parser, Debug)]
+#[command(version)]
+struct Args {
+    /// Address to listen on.
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    listen: String,
+    /// Where the database and scenes live.
+    #[arg(long, default_value = "raytile-data")]
+    data_dir: PathBuf,
+    /// Bearer token required on every endpoint but /healthz.
+    #[arg(long, env = "RAYTILE_TOKEN", hide_env_values = true)]
+    token: Option<String>,
+    /// Allow a non-loopback address without a token.
+    #[arg(long)]
+    insecure: bool,
+    /// Lease lifetime without a heartbeat, in seconds.
+    #[arg(long, default_value_t = 30.0)]
+    lease_timeout: f64,
+    /// Start-up grace period before leases expire, in seconds.
+    #[arg(long, default_value_t = 30.0)]
+    startup_grace: f64,
+    /// Failures of one tile that fail its job.
+    #[arg(long, default_value_t = 3)]
+    max_task_failures: u32,
+    /// Largest upload in bytes.
+    #[arg(long, default_value_t = 512 << 20)]
+    max_upload_bytes: u64,
+    /// Most unfinished jobs at once.
+    #[arg(long, default_value_t = 1000)]
+    max_queued_jobs: usize,
+}
+
+fn secs(v: f64, flag: &str) -> anyhow::Result<Duration> {
+    Duration::try_from_secs_f64(v)
+        .map_err(|_| anyhow::anyhow!("--{flag}: not a valid duration: {v}"))
+}
+
+#[tokio::main]
+async fn main() {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    if let Err(e) = real_main(Args::parse()).await {
+        eprintln!("raytile-coordinator: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+async fn real_main(a: Args) -> anyhow::Result<()> {
+    let mut cfg = Config::new(a.data_dir);
+    cfg.token = a.token.filter(|t| !t.is_empty());
+    cfg.insecure = a.insecure;
+    cfg.lease_timeout = secs(a.lease_timeout, "lease-timeout")?;
+    cfg.startup_grace = secs(a.startup_grace, "startup-grace")?;
+    cfg.max_task_failures = a.max_task_failures;
+    cfg.limits.max_upload_bytes = a.max_upload_bytes;
+    cfg.limits.max_queued_jobs = a.max_queued_jobs;
+    let addr: std::net::SocketAddr = a
+        .listen
+        .parse()
+        .map_err(|e| anyhow::anyhow!("--listen {}: {e}", a.listen))?;
+    raytile_coordinator::check_exposure(addr.ip(), &cfg)?;
+    let listener = tokio::net::TcpListener::bind(addr)
+        .await
+        .map_err(|e| anyhow::anyhow!("cannot listen on {addr}: {e}"))?;
+    run(listener, cfg, shutdown_signal()).await
+}
+
+/// Ctrl-C or SIGTERM.
+async fn shutdown_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! { _ = ctrl_c => {}, _ = term => {} }
+    tracing::info!("shutting down");
 }

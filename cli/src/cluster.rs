@@ -1,0 +1,114 @@
+//! `raytile cluster`: a coordinator and N workers in one process, for one machine.
+
+use crate::submit::{self, JobFlags};
+use anyhow::Context;
+use clap::Args;
+use std::path::PathBuf;
+
+/// `raytile cluster` flags.
+#[derive(Args, Debug)]
+pub struct ClusterArgs {
+    /// Number of local workers.
+    #[arg(long, default_value_t = 2)]
+    pub workers: usize,
+    /// Render threads in total, split among the workers (default: every core).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Address of the coordinator.
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    pub listen: String,
+    /// Data directory (default: a temporary one, removed at exit).
+    #[arg(long)]
+    pub data_dir: Option<PathBuf>,
+    /// Bearer token for the coordinator.
+    #[arg(long, env = "RAYTILE_TOKEN", hide_env_values = true)]
+    pub token: Option<String>,
+    /// Render this scene, write the image to -o and exit.
+    #[arg(long)]
+    pub render: Option<PathBuf>,
+    /// Output image for --render (.png, .exr, .hdr).
+    #[arg(short = 'o', long, default_value = "render.png")]
+    pub output: PathBuf,
+    /// Job settings for --render.
+    #[command(flatten)]
+    pub job: JobFlags,
+}
+
+/// Runs `raytile cluster`.
+pub fn run(a: ClusterArgs) -> anyhow::Result<()> {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?;
+    rt.block_on(cluster(a))
+}
+
+async fn cluster(a: ClusterArgs) -> anyhow::Result<()> {
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()),
+        )
+        .with_writer(std::io::stderr)
+        .try_init();
+    let tmp = tempfile::tempdir()?;
+    let data_dir = a
+        .data_dir
+        .clone()
+        .unwrap_or_else(|| tmp.path().join("data"));
+    let mut cfg = raytile_coordinator::Config::new(&data_dir);
+    cfg.token = a.token.clone().filter(|t| !t.is_empty());
+    cfg.startup_grace = std::time::Duration::from_secs(5);
+    let addr: std::net::SocketAddr = a
+        .listen
+        .parse()
+        .map_err(|e| anyhow::anyhow!("--listen {}: {e}", a.listen))?;
+    let listener = tokio::net::TcpListener::bind(addr)
+        .await
+        .with_context(|| format!("cannot listen on {addr}"))?;
+    let addr = listener.local_addr()?;
+    let base = format!("http://{addr}");
+    let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+    let stopped = |mut rx: tokio::sync::watch::Receiver<bool>| async move {
+        let _ = rx.wait_for(|v| *v).await;
+    };
+    let coord = tokio::spawn(raytile_coordinator::run(
+        listener,
+        cfg,
+        stopped(stop_rx.clone()),
+    ));
+    let total = a
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let n = a.workers.max(1);
+    let mut workers = Vec::new();
+    for i in 0..n {
+        let mut wc = raytile_worker::Config::new(base.clone());
+        wc.token = a.token.clone().filter(|t| !t.is_empty());
+        wc.threads = (total / n + usize::from(i < total % n)).max(1);
+        wc.name = format!("local-{i}");
+        wc.cache_dir = tmp.path().join(format!("cache-{i}"));
+        workers.push(tokio::spawn(raytile_worker::run(
+            wc,
+            stopped(stop_rx.clone()),
+        )));
+    }
+    let result = match &a.render {
+        Some(scene) => {
+            let api = submit::Api::new(&base, a.token.clone())?;
+            submit::submit_and_follow(&api, scene, &a.job, true, Some(a.output.as_path()))
+                .await
+                .map(|_| ())
+        }
+        None => {
+            eprintln!("raytile cluster: coordinator on {base} with {n} workers; Ctrl-C to stop");
+            tokio::signal::ctrl_c().await.ok();
+            Ok(())
+        }
+    };
+    let _ = stop_tx.send(true);
+    for w in workers {
+        let _ = w.await;
+    }
+    let _ = coord.await;
+    result
+}

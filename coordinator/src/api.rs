@@ -1,0 +1,555 @@
+//! HTTP handlers and the router. Every route is listed in [`ROUTES`], which the OpenAPI
+//! document and its test check against.
+
+use crate::compose::{self, Format, Layout};
+use crate::error::{AppError, Json};
+use crate::scenes::{self, UploadQuery};
+use crate::sched::ResultOutcome;
+use crate::AppState;
+use axum::body::Body;
+use axum::extract::{DefaultBodyLimit, Path, Query, Request, State};
+use axum::http::{header, HeaderMap, StatusCode};
+use axum::middleware::{self, Next};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post, put};
+use axum::Router;
+use futures_util::StreamExt;
+use raytile_core::RenderSettings;
+use raytile_proto::{self as proto, JobRequest, JobState};
+use serde::Deserialize;
+use std::fmt::Write as _;
+use std::time::Duration;
+use tokio::time::Instant;
+
+/// Every route: (method, path) as in the router and the OpenAPI document.
+pub const ROUTES: &[(&str, &str)] = &[
+    ("get", "/healthz"),
+    ("get", "/metrics"),
+    ("get", "/v1/openapi.json"),
+    ("post", "/v1/scenes"),
+    ("get", "/v1/scenes/{id}"),
+    ("post", "/v1/jobs"),
+    ("get", "/v1/jobs"),
+    ("get", "/v1/jobs/{id}"),
+    ("delete", "/v1/jobs/{id}"),
+    ("get", "/v1/jobs/{id}/image"),
+    ("put", "/v1/jobs/{id}/tasks/{task}/result"),
+    ("post", "/v1/workers"),
+    ("get", "/v1/workers"),
+    ("post", "/v1/workers/{id}/lease"),
+    ("post", "/v1/leases/{lease}/heartbeat"),
+    ("post", "/v1/leases/{lease}/failure"),
+    ("post", "/v1/leases/{lease}/release"),
+];
+
+/// The router with every route, the auth layer and the JSON body limit.
+pub fn app(state: AppState) -> Router {
+    Router::new()
+        .route("/healthz", get(healthz))
+        .route("/metrics", get(metrics))
+        .route("/v1/openapi.json", get(openapi))
+        .route("/v1/scenes", post(upload_scene))
+        .route("/v1/scenes/{id}", get(download_scene))
+        .route("/v1/jobs", post(create_job).get(list_jobs))
+        .route("/v1/jobs/{id}", get(get_job).delete(cancel_job))
+        .route("/v1/jobs/{id}/image", get(job_image))
+        .route("/v1/jobs/{id}/tasks/{task}/result", put(upload_result))
+        .route("/v1/workers", post(register).get(list_workers))
+        .route("/v1/workers/{id}/lease", post(lease))
+        .route("/v1/leases/{lease}/heartbeat", post(heartbeat))
+        .route("/v1/leases/{lease}/failure", post(failure))
+        .route("/v1/leases/{lease}/release", post(release))
+        .fallback(|| async { AppError::NotFound("no such endpoint".into()) })
+        .layer(middleware::from_fn_with_state(state.clone(), auth))
+        // JSON bodies are small; uploads stream `Body` and enforce their own limits.
+        .layer(DefaultBodyLimit::max(1 << 20))
+        .with_state(state)
+}
+
+async fn auth(State(state): State<AppState>, req: Request, next: Next) -> Response {
+    if let Some(token) = &state.cfg.token {
+        if req.uri().path() != "/healthz" {
+            let ok = req
+                .headers()
+                .get(header::AUTHORIZATION)
+                .and_then(|v| v.to_str().ok())
+                .and_then(|v| v.strip_prefix("Bearer "))
+                .is_some_and(|t| constant_time_eq(t.trim().as_bytes(), token.as_bytes()));
+            if !ok {
+                return AppError::Unauthorized.into_response();
+            }
+        }
+    }
+    next.run(req).await
+}
+
+fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+async fn healthz() -> Json<proto::Health> {
+    Json(proto::Health {
+        status: "ok".into(),
+    })
+}
+
+async fn openapi() -> Response {
+    axum::Json(crate::openapi::document()).into_response()
+}
+
+async fn metrics(State(state): State<AppState>) -> Response {
+    let mut s = state.sched();
+    let sps = s.samples_per_second(Instant::now());
+    let mut by_state = std::collections::HashMap::new();
+    for j in s.jobs.values() {
+        *by_state.entry(j.state).or_insert(0u64) += 1;
+    }
+    let c = s.counters.clone();
+    let workers = s.workers.len();
+    drop(s);
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "# HELP raytile_jobs Jobs by state.\n# TYPE raytile_jobs gauge"
+    );
+    for st in JobState::ALL {
+        let n = by_state.get(&st).copied().unwrap_or(0);
+        let _ = writeln!(out, "raytile_jobs{{state=\"{}\"}} {n}", st.name());
+    }
+    for (name, help, v) in [
+        ("raytile_tiles_leased_total", "Leases granted.", c.leased),
+        ("raytile_tiles_done_total", "Tile results accepted.", c.done),
+        (
+            "raytile_tiles_expired_total",
+            "Leases expired and re-queued.",
+            c.expired,
+        ),
+        (
+            "raytile_tiles_failed_total",
+            "Failures reported by workers.",
+            c.failed,
+        ),
+        (
+            "raytile_tiles_duplicate_total",
+            "Duplicate or late results ignored.",
+            c.duplicates,
+        ),
+        ("raytile_samples_total", "Samples accepted.", c.samples),
+    ] {
+        let _ = writeln!(
+            out,
+            "# HELP {name} {help}\n# TYPE {name} counter\n{name} {v}"
+        );
+    }
+    let _ = writeln!(
+        out,
+        "# HELP raytile_workers Registered workers.\n# TYPE raytile_workers gauge\nraytile_workers {workers}"
+    );
+    let _ = writeln!(
+        out,
+        "# HELP raytile_samples_per_second Samples accepted per second over the last 10 s.\n# TYPE raytile_samples_per_second gauge\nraytile_samples_per_second {sps}"
+    );
+    ([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], out).into_response()
+}
+
+async fn upload_scene(
+    State(state): State<AppState>,
+    Query(q): Query<UploadQuery>,
+    headers: HeaderMap,
+    body: Body,
+) -> Result<Response, AppError> {
+    let ct = headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok());
+    let len = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse().ok());
+    let (created, ans) = scenes::upload(&state, q, ct, len, body).await?;
+    let code = if created {
+        StatusCode::CREATED
+    } else {
+        StatusCode::OK
+    };
+    Ok((code, Json(ans)).into_response())
+}
+
+async fn download_scene(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Response, AppError> {
+    let m =
+        scenes::meta(&state, &id).ok_or_else(|| AppError::NotFound(format!("no scene '{id}'")))?;
+    let path = scenes::scene_dir(&state, &id).join("blob");
+    let f = tokio::fs::File::open(&path)
+        .await
+        .map_err(AppError::internal)?;
+    let len = f.metadata().await.map_err(AppError::internal)?.len();
+    let body = Body::from_stream(tokio_util::io::ReaderStream::new(f));
+    Ok((
+        [
+            (header::CONTENT_TYPE, "application/octet-stream".to_string()),
+            (header::CONTENT_LENGTH, len.to_string()),
+            (
+                header::HeaderName::from_static("x-raytile-sha256"),
+                m.sha256.clone(),
+            ),
+            (
+                header::HeaderName::from_static("x-raytile-format"),
+                m.format.clone(),
+            ),
+            (
+                header::HeaderName::from_static("x-raytile-entry"),
+                m.entry.clone(),
+            ),
+        ],
+        body,
+    )
+        .into_response())
+}
+
+/// Merges a job request over the scene's own settings over the defaults.
+pub fn job_settings(
+    defaults: &raytile_core::scene::desc::RenderDefaults,
+    r: &JobRequest,
+) -> Result<RenderSettings, AppError> {
+    let mut s = RenderSettings::default();
+    let d = defaults;
+    s.width = r.width.or(d.width).unwrap_or(s.width);
+    s.height = r.height.or(d.height).unwrap_or(s.height);
+    s.spp = r.spp.or(d.spp).unwrap_or(s.spp);
+    s.max_depth = r.max_depth.or(d.max_depth).unwrap_or(s.max_depth);
+    s.seed = r.seed.or(d.seed).unwrap_or(s.seed);
+    s.camera = r.camera.clone().or(d.camera.clone());
+    s.tile_size = r.tile_size.unwrap_or(s.tile_size);
+    s.passes = r.passes.unwrap_or(s.passes);
+    s.integrator = match (r.integrator, &d.integrator) {
+        (Some(i), _) => i,
+        (None, Some(name)) => name
+            .parse()
+            .map_err(|m: String| AppError::invalid("integrator", format!("scene default: {m}")))?,
+        (None, None) => s.integrator,
+    };
+    s.filter = match (r.filter, &d.filter) {
+        (Some(f), _) => f,
+        (None, Some(name)) => name
+            .parse()
+            .map_err(|m: String| AppError::invalid("filter", format!("scene default: {m}")))?,
+        (None, None) => s.filter,
+    };
+    Ok(s)
+}
+
+async fn create_job(
+    State(state): State<AppState>,
+    Json(req): Json<JobRequest>,
+) -> Result<Response, AppError> {
+    let m = scenes::meta(&state, &req.scene)
+        .ok_or_else(|| AppError::invalid("scene", format!("no scene '{}'", req.scene)))?;
+    let settings = job_settings(&m.defaults, &req)?;
+    settings
+        .validate()
+        .map_err(|(field, msg)| AppError::invalid(field, msg))?;
+    let lim = &state.cfg.limits;
+    if u64::from(settings.width) * u64::from(settings.height) > lim.max_pixels {
+        return Err(AppError::invalid(
+            "width",
+            format!(
+                "width × height must be at most {} pixels on this coordinator",
+                lim.max_pixels
+            ),
+        ));
+    }
+    if settings.spp > lim.max_spp {
+        return Err(AppError::invalid(
+            "spp",
+            format!("must be at most {} on this coordinator", lim.max_spp),
+        ));
+    }
+    let status = {
+        let mut s = state.sched();
+        if s.unfinished_jobs() >= lim.max_queued_jobs {
+            return Err(AppError::TooMany(format!(
+                "{} unfinished jobs already (limit {})",
+                s.unfinished_jobs(),
+                lim.max_queued_jobs
+            )));
+        }
+        s.create_job(req.scene.clone(), settings, req.priority.unwrap_or(0))?
+    };
+    state.notify.notify_waiters();
+    tracing::info!(job = %status.id, "job created");
+    Ok((StatusCode::CREATED, Json(status)).into_response())
+}
+
+async fn list_jobs(State(state): State<AppState>) -> Json<proto::JobList> {
+    let s = state.sched();
+    let mut jobs: Vec<_> = s.jobs.values().collect();
+    jobs.sort_by_key(|j| j.seq);
+    Json(proto::JobList {
+        jobs: jobs.into_iter().map(|j| j.status()).collect(),
+    })
+}
+
+fn no_job(id: &str) -> AppError {
+    AppError::NotFound(format!("no job '{id}'"))
+}
+
+async fn get_job(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Json<proto::JobStatus>, AppError> {
+    let s = state.sched();
+    s.jobs
+        .get(&id)
+        .map(|j| Json(j.status()))
+        .ok_or_else(|| no_job(&id))
+}
+
+async fn cancel_job(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Json<proto::JobStatus>, AppError> {
+    let st = state.sched().cancel(&id)?;
+    st.map(Json).ok_or_else(|| no_job(&id))
+}
+
+#[derive(Deserialize)]
+struct ImageQuery {
+    format: Option<String>,
+}
+
+async fn job_image(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+    Query(q): Query<ImageQuery>,
+) -> Result<Response, AppError> {
+    let name = q.format.unwrap_or_else(|| "png".into());
+    let format = Format::from_name(&name).ok_or_else(|| {
+        AppError::invalid(
+            "format",
+            format!("unknown image format '{name}' (expected png, exr or hdr)"),
+        )
+    })?;
+    let (layout, conn) = {
+        let s = state.sched();
+        let job = s.jobs.get(&id).ok_or_else(|| no_job(&id))?;
+        (
+            Layout::of(job),
+            s.store().reader().map_err(AppError::internal)?,
+        )
+    };
+    let job_id = id.clone();
+    let bytes = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, AppError> {
+        let mut results = Vec::new();
+        crate::store::for_each_result(&conn, &job_id, |idx, data| {
+            match proto::tile::decode(data) {
+                Ok((acc, _)) => results.push((idx, acc)),
+                Err(e) => tracing::error!(job = %job_id, idx, "stored result unreadable: {e}"),
+            }
+        })
+        .map_err(AppError::internal)?;
+        let film = compose::compose(&layout, results);
+        compose::encode(&film, format).map_err(AppError::internal)
+    })
+    .await
+    .map_err(AppError::internal)??;
+    Ok(([(header::CONTENT_TYPE, format.content_type())], bytes).into_response())
+}
+
+async fn register(
+    State(state): State<AppState>,
+    Json(req): Json<proto::RegisterRequest>,
+) -> Result<Json<proto::Registered>, AppError> {
+    if req.name.len() > 256 {
+        return Err(AppError::invalid("name", "must be at most 256 bytes"));
+    }
+    let id = state.sched().register(&req.name, req.threads)?;
+    tracing::info!(worker = %id, name = %req.name, threads = req.threads, "worker registered");
+    Ok(Json(proto::Registered {
+        worker_id: id,
+        lease_timeout_ms: state.cfg.lease_timeout.as_millis() as u64,
+        heartbeat_ms: state.cfg.heartbeat_interval.as_millis() as u64,
+    }))
+}
+
+async fn list_workers(State(state): State<AppState>) -> Json<proto::WorkerList> {
+    let s = state.sched();
+    let leased = s.leased_by_worker();
+    let mut workers: Vec<_> = s
+        .workers
+        .iter()
+        .map(|(id, w)| proto::WorkerInfo {
+            id: id.clone(),
+            name: w.name.clone(),
+            threads: w.threads,
+            registered_ms: w.registered_ms,
+            last_seen_ms: w.last_seen_ms,
+            leased: leased.get(id).copied().unwrap_or(0),
+            tasks_done: w.tasks_done,
+            failures: w.failures,
+        })
+        .collect();
+    workers.sort_by(|a, b| a.registered_ms.cmp(&b.registered_ms).then(a.id.cmp(&b.id)));
+    Json(proto::WorkerList { workers })
+}
+
+#[derive(Deserialize)]
+struct LeaseQuery {
+    /// Longest wait for work, in ms (long poll).
+    wait_ms: Option<u64>,
+}
+
+fn try_lease(state: &AppState, worker: &str) -> Result<Option<proto::Lease>, AppError> {
+    let mut s = state.sched();
+    let Some((job_id, idx, lease_id)) = s.lease(worker, Instant::now())? else {
+        return Ok(None);
+    };
+    let job = s.jobs.get(&job_id).ok_or_else(|| no_job(&job_id))?;
+    let (tile, pass, range) = job.task_work(idx);
+    let settings = job.settings.clone();
+    let scene = job.scene.clone();
+    drop(s);
+    let m = scenes::meta(state, &scene)
+        .ok_or_else(|| AppError::internal(format!("scene {scene} of job {job_id} is missing")))?;
+    Ok(Some(proto::Lease {
+        lease_id,
+        job: job_id,
+        task: idx as u32,
+        scene,
+        scene_sha256: m.sha256.clone(),
+        scene_format: m.format.clone(),
+        scene_entry: m.entry.clone(),
+        settings,
+        tile,
+        pass,
+        sample_start: range.start,
+        sample_end: range.end,
+        lease_timeout_ms: state.cfg.lease_timeout.as_millis() as u64,
+    }))
+}
+
+async fn lease(
+    State(state): State<AppState>,
+    Path(worker): Path<String>,
+    Query(q): Query<LeaseQuery>,
+) -> Result<Response, AppError> {
+    let wait = Duration::from_millis(q.wait_ms.unwrap_or(0)).min(state.cfg.long_poll_max);
+    let deadline = Instant::now() + wait;
+    let mut shutdown = state.shutdown_rx();
+    loop {
+        let notified = state.notify.notified();
+        tokio::pin!(notified);
+        notified.as_mut().enable();
+        if let Some(l) = try_lease(&state, &worker)? {
+            return Ok(Json(l).into_response());
+        }
+        if *shutdown.borrow() {
+            return Err(AppError::Unavailable);
+        }
+        tokio::select! {
+            _ = notified => {}
+            _ = tokio::time::sleep_until(deadline) => return Ok(StatusCode::NO_CONTENT.into_response()),
+            _ = shutdown.changed() => return Err(AppError::Unavailable),
+        }
+    }
+}
+
+async fn heartbeat(
+    State(state): State<AppState>,
+    Path(lease): Path<String>,
+) -> Result<Json<proto::HeartbeatReply>, AppError> {
+    let r = state.sched().heartbeat(&lease, Instant::now())?;
+    Ok(Json(match r {
+        Ok(()) => proto::HeartbeatReply {
+            cancelled: false,
+            reason: None,
+        },
+        Err(reason) => proto::HeartbeatReply {
+            cancelled: true,
+            reason: Some(reason),
+        },
+    }))
+}
+
+async fn failure(
+    State(state): State<AppState>,
+    Path(lease): Path<String>,
+    Json(report): Json<proto::FailureReport>,
+) -> Result<StatusCode, AppError> {
+    let error: String = report.error.chars().take(4000).collect();
+    tracing::warn!(%lease, %error, "worker reports failure");
+    let changed = state.sched().fail(&lease, &error)?;
+    if changed {
+        state.notify.notify_waiters();
+    }
+    Ok(StatusCode::NO_CONTENT)
+}
+
+async fn release(
+    State(state): State<AppState>,
+    Path(lease): Path<String>,
+) -> Result<StatusCode, AppError> {
+    if state.sched().release(&lease)? {
+        state.notify.notify_waiters();
+    }
+    Ok(StatusCode::NO_CONTENT)
+}
+
+#[derive(Deserialize)]
+struct ResultQuery {
+    /// Worker id, for the per-worker share.
+    worker: Option<String>,
+}
+
+async fn upload_result(
+    State(state): State<AppState>,
+    Path((job, task)): Path<(String, u32)>,
+    Query(q): Query<ResultQuery>,
+    headers: HeaderMap,
+    body: Body,
+) -> Result<Json<proto::ResultReply>, AppError> {
+    let (tile, _) = state.sched().task_for_upload(&job, task)?;
+    let expected = proto::tile::encoded_len(&tile);
+    let limit = (expected as u64).min(state.cfg.limits.max_upload_bytes);
+    let declared: Option<u64> = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse().ok());
+    if declared.is_some_and(|n| n > limit) {
+        return Err(AppError::TooLarge(limit));
+    }
+    // The size is known from the task: read at most that much.
+    let mut buf = Vec::with_capacity(expected);
+    let mut stream = body.into_data_stream();
+    while let Some(chunk) = stream.next().await {
+        let chunk = chunk.map_err(|e| AppError::bad("body", format!("reading body: {e}")))?;
+        if (buf.len() + chunk.len()) as u64 > limit {
+            return Err(AppError::TooLarge(limit));
+        }
+        buf.extend_from_slice(&chunk);
+    }
+    let (acc, pass) =
+        proto::tile::decode(&buf).map_err(|e| AppError::invalid("body", e.to_string()))?;
+    let worker = q.worker.unwrap_or_else(|| "unknown".into());
+    let outcome = state
+        .sched()
+        .complete(&job, task, &worker, &acc, pass, &buf, Instant::now())?;
+    Ok(Json(match outcome {
+        ResultOutcome::Accepted => proto::ResultReply {
+            accepted: true,
+            duplicate: false,
+            job_finished: false,
+        },
+        ResultOutcome::Duplicate => proto::ResultReply {
+            accepted: false,
+            duplicate: true,
+            job_finished: false,
+        },
+        ResultOutcome::JobFinished => proto::ResultReply {
+            accepted: false,
+            duplicate: false,
+            job_finished: true,
+        },
+    }))
+}

@@ -1,0 +1,258 @@
+//! The raytile coordinator: scene store, job queue, tile leases and the HTTP API.
+//!
+//! Shaped like mini-redis: callers bind the socket and call [`run`] with a shutdown future; the
+//! router is [`app`], so tests can start the real server in-process on `127.0.0.1:0` or call
+//! the router with `tower::ServiceExt::oneshot`.
+//!
+//! - [`sched`]: jobs, tasks, leases and the one task state machine.
+//! - [`store`]: SQLite persistence under the data directory.
+//! - [`api`]: the HTTP handlers; [`scenes`]: scene uploads; [`compose`]: frames from results.
+//! - [`openapi`]: the OpenAPI description served at `/v1/openapi.json`.
+
+pub mod api;
+pub mod compose;
+pub mod error;
+pub mod openapi;
+pub mod scenes;
+pub mod sched;
+pub mod store;
+#[cfg(test)]
+mod tests;
+
+pub use api::app;
+pub use scenes::{core_scene_loader, LoadError, LoadedScene, SceneLoader};
+
+use anyhow::Context;
+use sched::{Sched, SchedConfig};
+use std::collections::HashMap;
+use std::future::Future;
+use std::net::IpAddr;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use tokio::sync::{watch, Notify};
+use tokio::time::Instant;
+
+/// Limits on what clients may ask for.
+#[derive(Clone, Debug)]
+pub struct Limits {
+    /// Largest upload (scene) in bytes; more is answered 413.
+    pub max_upload_bytes: u64,
+    /// Largest unpacked size of a scene archive.
+    pub max_unpacked_bytes: u64,
+    /// Largest width × height of a job.
+    pub max_pixels: u64,
+    /// Largest samples per pixel of a job.
+    pub max_spp: u32,
+    /// Most unfinished jobs at once; more is answered 429.
+    pub max_queued_jobs: usize,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            max_upload_bytes: 512 << 20,
+            max_unpacked_bytes: 2 << 30,
+            max_pixels: raytile_core::settings::MAX_PIXELS,
+            max_spp: raytile_core::settings::MAX_SPP,
+            max_queued_jobs: 1000,
+        }
+    }
+}
+
+/// Everything the coordinator is configured with.
+#[derive(Clone)]
+pub struct Config {
+    /// Where the database, scenes and temporary files live.
+    pub data_dir: PathBuf,
+    /// Bearer token required on every endpoint but `/healthz`.
+    pub token: Option<String>,
+    /// Allow a non-loopback address without a token.
+    pub insecure: bool,
+    /// How long a lease lives without a heartbeat.
+    pub lease_timeout: Duration,
+    /// How often workers should heartbeat.
+    pub heartbeat_interval: Duration,
+    /// After start-up, no lease expires for this long, so workers can reconnect.
+    pub startup_grace: Duration,
+    /// Longest a lease request may wait for work.
+    pub long_poll_max: Duration,
+    /// Failures of one task that fail its job.
+    pub max_task_failures: u32,
+    /// Failures of one worker on one job after which it gets no more of the job's tasks.
+    pub block_worker_after: u32,
+    /// Request limits.
+    pub limits: Limits,
+    /// Parses uploaded scenes (the core's loader; tests inject fakes).
+    pub scene_loader: SceneLoader,
+}
+
+impl Config {
+    /// Defaults with the given data directory.
+    pub fn new(data_dir: impl Into<PathBuf>) -> Config {
+        Config {
+            data_dir: data_dir.into(),
+            token: None,
+            insecure: false,
+            lease_timeout: Duration::from_secs(30),
+            heartbeat_interval: Duration::from_secs(5),
+            startup_grace: Duration::from_secs(30),
+            long_poll_max: Duration::from_secs(30),
+            max_task_failures: 3,
+            block_worker_after: 3,
+            limits: Limits::default(),
+            scene_loader: core_scene_loader(),
+        }
+    }
+}
+
+impl std::fmt::Debug for Config {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Config")
+            .field("data_dir", &self.data_dir)
+            .field("token", &self.token.as_ref().map(|_| "***"))
+            .field("lease_timeout", &self.lease_timeout)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Shared state of the handlers.
+#[derive(Clone)]
+pub struct AppState(Arc<Inner>);
+
+/// What [`AppState`] holds.
+pub struct Inner {
+    /// Configuration.
+    pub cfg: Config,
+    /// The scheduler (and its store) behind one lock; never held across an await.
+    pub sched: Mutex<Sched>,
+    /// Woken when tasks become available, for long-polling lease requests.
+    pub notify: Notify,
+    /// Start time, for the start-up grace period.
+    pub started: Instant,
+    /// Scene metadata cache.
+    pub scene_meta: Mutex<HashMap<String, Arc<scenes::SceneMeta>>>,
+    shutdown_tx: watch::Sender<bool>,
+}
+
+impl std::ops::Deref for AppState {
+    type Target = Inner;
+    fn deref(&self) -> &Inner {
+        &self.0
+    }
+}
+
+impl AppState {
+    /// Opens the data directory and restores every job.
+    pub fn open(cfg: Config) -> anyhow::Result<AppState> {
+        for d in ["scenes", "tmp"] {
+            std::fs::create_dir_all(cfg.data_dir.join(d))
+                .with_context(|| format!("creating {}", cfg.data_dir.join(d).display()))?;
+        }
+        let store = store::Store::open(&cfg.data_dir).context("opening the database")?;
+        let now = Instant::now();
+        let grace = cfg.startup_grace.max(cfg.lease_timeout);
+        let sched = Sched::restore(
+            SchedConfig {
+                lease_timeout: cfg.lease_timeout,
+                max_task_failures: cfg.max_task_failures.max(1),
+                block_worker_after: cfg.block_worker_after.max(1),
+            },
+            store,
+            now,
+            grace,
+        )
+        .context("restoring jobs")?;
+        let unfinished = sched.unfinished_jobs();
+        if unfinished > 0 {
+            tracing::info!(unfinished, "resuming unfinished jobs");
+        }
+        let (shutdown_tx, _) = watch::channel(false);
+        Ok(AppState(Arc::new(Inner {
+            cfg,
+            sched: Mutex::new(sched),
+            notify: Notify::new(),
+            started: now,
+            scene_meta: Mutex::new(HashMap::new()),
+            shutdown_tx,
+        })))
+    }
+
+    /// Locks the scheduler (a poisoned lock is still usable: every change is persisted first).
+    pub fn sched(&self) -> std::sync::MutexGuard<'_, Sched> {
+        self.sched.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Tells long-polls to return and the server to stop.
+    pub fn begin_shutdown(&self) {
+        self.shutdown_tx.send_replace(true);
+        self.notify.notify_waiters();
+    }
+
+    /// A receiver that sees `true` once shutdown began.
+    pub fn shutdown_rx(&self) -> watch::Receiver<bool> {
+        self.shutdown_tx.subscribe()
+    }
+}
+
+/// Refuses a non-loopback address without a token unless `insecure`.
+pub fn check_exposure(ip: IpAddr, cfg: &Config) -> anyhow::Result<()> {
+    if !ip.is_loopback() && cfg.token.is_none() && !cfg.insecure {
+        anyhow::bail!(
+            "refusing to listen on {ip} without a token: set --token (or RAYTILE_TOKEN), or pass --insecure"
+        );
+    }
+    Ok(())
+}
+
+/// Re-queues expired leases, forever; waits out the start-up grace period first.
+pub async fn timeout_checker(state: AppState) {
+    let tick = (state.cfg.lease_timeout / 4).max(Duration::from_millis(20));
+    loop {
+        tokio::time::sleep(tick).await;
+        let now = Instant::now();
+        if now < state.started + state.cfg.startup_grace {
+            continue;
+        }
+        let res = state.sched().expire(now);
+        match res {
+            Ok(0) => {}
+            Ok(_) => state.notify.notify_waiters(),
+            Err(e) => tracing::error!("expiring leases: {e}"),
+        }
+    }
+}
+
+/// Serves the API on `listener` until `shutdown` completes, then stops gracefully (in-flight
+/// requests get a few seconds; long-polls return at once).
+pub async fn run(
+    listener: tokio::net::TcpListener,
+    config: Config,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> anyhow::Result<()> {
+    let addr = listener.local_addr()?;
+    check_exposure(addr.ip(), &config)?;
+    let state = AppState::open(config)?;
+    tracing::info!(%addr, "coordinator listening");
+    let checker = tokio::spawn(timeout_checker(state.clone()));
+    let st = state.clone();
+    let graceful = async move {
+        shutdown.await;
+        st.begin_shutdown();
+    };
+    let mut rx = state.shutdown_rx();
+    let hard_stop = async move {
+        let _ = rx.wait_for(|v| *v).await;
+        tokio::time::sleep(Duration::from_secs(5)).await;
+    };
+    let server = axum::serve(listener, app(state.clone())).with_graceful_shutdown(graceful);
+    let res = tokio::select! {
+        r = std::future::IntoFuture::into_future(server) => r.map_err(anyhow::Error::from),
+        _ = hard_stop => {
+            tracing::warn!("connections still open 5 s after shutdown; closing them");
+            Ok(())
+        }
+    };
+    checker.abort();
+    res
+}

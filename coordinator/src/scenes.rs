@@ -1,0 +1,268 @@
+//! Scene uploads: streamed to a temporary file with a size cut-off, hashed on the way, unpacked
+//! safely, parsed once, and stored content-addressed under `data/scenes/{id}/`:
+//! `blob` (the bytes as uploaded, served to workers), `root/` (unpacked) and `meta.json`.
+
+use crate::error::AppError;
+use crate::AppState;
+use futures_util::StreamExt;
+use raytile_core::scene::desc::RenderDefaults;
+use raytile_proto::scene::{self as pkg, SceneFormat, UnpackLimits};
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use tokio::io::AsyncWriteExt;
+
+/// What the loader found out about a valid scene.
+#[derive(Clone, Debug, Default)]
+pub struct LoadedScene {
+    /// The scene's own render settings.
+    pub defaults: RenderDefaults,
+    /// Non-fatal problems.
+    pub warnings: Vec<String>,
+}
+
+/// Why the loader refused a scene.
+#[derive(Clone, Debug)]
+pub enum LoadError {
+    /// The scene is invalid (422 with this message).
+    Invalid(String),
+    /// The loader itself failed (500).
+    Internal(String),
+}
+
+/// Parses a scene file once to validate it.
+pub type SceneLoader = Arc<dyn Fn(&Path) -> Result<LoadedScene, LoadError> + Send + Sync>;
+
+/// The core's loader, with panics turned into internal errors.
+pub fn core_scene_loader() -> SceneLoader {
+    Arc::new(|path: &Path| {
+        let p = path.to_path_buf();
+        match std::panic::catch_unwind(move || raytile_core::load_scene(&p)) {
+            Ok(Ok(desc)) => Ok(LoadedScene {
+                defaults: desc.render,
+                warnings: desc.warnings,
+            }),
+            Ok(Err(e)) => Err(LoadError::Invalid(e.to_string())),
+            Err(_) => Err(LoadError::Internal("scene loader panicked".into())),
+        }
+    })
+}
+
+/// Stored facts about a scene.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct SceneMeta {
+    /// Scene id.
+    pub id: String,
+    /// sha256 of `blob`.
+    pub sha256: String,
+    /// Format name.
+    pub format: String,
+    /// Scene file relative to `root/` (for archives, inside the archive).
+    pub entry: String,
+    /// The scene's own render settings.
+    pub defaults: RenderDefaults,
+    /// Loader warnings.
+    pub warnings: Vec<String>,
+}
+
+/// Query of `POST /v1/scenes`.
+#[derive(Debug, Deserialize)]
+pub struct UploadQuery {
+    /// Format hint: gltf, glb, json, tar, zip.
+    pub format: Option<String>,
+    /// Scene file inside an archive.
+    pub entry: Option<String>,
+}
+
+/// Folder of a stored scene.
+pub fn scene_dir(state: &AppState, id: &str) -> PathBuf {
+    state.cfg.data_dir.join("scenes").join(id)
+}
+
+/// Reads a stored scene's metadata (cached). `None` if the scene is unknown.
+pub fn meta(state: &AppState, id: &str) -> Option<Arc<SceneMeta>> {
+    if !pkg::is_scene_id(id) {
+        return None;
+    }
+    if let Some(m) = state
+        .scene_meta
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .get(id)
+    {
+        return Some(m.clone());
+    }
+    let text = std::fs::read(scene_dir(state, id).join("meta.json")).ok()?;
+    let m: Arc<SceneMeta> = Arc::new(serde_json::from_slice(&text).ok()?);
+    state
+        .scene_meta
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .insert(id.to_string(), m.clone());
+    Some(m)
+}
+
+/// Streams `body` into a temporary file, cutting off at `limit`. Returns the file, its
+/// sha256 and its first bytes.
+pub async fn stream_to_temp(
+    body: axum::body::Body,
+    tmp_dir: &Path,
+    limit: u64,
+) -> Result<(tempfile::NamedTempFile, String, Vec<u8>), AppError> {
+    let tmp = tempfile::NamedTempFile::new_in(tmp_dir).map_err(AppError::internal)?;
+    let mut file = tokio::fs::File::from_std(tmp.reopen().map_err(AppError::internal)?);
+    let mut hasher = Sha256::new();
+    let mut head = Vec::with_capacity(4096);
+    let mut total: u64 = 0;
+    let mut stream = body.into_data_stream();
+    while let Some(chunk) = stream.next().await {
+        let chunk = chunk.map_err(|e| AppError::bad("body", format!("reading body: {e}")))?;
+        total += chunk.len() as u64;
+        if total > limit {
+            return Err(AppError::TooLarge(limit));
+        }
+        if head.len() < 4096 {
+            let n = (4096 - head.len()).min(chunk.len());
+            head.extend_from_slice(&chunk[..n]);
+        }
+        hasher.update(&chunk);
+        file.write_all(&chunk).await.map_err(AppError::internal)?;
+    }
+    file.flush().await.map_err(AppError::internal)?;
+    Ok((tmp, hex::encode(hasher.finalize()), head))
+}
+
+/// Handles an upload: returns (created?, answer).
+pub async fn upload(
+    state: &AppState,
+    q: UploadQuery,
+    content_type: Option<&str>,
+    content_length: Option<u64>,
+    body: axum::body::Body,
+) -> Result<(bool, raytile_proto::SceneCreated), AppError> {
+    let limit = state.cfg.limits.max_upload_bytes;
+    if content_length.is_some_and(|n| n > limit) {
+        return Err(AppError::TooLarge(limit));
+    }
+    let hinted = match q.format.as_deref() {
+        Some(f) => Some(SceneFormat::from_name(f).ok_or_else(|| {
+            AppError::invalid(
+                "format",
+                format!("unknown format '{f}' (expected gltf, glb, json, tar or zip)"),
+            )
+        })?),
+        None => content_type.and_then(SceneFormat::from_content_type),
+    };
+    let tmp_dir = state.cfg.data_dir.join("tmp");
+    let (tmp, sha, head) = stream_to_temp(body, &tmp_dir, limit).await?;
+    if head.is_empty() {
+        return Err(AppError::invalid("body", "empty scene upload"));
+    }
+    let format = match hinted.or_else(|| pkg::sniff(&head)) {
+        Some(f) => f,
+        None => {
+            return Err(AppError::invalid(
+                "body",
+                pkg::PackageError::UnknownFormat.to_string(),
+            ))
+        }
+    };
+    let entry = q.entry.filter(|_| format.is_archive());
+    let id = pkg::scene_id(&sha, entry.as_deref());
+    if let Some(m) = meta(state, &id) {
+        return Ok((
+            false,
+            raytile_proto::SceneCreated {
+                id,
+                format: m.format.clone(),
+                entry: m.entry.clone(),
+                existed: true,
+                warnings: m.warnings.clone(),
+            },
+        ));
+    }
+    let st = state.clone();
+    let (id2, sha2) = (id.clone(), sha.clone());
+    let m = tokio::task::spawn_blocking(move || store_scene(&st, tmp, format, entry, id2, sha2))
+        .await
+        .map_err(AppError::internal)??;
+    Ok((
+        true,
+        raytile_proto::SceneCreated {
+            id,
+            format: m.format.clone(),
+            entry: m.entry.clone(),
+            existed: false,
+            warnings: m.warnings.clone(),
+        },
+    ))
+}
+
+fn store_scene(
+    state: &AppState,
+    tmp: tempfile::NamedTempFile,
+    format: SceneFormat,
+    entry: Option<String>,
+    id: String,
+    sha256: String,
+) -> Result<Arc<SceneMeta>, AppError> {
+    let stage = tempfile::Builder::new()
+        .prefix("stage-")
+        .tempdir_in(state.cfg.data_dir.join("tmp"))
+        .map_err(AppError::internal)?;
+    let blob = stage.path().join("blob");
+    tmp.persist(&blob).map_err(AppError::internal)?;
+    let root = stage.path().join("root");
+    std::fs::create_dir(&root).map_err(AppError::internal)?;
+    let limits = UnpackLimits {
+        max_bytes: state.cfg.limits.max_unpacked_bytes,
+        ..UnpackLimits::default()
+    };
+    let scene_file =
+        pkg::unpack(&blob, format, entry.as_deref(), &root, limits).map_err(|e| match e {
+            pkg::PackageError::Io(e) => AppError::internal(e),
+            e => AppError::invalid(
+                if entry.is_some() { "entry" } else { "body" },
+                e.to_string(),
+            ),
+        })?;
+    let rel = scene_file
+        .strip_prefix(&root)
+        .unwrap_or(&scene_file)
+        .to_string_lossy()
+        .into_owned();
+    let loaded = (state.cfg.scene_loader)(&scene_file).map_err(|e| match e {
+        // The loader names the file by its temporary path: show the entry instead.
+        LoadError::Invalid(m) => AppError::invalid(
+            "scene",
+            m.replace(&root.to_string_lossy().to_string(), "")
+                .trim_start_matches('/')
+                .to_string(),
+        ),
+        LoadError::Internal(m) => AppError::internal(m),
+    })?;
+    let m = SceneMeta {
+        id: id.clone(),
+        sha256,
+        format: format.name().into(),
+        entry: rel,
+        defaults: loaded.defaults,
+        warnings: loaded.warnings,
+    };
+    let text = serde_json::to_vec_pretty(&m).map_err(AppError::internal)?;
+    std::fs::write(stage.path().join("meta.json"), text).map_err(AppError::internal)?;
+    let dest = scene_dir(state, &id);
+    let staged = stage.keep();
+    if std::fs::rename(&staged, &dest).is_err() {
+        // Stored concurrently by an identical upload: keep theirs.
+        let _ = std::fs::remove_dir_all(&staged);
+    }
+    let m = Arc::new(m);
+    state
+        .scene_meta
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .insert(id, m.clone());
+    Ok(m)
+}

@@ -1,0 +1,286 @@
+//! The SQLite store under `--data-dir`: jobs, task states, workers and finished tile data.
+//!
+//! The scheduler writes through this module on every state change, so a restarted coordinator
+//! finds every job, every finished tile and every lease that was out.
+
+use rusqlite::{params, Connection, OptionalExtension};
+use std::path::{Path, PathBuf};
+
+/// Schema, applied on open (idempotent).
+const SCHEMA: &str = "
+PRAGMA journal_mode = WAL;
+PRAGMA synchronous = NORMAL;
+CREATE TABLE IF NOT EXISTS jobs (
+    id TEXT PRIMARY KEY,
+    seq INTEGER NOT NULL,
+    scene TEXT NOT NULL,
+    settings TEXT NOT NULL,
+    priority INTEGER NOT NULL,
+    state TEXT NOT NULL,
+    error TEXT,
+    created_ms INTEGER NOT NULL,
+    started_ms INTEGER,
+    finished_ms INTEGER
+);
+CREATE TABLE IF NOT EXISTS tasks (
+    job_id TEXT NOT NULL,
+    idx INTEGER NOT NULL,
+    state TEXT NOT NULL,
+    failures INTEGER NOT NULL DEFAULT 0,
+    worker TEXT,
+    lease TEXT,
+    PRIMARY KEY (job_id, idx)
+);
+CREATE TABLE IF NOT EXISTS results (
+    job_id TEXT NOT NULL,
+    idx INTEGER NOT NULL,
+    data BLOB NOT NULL,
+    PRIMARY KEY (job_id, idx)
+);
+CREATE TABLE IF NOT EXISTS workers (
+    id TEXT PRIMARY KEY,
+    name TEXT NOT NULL,
+    threads INTEGER NOT NULL,
+    registered_ms INTEGER NOT NULL
+);
+CREATE TABLE IF NOT EXISTS blocked (
+    job_id TEXT NOT NULL,
+    worker TEXT NOT NULL,
+    failures INTEGER NOT NULL,
+    PRIMARY KEY (job_id, worker)
+);
+";
+
+/// A row of the `jobs` table.
+#[derive(Clone, Debug)]
+pub struct JobRow {
+    /// Job id.
+    pub id: String,
+    /// Submission order.
+    pub seq: u64,
+    /// Scene id.
+    pub scene: String,
+    /// RenderSettings as JSON.
+    pub settings: String,
+    /// Priority.
+    pub priority: i32,
+    /// State name.
+    pub state: String,
+    /// Failure message.
+    pub error: Option<String>,
+    /// Submission time.
+    pub created_ms: u64,
+    /// First lease.
+    pub started_ms: Option<u64>,
+    /// End time.
+    pub finished_ms: Option<u64>,
+}
+
+/// A row of the `tasks` table.
+#[derive(Clone, Debug)]
+pub struct TaskRow {
+    /// Task index.
+    pub idx: u32,
+    /// `queued`, `leased`, `done` or `failed`.
+    pub state: String,
+    /// Failures so far.
+    pub failures: u32,
+    /// Worker holding or having delivered the task.
+    pub worker: Option<String>,
+    /// Lease id while leased.
+    pub lease: Option<String>,
+}
+
+/// The open database.
+pub struct Store {
+    conn: Connection,
+    path: PathBuf,
+}
+
+impl Store {
+    /// Opens (creating if needed) `dir/raytile.sqlite3`.
+    pub fn open(dir: &Path) -> rusqlite::Result<Store> {
+        let path = dir.join("raytile.sqlite3");
+        let conn = Connection::open(&path)?;
+        conn.busy_timeout(std::time::Duration::from_secs(10))?;
+        conn.execute_batch(SCHEMA)?;
+        Ok(Store { conn, path })
+    }
+
+    /// A second connection for long reads (image composition) that must not hold the
+    /// scheduler's lock.
+    pub fn reader(&self) -> rusqlite::Result<Connection> {
+        let c = Connection::open(&self.path)?;
+        c.busy_timeout(std::time::Duration::from_secs(10))?;
+        Ok(c)
+    }
+
+    /// Inserts a new job and its queued tasks in one transaction.
+    pub fn insert_job(&mut self, j: &JobRow, tasks: u32) -> rusqlite::Result<()> {
+        let tx = self.conn.transaction()?;
+        tx.execute(
+            "INSERT INTO jobs (id, seq, scene, settings, priority, state, error, created_ms, started_ms, finished_ms)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
+            params![j.id, j.seq as i64, j.scene, j.settings, j.priority, j.state, j.error,
+                    j.created_ms as i64, j.started_ms.map(|v| v as i64), j.finished_ms.map(|v| v as i64)],
+        )?;
+        {
+            let mut st = tx.prepare(
+                "INSERT INTO tasks (job_id, idx, state, failures) VALUES (?1, ?2, 'queued', 0)",
+            )?;
+            for i in 0..tasks {
+                st.execute(params![j.id, i])?;
+            }
+        }
+        tx.commit()
+    }
+
+    /// Updates a job's state, error and times.
+    pub fn update_job(
+        &self,
+        id: &str,
+        state: &str,
+        error: Option<&str>,
+        started_ms: Option<u64>,
+        finished_ms: Option<u64>,
+    ) -> rusqlite::Result<()> {
+        self.conn.execute(
+            "UPDATE jobs SET state = ?2, error = ?3, started_ms = ?4, finished_ms = ?5 WHERE id = ?1",
+            params![id, state, error, started_ms.map(|v| v as i64), finished_ms.map(|v| v as i64)],
+        )?;
+        Ok(())
+    }
+
+    /// Writes one task's state.
+    pub fn update_task(&self, job: &str, t: &TaskRow) -> rusqlite::Result<()> {
+        self.conn.execute(
+            "UPDATE tasks SET state = ?3, failures = ?4, worker = ?5, lease = ?6 WHERE job_id = ?1 AND idx = ?2",
+            params![job, t.idx, t.state, t.failures, t.worker, t.lease],
+        )?;
+        Ok(())
+    }
+
+    /// Stores a finished task's result and marks the task done, atomically.
+    pub fn finish_task(&mut self, job: &str, t: &TaskRow, data: &[u8]) -> rusqlite::Result<()> {
+        let tx = self.conn.transaction()?;
+        tx.execute(
+            "INSERT OR IGNORE INTO results (job_id, idx, data) VALUES (?1, ?2, ?3)",
+            params![job, t.idx, data],
+        )?;
+        tx.execute(
+            "UPDATE tasks SET state = ?3, failures = ?4, worker = ?5, lease = ?6 WHERE job_id = ?1 AND idx = ?2",
+            params![job, t.idx, t.state, t.failures, t.worker, t.lease],
+        )?;
+        tx.commit()
+    }
+
+    /// Records a worker's failure count on a job.
+    pub fn set_blocked(&self, job: &str, worker: &str, failures: u32) -> rusqlite::Result<()> {
+        self.conn.execute(
+            "INSERT INTO blocked (job_id, worker, failures) VALUES (?1, ?2, ?3)
+             ON CONFLICT (job_id, worker) DO UPDATE SET failures = excluded.failures",
+            params![job, worker, failures],
+        )?;
+        Ok(())
+    }
+
+    /// Registers a worker.
+    pub fn insert_worker(
+        &self,
+        id: &str,
+        name: &str,
+        threads: u32,
+        registered_ms: u64,
+    ) -> rusqlite::Result<()> {
+        self.conn.execute(
+            "INSERT OR REPLACE INTO workers (id, name, threads, registered_ms) VALUES (?1, ?2, ?3, ?4)",
+            params![id, name, threads, registered_ms as i64],
+        )?;
+        Ok(())
+    }
+
+    /// Every job, in submission order.
+    pub fn jobs(&self) -> rusqlite::Result<Vec<JobRow>> {
+        let mut st = self.conn.prepare(
+            "SELECT id, seq, scene, settings, priority, state, error, created_ms, started_ms, finished_ms
+             FROM jobs ORDER BY seq",
+        )?;
+        let rows = st.query_map([], |r| {
+            Ok(JobRow {
+                id: r.get(0)?,
+                seq: r.get::<_, i64>(1)? as u64,
+                scene: r.get(2)?,
+                settings: r.get(3)?,
+                priority: r.get(4)?,
+                state: r.get(5)?,
+                error: r.get(6)?,
+                created_ms: r.get::<_, i64>(7)? as u64,
+                started_ms: r.get::<_, Option<i64>>(8)?.map(|v| v as u64),
+                finished_ms: r.get::<_, Option<i64>>(9)?.map(|v| v as u64),
+            })
+        })?;
+        rows.collect()
+    }
+
+    /// The tasks of a job, by index.
+    pub fn tasks(&self, job: &str) -> rusqlite::Result<Vec<TaskRow>> {
+        let mut st = self.conn.prepare(
+            "SELECT idx, state, failures, worker, lease FROM tasks WHERE job_id = ?1 ORDER BY idx",
+        )?;
+        let rows = st.query_map([job], |r| {
+            Ok(TaskRow {
+                idx: r.get(0)?,
+                state: r.get(1)?,
+                failures: r.get(2)?,
+                worker: r.get(3)?,
+                lease: r.get(4)?,
+            })
+        })?;
+        rows.collect()
+    }
+
+    /// Per-worker failure counts of a job.
+    pub fn blocked(&self, job: &str) -> rusqlite::Result<Vec<(String, u32)>> {
+        let mut st = self
+            .conn
+            .prepare("SELECT worker, failures FROM blocked WHERE job_id = ?1")?;
+        let rows = st.query_map([job], |r| Ok((r.get(0)?, r.get(1)?)))?;
+        rows.collect()
+    }
+
+    /// Every registered worker: (id, name, threads, registered_ms).
+    pub fn workers(&self) -> rusqlite::Result<Vec<(String, String, u32, u64)>> {
+        let mut st = self
+            .conn
+            .prepare("SELECT id, name, threads, registered_ms FROM workers")?;
+        let rows = st.query_map([], |r| {
+            Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get::<_, i64>(3)? as u64))
+        })?;
+        rows.collect()
+    }
+
+    /// Whether a worker id is known.
+    pub fn has_worker(&self, id: &str) -> rusqlite::Result<bool> {
+        self.conn
+            .query_row("SELECT 1 FROM workers WHERE id = ?1", [id], |_| Ok(()))
+            .optional()
+            .map(|o| o.is_some())
+    }
+}
+
+/// Reads every stored result of a job as (task index, bytes), through `conn`, calling `f` for
+/// each so the caller never holds them all at once.
+pub fn for_each_result(
+    conn: &Connection,
+    job: &str,
+    mut f: impl FnMut(u32, &[u8]),
+) -> rusqlite::Result<()> {
+    let mut st = conn.prepare("SELECT idx, data FROM results WHERE job_id = ?1 ORDER BY idx")?;
+    let mut rows = st.query([job])?;
+    while let Some(r) = rows.next()? {
+        let idx: u32 = r.get(0)?;
+        let data = r.get_ref(1)?.as_blob()?;
+        f(idx, data);
+    }
+    Ok(())
+}

@@ -1,0 +1,174 @@
+//! The binary tile-result format.
+//!
+//! A result is a 40-byte header followed by the pixels, everything little-endian:
+//!
+//! | bytes | field |
+//! | --- | --- |
+//! | 0..4 | magic `RTTR` |
+//! | 4..8 | format version (1) |
+//! | 8..24 | tile `x0`, `y0`, `x1`, `y1` (u32 each) |
+//! | 24..28 | pass index (u32) |
+//! | 28..32 | reserved, zero |
+//! | 32..40 | samples dropped as NaN/Inf (u64) |
+//! | 40.. | `[r, g, b, w]` f32 sums per pixel, row-major, `width × height` pixels |
+//!
+//! Floats travel as their exact bits, so the coordinator stores what the worker computed.
+
+use raytile_core::{Tile, TileAccum};
+
+/// First four bytes of every tile result.
+pub const MAGIC: [u8; 4] = *b"RTTR";
+/// Version of the format written by [`encode`].
+pub const VERSION: u32 = 1;
+/// Size of the header in bytes.
+pub const HEADER_LEN: usize = 40;
+/// Largest tile edge a result may have (matches `RenderSettings::validate`).
+pub const MAX_TILE_EDGE: u32 = 4096;
+
+/// Why bytes are not a valid tile result.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum TileFormatError {
+    /// Fewer bytes than a header.
+    #[error("tile result is {0} bytes, shorter than the {HEADER_LEN}-byte header")]
+    Short(usize),
+    /// The magic bytes are wrong.
+    #[error("tile result does not start with the magic bytes RTTR")]
+    Magic,
+    /// An unknown format version.
+    #[error("unsupported tile result version {0} (expected {VERSION})")]
+    Version(u32),
+    /// The rectangle is empty, inverted or too large.
+    #[error("bad tile rectangle [{0}, {2}) × [{1}, {3})")]
+    Rect(u32, u32, u32, u32),
+    /// The pixel data does not match the rectangle's size.
+    #[error("tile result has {got} bytes of pixels, expected {expected}")]
+    Length {
+        /// Bytes needed for the rectangle.
+        expected: usize,
+        /// Bytes present.
+        got: usize,
+    },
+}
+
+/// The total encoded size of a result for `tile`.
+pub fn encoded_len(tile: &Tile) -> usize {
+    HEADER_LEN + tile.pixel_count() * 16
+}
+
+/// Encodes a tile result for `pass`.
+pub fn encode(accum: &TileAccum, pass: u32) -> Vec<u8> {
+    let t = accum.tile;
+    let mut out = Vec::with_capacity(encoded_len(&t));
+    out.extend_from_slice(&MAGIC);
+    for v in [VERSION, t.x0, t.y0, t.x1, t.y1, pass, 0] {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out.extend_from_slice(&accum.bad_samples.to_le_bytes());
+    for p in &accum.pixels {
+        for c in p {
+            out.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    out
+}
+
+/// Decodes a tile result, checking every length; returns the sums and the pass index.
+pub fn decode(bytes: &[u8]) -> Result<(TileAccum, u32), TileFormatError> {
+    if bytes.len() < HEADER_LEN {
+        return Err(TileFormatError::Short(bytes.len()));
+    }
+    if bytes[0..4] != MAGIC {
+        return Err(TileFormatError::Magic);
+    }
+    let u = |i: usize| u32::from_le_bytes([bytes[i], bytes[i + 1], bytes[i + 2], bytes[i + 3]]);
+    let version = u(4);
+    if version != VERSION {
+        return Err(TileFormatError::Version(version));
+    }
+    let (x0, y0, x1, y1) = (u(8), u(12), u(16), u(20));
+    if x1 <= x0 || y1 <= y0 || x1 - x0 > MAX_TILE_EDGE || y1 - y0 > MAX_TILE_EDGE {
+        return Err(TileFormatError::Rect(x0, y0, x1, y1));
+    }
+    let pass = u(24);
+    let mut bad = [0u8; 8];
+    bad.copy_from_slice(&bytes[32..40]);
+    let tile = Tile { x0, y0, x1, y1 };
+    let expected = tile.pixel_count() * 16;
+    let body = &bytes[HEADER_LEN..];
+    if body.len() != expected {
+        return Err(TileFormatError::Length {
+            expected,
+            got: body.len(),
+        });
+    }
+    let pixels = body
+        .chunks_exact(16)
+        .map(|px| {
+            let f = |i: usize| f32::from_le_bytes([px[i], px[i + 1], px[i + 2], px[i + 3]]);
+            [f(0), f(4), f(8), f(12)]
+        })
+        .collect();
+    Ok((
+        TileAccum {
+            tile,
+            pixels,
+            bad_samples: u64::from_le_bytes(bad),
+        },
+        pass,
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample() -> TileAccum {
+        let tile = Tile {
+            x0: 3,
+            y0: 5,
+            x1: 6,
+            y1: 7,
+        };
+        TileAccum {
+            tile,
+            pixels: (0..6)
+                .map(|i| [i as f32, -0.0, f32::MIN_POSITIVE, 1e30])
+                .collect(),
+            bad_samples: 7,
+        }
+    }
+
+    #[test]
+    fn round_trip_keeps_bits() {
+        let a = sample();
+        let bytes = encode(&a, 2);
+        assert_eq!(bytes.len(), encoded_len(&a.tile));
+        let (b, pass) = decode(&bytes).unwrap();
+        assert_eq!(pass, 2);
+        assert_eq!(b.tile, a.tile);
+        assert_eq!(b.bad_samples, 7);
+        let bits = |t: &TileAccum| -> Vec<u32> {
+            t.pixels.iter().flatten().map(|f| f.to_bits()).collect()
+        };
+        assert_eq!(bits(&a), bits(&b));
+    }
+
+    #[test]
+    fn bad_input_is_an_error_not_a_panic() {
+        let good = encode(&sample(), 0);
+        assert_eq!(decode(&good[..10]).unwrap_err(), TileFormatError::Short(10));
+        assert!(matches!(
+            decode(&good[..good.len() - 1]),
+            Err(TileFormatError::Length { .. })
+        ));
+        let mut bad = good.clone();
+        bad[0] = b'X';
+        assert_eq!(decode(&bad).unwrap_err(), TileFormatError::Magic);
+        let mut inverted = good.clone();
+        inverted[16..20].copy_from_slice(&0u32.to_le_bytes());
+        assert!(matches!(decode(&inverted), Err(TileFormatError::Rect(..))));
+        let mut huge = good;
+        huge[16..20].copy_from_slice(&u32::MAX.to_le_bytes());
+        assert!(matches!(decode(&huge), Err(TileFormatError::Rect(..))));
+    }
+}

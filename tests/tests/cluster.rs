@@ -1,0 +1,737 @@
+//! Cluster-level integration tests: a real coordinator and real workers, in-process, on
+//! loopback. Tests that render need the core (`render_tile` and the scene loaders); the API
+//! tests use synthetic workers and a fake scene loader and run without it.
+
+use raytile_coordinator::{Config, LoadedScene};
+use raytile_core::RenderSettings;
+use raytile_proto::{self as proto, JobRequest, JobState, JobStatus};
+use std::path::PathBuf;
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::sync::watch;
+use tokio::task::JoinHandle;
+
+/// Helpers: start and stop coordinators and workers, talk to the API, render locally.
+mod support {
+    use super::*;
+
+    /// The shared test scene (`shared/scenes/cornell-box.gltf`); while the core cannot load
+    /// glTF yet, the repository's own `scenes/cornell-box.json`. `None` (tests then skip with
+    /// a message) when neither loads.
+    pub fn cornell() -> Option<PathBuf> {
+        let gltf = PathBuf::from(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../shared/scenes/cornell-box.gltf"
+        ));
+        let json = PathBuf::from(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../scenes/cornell-box.json"
+        ));
+        for p in [gltf, json] {
+            match raytile_core::load_scene(&p) {
+                Ok(_) => return Some(p),
+                Err(e) => eprintln!("not using {}: {e}", p.display()),
+            }
+        }
+        eprintln!("skipping: no loadable Cornell box scene");
+        None
+    }
+
+    /// A coordinator running in this process.
+    pub struct Coord {
+        /// `http://127.0.0.1:PORT`.
+        pub base: String,
+        /// Its port, to restart on the same one.
+        pub port: u16,
+        stop: watch::Sender<bool>,
+        handle: JoinHandle<anyhow::Result<()>>,
+    }
+
+    impl Coord {
+        /// Starts on `port` (0 = any) with `cfg`.
+        pub async fn start(cfg: Config, port: u16) -> Coord {
+            let listener = tokio::net::TcpListener::bind(("127.0.0.1", port))
+                .await
+                .unwrap();
+            let port = listener.local_addr().unwrap().port();
+            let (stop, rx) = watch::channel(false);
+            let mut rx2 = rx.clone();
+            let handle = tokio::spawn(raytile_coordinator::run(listener, cfg, async move {
+                let _ = rx2.wait_for(|v| *v).await;
+            }));
+            drop(rx);
+            Coord {
+                base: format!("http://127.0.0.1:{port}"),
+                port,
+                stop,
+                handle,
+            }
+        }
+
+        /// Stops it and waits until it has.
+        pub async fn stop(self) {
+            let _ = self.stop.send(true);
+            let _ = self.handle.await;
+        }
+    }
+
+    /// Coordinator settings for tests: short leases and grace.
+    pub fn test_config(dir: &std::path::Path) -> Config {
+        let mut c = Config::new(dir);
+        c.lease_timeout = Duration::from_secs(1);
+        c.heartbeat_interval = Duration::from_millis(200);
+        c.startup_grace = Duration::from_millis(0);
+        c.long_poll_max = Duration::from_secs(2);
+        c
+    }
+
+    /// Same, with a loader that accepts anything (for tests without the core).
+    pub fn fake_config(dir: &std::path::Path) -> Config {
+        let mut c = test_config(dir);
+        c.scene_loader = Arc::new(|_p: &std::path::Path| Ok(LoadedScene::default()));
+        c
+    }
+
+    /// A worker running in this process.
+    pub struct Worker {
+        stop: watch::Sender<bool>,
+        /// Its task: abort it to kill the worker.
+        pub handle: JoinHandle<anyhow::Result<()>>,
+        /// Its counters.
+        pub stats: Arc<raytile_worker::Stats>,
+    }
+
+    impl Worker {
+        /// Starts a worker for `base` with `threads` threads.
+        pub fn start(base: &str, threads: usize, cache: &std::path::Path, name: &str) -> Worker {
+            let mut c = raytile_worker::Config::new(base);
+            c.threads = threads;
+            c.name = name.into();
+            c.cache_dir = cache.join(name);
+            c.long_poll = Duration::from_secs(1);
+            c.max_backoff = Duration::from_millis(300);
+            let stats = c.stats.clone();
+            let (stop, rx) = watch::channel(false);
+            let mut rx2 = rx.clone();
+            let handle = tokio::spawn(raytile_worker::run(c, async move {
+                let _ = rx2.wait_for(|v| *v).await;
+            }));
+            Worker {
+                stop,
+                handle,
+                stats,
+            }
+        }
+
+        /// Asks it to stop and waits.
+        pub async fn stop(self) {
+            let _ = self.stop.send(true);
+            let _ = self.handle.await;
+        }
+    }
+
+    /// Uploads a scene file, returns its id.
+    pub async fn upload(base: &str, bytes: Vec<u8>) -> String {
+        let r = reqwest::Client::new()
+            .post(format!("{base}/v1/scenes"))
+            .body(bytes)
+            .send()
+            .await
+            .unwrap();
+        assert!(r.status().is_success(), "{:?}", r.text().await);
+        r.json::<proto::SceneCreated>().await.unwrap().id
+    }
+
+    /// Submits a job.
+    pub async fn submit(base: &str, req: &JobRequest) -> JobStatus {
+        let r = reqwest::Client::new()
+            .post(format!("{base}/v1/jobs"))
+            .json(req)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 201, "{:?}", r.text().await);
+        r.json().await.unwrap()
+    }
+
+    /// The job's status.
+    pub async fn status(base: &str, id: &str) -> JobStatus {
+        reqwest::get(format!("{base}/v1/jobs/{id}"))
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap()
+    }
+
+    /// Polls until `pred` holds (or panics after `secs`).
+    pub async fn wait_for(
+        base: &str,
+        id: &str,
+        secs: u64,
+        pred: impl Fn(&JobStatus) -> bool,
+    ) -> JobStatus {
+        let end = tokio::time::Instant::now() + Duration::from_secs(secs);
+        loop {
+            let s = status(base, id).await;
+            if pred(&s) {
+                return s;
+            }
+            assert!(tokio::time::Instant::now() < end, "timed out; job is {s:?}");
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    }
+
+    /// Downloads the image.
+    pub async fn image(base: &str, id: &str, format: &str) -> Vec<u8> {
+        let r = reqwest::get(format!("{base}/v1/jobs/{id}/image?format={format}"))
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 200);
+        r.bytes().await.unwrap().to_vec()
+    }
+
+    /// The job request used by the rendering tests.
+    pub fn job(scene: &str, tile_size: u32) -> JobRequest {
+        JobRequest {
+            scene: scene.into(),
+            width: Some(64),
+            height: Some(64),
+            spp: Some(16),
+            max_depth: Some(8),
+            tile_size: Some(tile_size),
+            passes: Some(2),
+            ..Default::default()
+        }
+    }
+
+    /// The EXR of the same job rendered locally.
+    pub fn local_exr(scene: &std::path::Path, s: &RenderSettings) -> Vec<u8> {
+        let desc = raytile_core::load_scene(scene).unwrap();
+        let built = raytile_core::Scene::build(&desc, s).unwrap();
+        let film = raytile_core::render(&built, s, &());
+        raytile_coordinator::compose::encode(&film, raytile_coordinator::compose::Format::Exr)
+            .unwrap()
+    }
+
+    /// Renders the cornell box with `workers` workers and `tile_size`, checks the EXR
+    /// against the local render.
+    pub async fn check_cluster_matches_local(workers: usize, tile_size: u32) {
+        let Some(scene) = cornell() else { return };
+        let dir = tempfile::tempdir().unwrap();
+        let c = Coord::start(test_config(&dir.path().join("data")), 0).await;
+        let ws: Vec<Worker> = (0..workers)
+            .map(|i| Worker::start(&c.base, 1, dir.path(), &format!("w{i}")))
+            .collect();
+        let id = upload(&c.base, std::fs::read(&scene).unwrap()).await;
+        let j = submit(&c.base, &job(&id, tile_size)).await;
+        let done = wait_for(&c.base, &j.id, 120, |s| s.state.is_final()).await;
+        assert_eq!(done.state, JobState::Done, "{done:?}");
+        let got = image(&c.base, &j.id, "exr").await;
+        let want = local_exr(&scene, &done.settings);
+        assert!(
+            got == want,
+            "{workers} workers, tile {tile_size}: EXR differs from the local render"
+        );
+        for w in ws {
+            w.stop().await;
+        }
+        c.stop().await;
+    }
+
+    /// A synthetic worker speaking the protocol with made-up tile sums.
+    pub struct Fake {
+        pub base: String,
+        pub id: String,
+        http: reqwest::Client,
+    }
+
+    impl Fake {
+        /// Registers.
+        pub async fn register(base: &str, name: &str) -> Fake {
+            let http = reqwest::Client::new();
+            let r: proto::Registered = http
+                .post(format!("{base}/v1/workers"))
+                .json(&proto::RegisterRequest {
+                    name: name.into(),
+                    threads: 1,
+                })
+                .send()
+                .await
+                .unwrap()
+                .json()
+                .await
+                .unwrap();
+            Fake {
+                base: base.into(),
+                id: r.worker_id,
+                http,
+            }
+        }
+
+        /// Leases (short poll).
+        pub async fn lease(&self) -> Option<proto::Lease> {
+            let r = self
+                .http
+                .post(format!(
+                    "{}/v1/workers/{}/lease?wait_ms=200",
+                    self.base, self.id
+                ))
+                .send()
+                .await
+                .unwrap();
+            if r.status() == 204 {
+                return None;
+            }
+            assert_eq!(r.status(), 200);
+            Some(r.json().await.unwrap())
+        }
+
+        /// Uploads made-up sums for the lease's tile.
+        pub async fn upload(&self, l: &proto::Lease) -> (u16, serde_json::Value) {
+            let acc = raytile_core::TileAccum {
+                tile: l.tile,
+                pixels: vec![[1.0, 0.5, 0.25, 1.0]; l.tile.pixel_count()],
+                bad_samples: 0,
+            };
+            let r = self
+                .http
+                .put(format!(
+                    "{}/v1/jobs/{}/tasks/{}/result?worker={}",
+                    self.base, l.job, l.task, self.id
+                ))
+                .body(proto::tile::encode(&acc, l.pass))
+                .send()
+                .await
+                .unwrap();
+            (r.status().as_u16(), r.json().await.unwrap_or_default())
+        }
+
+        /// Heartbeats.
+        pub async fn heartbeat(&self, l: &proto::Lease) -> proto::HeartbeatReply {
+            self.http
+                .post(format!("{}/v1/leases/{}/heartbeat", self.base, l.lease_id))
+                .send()
+                .await
+                .unwrap()
+                .json()
+                .await
+                .unwrap()
+        }
+    }
+
+    /// A small job on a fake scene.
+    pub async fn fake_job(base: &str) -> JobStatus {
+        let scene = upload(base, br#"{"objects": []}"#.to_vec()).await;
+        submit(
+            base,
+            &JobRequest {
+                scene,
+                width: Some(32),
+                height: Some(32),
+                spp: Some(2),
+                tile_size: Some(16),
+                passes: Some(2),
+                ..Default::default()
+            },
+        )
+        .await
+    }
+}
+
+use support::*;
+
+/// Determinism: the farm's image equals a local render, bit for bit, whatever the number of
+/// workers and the tile size. (Needs the core.)
+mod determinism {
+    use super::*;
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn two_workers_match_local_render() {
+        check_cluster_matches_local(2, 16).await;
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn one_and_three_workers_any_tile_size_match_local_render() {
+        for (workers, tile) in [(1, 16), (3, 16), (1, 64), (3, 64)] {
+            check_cluster_matches_local(workers, tile).await;
+        }
+    }
+}
+
+/// Faults: workers and the coordinator die mid-job; the job still finishes with the same
+/// image and no finished tile is rendered twice. (Needs the core.)
+mod faults {
+    use super::*;
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn killed_worker_lease_expires_and_others_finish() {
+        let Some(scene) = cornell() else { return };
+        let dir = tempfile::tempdir().unwrap();
+        let c = Coord::start(test_config(&dir.path().join("data")), 0).await;
+        let victim = Worker::start(&c.base, 1, dir.path(), "victim");
+        let id = upload(&c.base, std::fs::read(&scene).unwrap()).await;
+        let j = submit(&c.base, &job(&id, 16)).await;
+        wait_for(&c.base, &j.id, 60, |s| {
+            s.tasks_leased > 0 || s.state.is_final()
+        })
+        .await;
+        victim.handle.abort();
+        let survivor = Worker::start(&c.base, 1, dir.path(), "survivor");
+        let done = wait_for(&c.base, &j.id, 120, |s| s.state.is_final()).await;
+        assert_eq!(done.state, JobState::Done);
+        assert_eq!(
+            image(&c.base, &j.id, "exr").await,
+            local_exr(&scene, &done.settings)
+        );
+        survivor.stop().await;
+        c.stop().await;
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn restarted_coordinator_resumes_without_rerendering() {
+        let Some(scene) = cornell() else { return };
+        let dir = tempfile::tempdir().unwrap();
+        let data = dir.path().join("data");
+        let mut cfg = test_config(&data);
+        cfg.startup_grace = Duration::from_secs(5);
+        let c = Coord::start(cfg.clone(), 0).await;
+        let port = c.port;
+        let ws: Vec<Worker> = (0..2)
+            .map(|i| Worker::start(&c.base, 1, dir.path(), &format!("w{i}")))
+            .collect();
+        let id = upload(&c.base, std::fs::read(&scene).unwrap()).await;
+        let j = submit(&c.base, &job(&id, 16)).await;
+        wait_for(&c.base, &j.id, 60, |s| s.tasks_done >= 2).await;
+        c.stop().await;
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let c = Coord::start(cfg, port).await;
+        let done = wait_for(&c.base, &j.id, 120, |s| s.state.is_final()).await;
+        assert_eq!(done.state, JobState::Done);
+        let renders: u64 = ws
+            .iter()
+            .map(|w| w.stats.renders.load(Ordering::Relaxed))
+            .sum();
+        let dups: u64 = ws
+            .iter()
+            .map(|w| w.stats.duplicates.load(Ordering::Relaxed))
+            .sum();
+        assert_eq!(
+            (renders, dups),
+            (done.tasks_total, 0),
+            "a finished tile was rendered twice"
+        );
+        assert_eq!(
+            image(&c.base, &j.id, "exr").await,
+            local_exr(&scene, &done.settings)
+        );
+        for w in ws {
+            w.stop().await;
+        }
+        c.stop().await;
+    }
+
+    /// The same with real processes and SIGKILL (slow: RAYTILE_SLOW_TESTS=1, built binaries).
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn sigkilled_worker_process() {
+        if std::env::var("RAYTILE_SLOW_TESTS").as_deref() != Ok("1") {
+            eprintln!("skipping: set RAYTILE_SLOW_TESTS=1");
+            return;
+        }
+        let Some(scene) = cornell() else { return };
+        let bin_dir = std::env::current_exe()
+            .unwrap()
+            .parent()
+            .unwrap()
+            .parent()
+            .unwrap()
+            .to_path_buf();
+        let worker_bin = bin_dir.join("raytile-worker");
+        if !worker_bin.exists() {
+            eprintln!(
+                "skipping: {} not built (cargo build -p raytile-worker)",
+                worker_bin.display()
+            );
+            return;
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let c = Coord::start(test_config(&dir.path().join("data")), 0).await;
+        let spawn = |name: &str| {
+            std::process::Command::new(&worker_bin)
+                .args(["--coordinator", &c.base, "--threads", "1", "--name", name])
+                .arg("--cache-dir")
+                .arg(dir.path().join(name))
+                .stderr(std::process::Stdio::null())
+                .spawn()
+                .unwrap()
+        };
+        let mut victim = spawn("victim");
+        let id = upload(&c.base, std::fs::read(&scene).unwrap()).await;
+        let j = submit(&c.base, &job(&id, 16)).await;
+        wait_for(&c.base, &j.id, 60, |s| {
+            s.tasks_leased > 0 || s.state.is_final()
+        })
+        .await;
+        victim.kill().unwrap(); // SIGKILL
+        let _ = victim.wait();
+        let mut survivor = spawn("survivor");
+        let done = wait_for(&c.base, &j.id, 300, |s| s.state.is_final()).await;
+        let _ = survivor.kill();
+        let _ = survivor.wait();
+        assert_eq!(done.state, JobState::Done);
+        assert_eq!(
+            image(&c.base, &j.id, "exr").await,
+            local_exr(&scene, &done.settings)
+        );
+        c.stop().await;
+    }
+}
+
+/// API behaviour with synthetic workers: cancel, duplicates, late results, bad requests; the
+/// coordinator keeps serving after each. (No core needed, except the hostile-glTF test.)
+mod api {
+    use super::*;
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn cancel_stops_workers_at_their_next_heartbeat() {
+        let dir = tempfile::tempdir().unwrap();
+        let c = Coord::start(fake_config(dir.path()), 0).await;
+        let j = fake_job(&c.base).await;
+        let w = Fake::register(&c.base, "w").await;
+        let l = w.lease().await.unwrap();
+        assert!(!w.heartbeat(&l).await.cancelled);
+        let r = reqwest::Client::new()
+            .delete(format!("{}/v1/jobs/{}", c.base, j.id))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 200);
+        assert!(w.heartbeat(&l).await.cancelled);
+        let (code, body) = w.upload(&l).await;
+        assert_eq!((code, body["job_finished"].as_bool()), (200, Some(true)));
+        assert!(w.lease().await.is_none(), "no tasks of a cancelled job");
+        assert_eq!(status(&c.base, &j.id).await.state, JobState::Cancelled);
+        c.stop().await;
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn duplicate_and_late_results_are_ignored() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = fake_config(dir.path());
+        cfg.lease_timeout = Duration::from_millis(300);
+        let c = Coord::start(cfg, 0).await;
+        let j = fake_job(&c.base).await;
+        let slow = Fake::register(&c.base, "slow").await;
+        let fast = Fake::register(&c.base, "fast").await;
+        let l1 = slow.lease().await.unwrap();
+        tokio::time::sleep(Duration::from_millis(800)).await;
+        assert!(slow.heartbeat(&l1).await.cancelled, "lease expired");
+        let l2 = fast.lease().await.unwrap();
+        assert_eq!(
+            (l2.job.clone(), l2.task),
+            (l1.job.clone(), l1.task),
+            "re-queued task first"
+        );
+        let (code, body) = fast.upload(&l2).await;
+        assert_eq!((code, body["accepted"].as_bool()), (200, Some(true)));
+        let (code, body) = slow.upload(&l1).await;
+        assert_eq!(
+            (code, body["duplicate"].as_bool()),
+            (200, Some(true)),
+            "late"
+        );
+        let (code, body) = fast.upload(&l2).await;
+        assert_eq!(
+            (code, body["duplicate"].as_bool()),
+            (200, Some(true)),
+            "duplicate"
+        );
+        // Finish the job; the partial and final image are served.
+        while let Some(l) = fast.lease().await {
+            fast.upload(&l).await;
+        }
+        let s = status(&c.base, &j.id).await;
+        assert_eq!(
+            (s.state, s.tasks_done, s.tasks_total),
+            (JobState::Done, 8, 8)
+        );
+        assert_eq!(&image(&c.base, &j.id, "png").await[1..4], b"PNG");
+        let metrics = reqwest::get(format!("{}/metrics", c.base))
+            .await
+            .unwrap()
+            .text()
+            .await
+            .unwrap();
+        assert!(
+            metrics.contains("raytile_tiles_duplicate_total 2"),
+            "{metrics}"
+        );
+        assert!(
+            metrics.contains("raytile_tiles_expired_total 1"),
+            "{metrics}"
+        );
+        c.stop().await;
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn bad_requests_get_4xx_and_the_coordinator_keeps_serving() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = test_config(dir.path());
+        cfg.token = Some("sesame".into());
+        cfg.limits.max_upload_bytes = 64 << 10;
+        let c = Coord::start(cfg, 0).await;
+        let http = reqwest::Client::new();
+        let url = |p: &str| format!("{}{p}", c.base);
+        // Token.
+        assert_eq!(
+            http.get(url("/healthz")).send().await.unwrap().status(),
+            200
+        );
+        assert_eq!(
+            http.get(url("/v1/jobs")).send().await.unwrap().status(),
+            401
+        );
+        assert_eq!(
+            http.get(url("/v1/jobs"))
+                .bearer_auth("wrong")
+                .send()
+                .await
+                .unwrap()
+                .status(),
+            401
+        );
+        let ok = |r: reqwest::RequestBuilder| r.bearer_auth("sesame");
+        // Unknown ids.
+        for p in [
+            "/v1/jobs/job-1-x",
+            "/v1/jobs/job-1-x/image",
+            "/v1/scenes/abc",
+            "/v1/nothing",
+        ] {
+            assert_eq!(
+                ok(http.get(url(p))).send().await.unwrap().status(),
+                404,
+                "{p}"
+            );
+        }
+        let r = ok(http.put(url("/v1/jobs/nope/tasks/0/result")))
+            .body(vec![0u8; 10])
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 404);
+        let r = ok(http.post(url("/v1/workers/nope/lease")))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 404);
+        // Oversize upload.
+        let r = ok(http.post(url("/v1/scenes")))
+            .body(vec![b' '; 1 << 20])
+            .send()
+            .await;
+        if let Ok(r) = r {
+            assert_eq!(r.status(), 413);
+        }
+        // Malformed scenes: not a scene at all, and broken glTF.
+        let r = ok(http.post(url("/v1/scenes")))
+            .body("garbage")
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 422);
+        let body: proto::ErrorBody = r.json().await.unwrap();
+        assert_eq!(body.error.field.as_deref(), Some("body"));
+        let r = ok(http.post(url("/v1/scenes?format=gltf")))
+            .body(r#"{"asset": {"version": "2.0"}, "meshes": 7}"#)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 422, "{:?}", r.text().await);
+        // Hostile archive.
+        let mut b = tar_builder();
+        let mut h = tar_header(3);
+        h.as_old_mut().name[..14].copy_from_slice(b"../escape.gltf");
+        h.set_cksum();
+        b.append(&h, &b"{}\n"[..]).unwrap();
+        let r = ok(http.post(url("/v1/scenes")))
+            .body(b.into_inner().unwrap())
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 422);
+        assert_eq!(
+            ok(http.get(url("/v1/jobs"))).send().await.unwrap().status(),
+            200,
+            "still serving"
+        );
+        c.stop().await;
+    }
+
+    /// A worker that cannot render (the scene is refused by its loader) reports failures;
+    /// after three the job fails with the worker's message, and the worker carries on.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn failing_worker_fails_the_job_with_its_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let c = Coord::start(fake_config(&dir.path().join("data")), 0).await;
+        let w = Worker::start(&c.base, 1, dir.path(), "w");
+        // The coordinator's fake loader accepts it; the worker's real loader does not.
+        let scene = upload(&c.base, br#"{"objects": "not a list"}"#.to_vec()).await;
+        let req = JobRequest {
+            scene,
+            width: Some(16),
+            height: Some(16),
+            spp: Some(1),
+            ..Default::default()
+        };
+        let j = submit(&c.base, &req).await;
+        let s = wait_for(&c.base, &j.id, 30, |s| s.state.is_final()).await;
+        assert_eq!(s.state, JobState::Failed);
+        let err = s.error.unwrap_or_default();
+        assert!(
+            err.contains("failed 3 times") && err.contains("scene"),
+            "{err}"
+        );
+        assert_eq!(w.stats.failures.load(Ordering::Relaxed), 3);
+        w.stop().await;
+        c.stop().await;
+    }
+
+    fn tar_builder() -> tar::Builder<Vec<u8>> {
+        tar::Builder::new(Vec::new())
+    }
+
+    fn tar_header(size: u64) -> tar::Header {
+        let mut h = tar::Header::new_gnu();
+        h.set_size(size);
+        h.set_mode(0o644);
+        h.set_entry_type(tar::EntryType::Regular);
+        h
+    }
+
+    /// A glTF whose buffer URI points outside its folder is refused with 422 (needs the
+    /// core's glTF loader), and the coordinator keeps serving.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn hostile_gltf_uri_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let c = Coord::start(test_config(dir.path()), 0).await;
+        let gltf = r#"{"asset": {"version": "2.0"}, "buffers": [{"byteLength": 4, "uri": "../../../../etc/passwd"}],
+            "bufferViews": [{"buffer": 0, "byteLength": 4}], "scenes": [{"nodes": []}]}"#;
+        let r = reqwest::Client::new()
+            .post(format!("{}/v1/scenes?format=gltf", c.base))
+            .body(gltf)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 422, "{:?}", r.text().await);
+        assert_eq!(
+            reqwest::get(format!("{}/healthz", c.base))
+                .await
+                .unwrap()
+                .status(),
+            200
+        );
+        c.stop().await;
+    }
+}

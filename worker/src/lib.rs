@@ -1,0 +1,602 @@
+//! The raytile worker: registers with a coordinator, long-polls for tile passes, renders them
+//! with the core on its own rayon pool (inside `spawn_blocking`, never on the async threads),
+//! heartbeats while rendering, and uploads the binary result.
+//!
+//! [`run`] takes a shutdown future, so tests run workers in-process; dropping or aborting the
+//! task that runs it is how tests "kill" a worker.
+
+use anyhow::{anyhow, Context};
+use raytile_core::{RenderSettings, Scene, TileAccum};
+use raytile_proto::{self as proto, scene as pkg};
+use reqwest::StatusCode;
+use std::collections::{HashMap, HashSet};
+use std::future::Future;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+/// Counters a worker keeps, shared with whoever started it (tests count renders with them).
+#[derive(Debug, Default)]
+pub struct Stats {
+    /// Tile passes rendered to the end.
+    pub renders: AtomicU64,
+    /// Results the coordinator accepted.
+    pub accepted: AtomicU64,
+    /// Results the coordinator called duplicate or late.
+    pub duplicates: AtomicU64,
+    /// Failures reported.
+    pub failures: AtomicU64,
+}
+
+/// How a worker runs.
+#[derive(Clone, Debug)]
+pub struct Config {
+    /// Base URL of the coordinator, e.g. `http://127.0.0.1:8080`.
+    pub coordinator: String,
+    /// Bearer token.
+    pub token: Option<String>,
+    /// Render threads; 0 means every core.
+    pub threads: usize,
+    /// Name shown in `GET /v1/workers`.
+    pub name: String,
+    /// Where downloaded scenes are kept, by id.
+    pub cache_dir: PathBuf,
+    /// How long one lease request waits for work.
+    pub long_poll: Duration,
+    /// Longest pause between retries when the coordinator is unreachable.
+    pub max_backoff: Duration,
+    /// Counters.
+    pub stats: Arc<Stats>,
+}
+
+impl Config {
+    /// Defaults for a coordinator URL.
+    pub fn new(coordinator: impl Into<String>) -> Config {
+        Config {
+            coordinator: coordinator.into(),
+            token: None,
+            threads: 0,
+            name: default_name(),
+            cache_dir: std::env::temp_dir().join("raytile-worker-cache"),
+            long_poll: Duration::from_secs(20),
+            max_backoff: Duration::from_secs(30),
+            stats: Arc::new(Stats::default()),
+        }
+    }
+}
+
+/// The host name, or `worker`.
+pub fn default_name() -> String {
+    std::env::var("HOSTNAME")
+        .ok()
+        .filter(|s| !s.is_empty())
+        .or_else(|| {
+            std::fs::read_to_string("/etc/hostname")
+                .ok()
+                .map(|s| s.trim().to_string())
+        })
+        .filter(|s| !s.is_empty())
+        .unwrap_or_else(|| "worker".into())
+}
+
+/// Exponential backoff, capped, with ±25 % jitter.
+struct Backoff {
+    next: Duration,
+    max: Duration,
+}
+
+impl Backoff {
+    fn new(max: Duration) -> Backoff {
+        Backoff {
+            next: Duration::from_millis(100),
+            max,
+        }
+    }
+    fn reset(&mut self) {
+        self.next = Duration::from_millis(100);
+    }
+    fn step(&mut self) -> Duration {
+        let base = self.next.min(self.max);
+        self.next = (self.next * 2).min(self.max);
+        let nanos = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.subsec_nanos())
+            .unwrap_or(0);
+        // Cheap jitter: the clock's nanoseconds are random enough to spread reconnects.
+        let frac = 0.75 + (nanos % 1000) as f64 / 2000.0;
+        base.mul_f64(frac)
+    }
+}
+
+/// An HTTP failure: a status (the coordinator answered) or none (it could not be reached).
+#[derive(Debug)]
+struct HttpError {
+    status: Option<StatusCode>,
+    message: String,
+}
+
+impl std::fmt::Display for HttpError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.status {
+            Some(s) => write!(f, "{s}: {}", self.message),
+            None => write!(f, "{}", self.message),
+        }
+    }
+}
+
+impl From<reqwest::Error> for HttpError {
+    fn from(e: reqwest::Error) -> Self {
+        HttpError {
+            status: e.status(),
+            message: e.to_string(),
+        }
+    }
+}
+
+struct Client {
+    http: reqwest::Client,
+    base: String,
+    token: Option<String>,
+}
+
+impl Client {
+    fn req(&self, method: reqwest::Method, path: &str) -> reqwest::RequestBuilder {
+        let r = self.http.request(
+            method,
+            format!("{}{}", self.base.trim_end_matches('/'), path),
+        );
+        match &self.token {
+            Some(t) => r.bearer_auth(t),
+            None => r,
+        }
+    }
+
+    async fn send(&self, r: reqwest::RequestBuilder) -> Result<reqwest::Response, HttpError> {
+        let resp = r.send().await?;
+        if resp.status().is_success() {
+            Ok(resp)
+        } else {
+            let status = resp.status();
+            let message = resp.text().await.unwrap_or_default();
+            Err(HttpError {
+                status: Some(status),
+                message,
+            })
+        }
+    }
+}
+
+enum Flow {
+    Continue,
+    Exit,
+}
+
+/// Runs the worker until `shutdown` completes. A task being rendered when it does is handed
+/// back to the coordinator. Returns an error only for bad configuration.
+pub async fn run(config: Config, shutdown: impl Future<Output = ()> + Send) -> anyhow::Result<()> {
+    let threads = if config.threads == 0 {
+        std::thread::available_parallelism().map_or(1, |n| n.get())
+    } else {
+        config.threads
+    };
+    let pool = Arc::new(
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .thread_name(|i| format!("raytile-render-{i}"))
+            .build()
+            .context("creating the render thread pool")?,
+    );
+    std::fs::create_dir_all(&config.cache_dir)
+        .with_context(|| format!("creating {}", config.cache_dir.display()))?;
+    let client = Client {
+        http: reqwest::Client::builder()
+            .connect_timeout(Duration::from_secs(5))
+            .build()
+            .context("creating the HTTP client")?,
+        base: config.coordinator.clone(),
+        token: config.token.clone(),
+    };
+    let mut w = Worker {
+        cfg: config,
+        client,
+        pool,
+        threads,
+        worker_id: None,
+        heartbeat: Duration::from_secs(5),
+        scenes: HashMap::new(),
+        verified: HashSet::new(),
+        backoff: Backoff::new(Duration::from_secs(30)),
+    };
+    w.backoff = Backoff::new(w.cfg.max_backoff);
+    tokio::pin!(shutdown);
+    loop {
+        let next = tokio::select! {
+            biased;
+            _ = &mut shutdown => None,
+            f = w.step_until_task() => Some(f),
+        };
+        let flow = match next {
+            None => Flow::Exit,
+            Some(Some(lease)) => w.process(lease, &mut shutdown).await,
+            Some(None) => Flow::Continue,
+        };
+        if let Flow::Exit = flow {
+            tracing::info!("worker stopping");
+            return Ok(());
+        }
+    }
+}
+
+struct Worker {
+    cfg: Config,
+    client: Client,
+    pool: Arc<rayon::ThreadPool>,
+    threads: usize,
+    worker_id: Option<String>,
+    heartbeat: Duration,
+    /// Built scenes by job id (the build depends on the job's camera and aspect).
+    scenes: HashMap<String, Arc<Scene>>,
+    verified: HashSet<String>,
+    backoff: Backoff,
+}
+
+fn panic_message(p: Box<dyn std::any::Any + Send>) -> String {
+    if let Some(s) = p.downcast_ref::<&str>() {
+        s.to_string()
+    } else if let Some(s) = p.downcast_ref::<String>() {
+        s.clone()
+    } else {
+        "panic".into()
+    }
+}
+
+impl Worker {
+    async fn pause(&mut self, why: &str) {
+        let d = self.backoff.step();
+        tracing::warn!("{why}; retrying in {:.1} s", d.as_secs_f64());
+        tokio::time::sleep(d).await;
+    }
+
+    /// Registers if needed and asks for one task (one long poll). Cancel-safe.
+    async fn step_until_task(&mut self) -> Option<proto::Lease> {
+        let Some(id) = self.worker_id.clone() else {
+            let body = proto::RegisterRequest {
+                name: self.cfg.name.clone(),
+                threads: self.threads as u32,
+            };
+            let r = self
+                .client
+                .send(
+                    self.client
+                        .req(reqwest::Method::POST, "/v1/workers")
+                        .json(&body),
+                )
+                .await;
+            match r {
+                Ok(resp) => match resp.json::<proto::Registered>().await {
+                    Ok(reg) => {
+                        tracing::info!(worker = %reg.worker_id, "registered");
+                        self.heartbeat = Duration::from_millis(
+                            reg.heartbeat_ms.min(reg.lease_timeout_ms / 3).max(10),
+                        );
+                        self.worker_id = Some(reg.worker_id);
+                        self.backoff.reset();
+                    }
+                    Err(e) => self.pause(&format!("bad registration reply: {e}")).await,
+                },
+                Err(e) => self.pause(&format!("cannot register: {e}")).await,
+            }
+            return None;
+        };
+        let path = format!(
+            "/v1/workers/{id}/lease?wait_ms={}",
+            self.cfg.long_poll.as_millis()
+        );
+        let r = self
+            .client
+            .send(
+                self.client
+                    .req(reqwest::Method::POST, &path)
+                    .timeout(self.cfg.long_poll + Duration::from_secs(10)),
+            )
+            .await;
+        match r {
+            Ok(resp) if resp.status() == StatusCode::NO_CONTENT => {
+                self.backoff.reset();
+                None
+            }
+            Ok(resp) => match resp.json::<proto::Lease>().await {
+                Ok(l) => {
+                    self.backoff.reset();
+                    Some(l)
+                }
+                Err(e) => {
+                    self.pause(&format!("bad lease reply: {e}")).await;
+                    None
+                }
+            },
+            Err(HttpError {
+                status: Some(StatusCode::NOT_FOUND),
+                ..
+            }) => {
+                // The coordinator forgot us (new data directory): register again.
+                self.worker_id = None;
+                None
+            }
+            Err(e) => {
+                self.pause(&format!("lease request failed: {e}")).await;
+                None
+            }
+        }
+    }
+
+    async fn report_failure(&mut self, lease: &proto::Lease, error: String) {
+        tracing::warn!(job = %lease.job, task = lease.task, "task failed: {error}");
+        self.cfg.stats.failures.fetch_add(1, Ordering::Relaxed);
+        let body = proto::FailureReport { error };
+        let path = format!("/v1/leases/{}/failure", lease.lease_id);
+        for _ in 0..5 {
+            match self
+                .client
+                .send(self.client.req(reqwest::Method::POST, &path).json(&body))
+                .await
+            {
+                Ok(_) => return,
+                Err(e) if e.status.is_some() => return,
+                Err(e) => self.pause(&format!("cannot report failure: {e}")).await,
+            }
+        }
+    }
+
+    async fn release(&self, lease: &proto::Lease) {
+        let path = format!("/v1/leases/{}/release", lease.lease_id);
+        let r = self
+            .client
+            .send(
+                self.client
+                    .req(reqwest::Method::POST, &path)
+                    .timeout(Duration::from_secs(3)),
+            )
+            .await;
+        if let Err(e) = r {
+            tracing::warn!("could not hand the lease back ({e}); it will expire");
+        }
+    }
+
+    /// Makes sure the scene is in the cache (downloaded and verified) and returns the scene
+    /// file to load.
+    async fn scene_file(&mut self, lease: &proto::Lease) -> Result<PathBuf, anyhow::Error> {
+        if !pkg::is_scene_id(&lease.scene) {
+            return Err(anyhow!("bad scene id '{}'", lease.scene));
+        }
+        let dir = self.cfg.cache_dir.join(&lease.scene);
+        let blob = dir.join("blob");
+        let root = dir.join("root");
+        let entry = root.join(&lease.scene_entry);
+        if dir.join("ok").exists() {
+            if self.verified.contains(&lease.scene) {
+                return Ok(entry);
+            }
+            let sha = {
+                let b = blob.clone();
+                tokio::task::spawn_blocking(move || pkg::sha256_file(&b)).await??
+            };
+            if sha == lease.scene_sha256 {
+                self.verified.insert(lease.scene.clone());
+                return Ok(entry);
+            }
+            tracing::warn!(scene = %lease.scene, "cached scene is corrupt; downloading again");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+        let path = format!("/v1/scenes/{}", lease.scene);
+        let bytes = loop {
+            match self
+                .client
+                .send(self.client.req(reqwest::Method::GET, &path))
+                .await
+            {
+                Ok(r) => match r.bytes().await {
+                    Ok(b) => break b,
+                    Err(e) => self.pause(&format!("scene download: {e}")).await,
+                },
+                Err(e) if e.status.is_some() => return Err(anyhow!("scene download: {e}")),
+                Err(e) => self.pause(&format!("scene download: {e}")).await,
+            }
+        };
+        let sha = pkg::sha256_hex(&bytes);
+        if sha != lease.scene_sha256 {
+            return Err(anyhow!(
+                "scene {} download has sha256 {sha}, expected {}",
+                lease.scene,
+                lease.scene_sha256
+            ));
+        }
+        let format = pkg::SceneFormat::from_name(&lease.scene_format)
+            .ok_or_else(|| anyhow!("unknown scene format '{}'", lease.scene_format))?;
+        let entry_name = lease.scene_entry.clone();
+        let d = dir.clone();
+        tokio::task::spawn_blocking(move || -> anyhow::Result<()> {
+            let tmp = d.with_extension("partial");
+            let _ = std::fs::remove_dir_all(&tmp);
+            std::fs::create_dir_all(tmp.join("root"))?;
+            std::fs::write(tmp.join("blob"), &bytes)?;
+            let e = if format.is_archive() {
+                Some(entry_name.as_str())
+            } else {
+                None
+            };
+            pkg::unpack(
+                &tmp.join("blob"),
+                format,
+                e,
+                &tmp.join("root"),
+                pkg::UnpackLimits::default(),
+            )?;
+            std::fs::write(tmp.join("ok"), b"")?;
+            std::fs::rename(&tmp, &d)?;
+            Ok(())
+        })
+        .await??;
+        self.verified.insert(lease.scene.clone());
+        Ok(entry)
+    }
+
+    async fn scene(&mut self, lease: &proto::Lease) -> Result<Arc<Scene>, anyhow::Error> {
+        if let Some(s) = self.scenes.get(&lease.job) {
+            return Ok(s.clone());
+        }
+        let file = self.scene_file(lease).await?;
+        let settings = lease.settings.clone();
+        let scene = tokio::task::spawn_blocking(move || load_and_build(&file, &settings))
+            .await
+            .map_err(|e| anyhow!("scene build task: {e}"))??;
+        let scene = Arc::new(scene);
+        // Keep a few jobs' scenes: jobs interleave by priority.
+        if self.scenes.len() >= 4 {
+            self.scenes.clear();
+        }
+        self.scenes.insert(lease.job.clone(), scene.clone());
+        Ok(scene)
+    }
+
+    async fn process(
+        &mut self,
+        lease: proto::Lease,
+        shutdown: &mut (impl Future<Output = ()> + Unpin),
+    ) -> Flow {
+        tracing::debug!(job = %lease.job, task = lease.task, "leased");
+        let scene = tokio::select! {
+            biased;
+            _ = &mut *shutdown => None,
+            s = self.scene(&lease) => Some(s),
+        };
+        let scene = match scene {
+            None => {
+                self.release(&lease).await;
+                return Flow::Exit;
+            }
+            Some(Ok(s)) => s,
+            Some(Err(e)) => {
+                self.report_failure(&lease, format!("{e:#}")).await;
+                return Flow::Continue;
+            }
+        };
+        let pool = self.pool.clone();
+        let (settings, tile, samples) = (
+            lease.settings.clone(),
+            lease.tile,
+            lease.sample_start..lease.sample_end,
+        );
+        let mut render = tokio::task::spawn_blocking(move || {
+            pool.install(|| {
+                std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                    raytile_core::render_tile(&scene, &settings, tile, samples)
+                }))
+            })
+            .map_err(panic_message)
+        });
+        let hb_path = format!("/v1/leases/{}/heartbeat", lease.lease_id);
+        let accum: TileAccum = loop {
+            tokio::select! {
+                biased;
+                _ = &mut *shutdown => {
+                    // Rendering cannot be interrupted; hand the lease back so another worker
+                    // takes the tile at once, and let the thread finish on its own.
+                    self.release(&lease).await;
+                    return Flow::Exit;
+                }
+                r = &mut render => match r {
+                    Ok(Ok(acc)) => break acc,
+                    Ok(Err(msg)) => {
+                        self.report_failure(&lease, format!("render panicked: {msg}")).await;
+                        return Flow::Continue;
+                    }
+                    Err(e) => {
+                        self.report_failure(&lease, format!("render task: {e}")).await;
+                        return Flow::Continue;
+                    }
+                },
+                _ = tokio::time::sleep(self.heartbeat) => {
+                    let r = self.client.send(self.client.req(reqwest::Method::POST, &hb_path)
+                        .timeout(self.heartbeat.max(Duration::from_secs(2)))).await;
+                    if let Ok(resp) = r {
+                        if let Ok(reply) = resp.json::<proto::HeartbeatReply>().await {
+                            if reply.cancelled {
+                                tracing::info!(job = %lease.job, task = lease.task,
+                                    reason = reply.reason.as_deref().unwrap_or(""), "stopping task");
+                                return Flow::Continue;
+                            }
+                        }
+                    }
+                    // An unreachable coordinator is not a reason to stop: the result is
+                    // uploaded with retries, and a restarted coordinator accepts it.
+                }
+            }
+        };
+        self.cfg.stats.renders.fetch_add(1, Ordering::Relaxed);
+        let bytes = proto::tile::encode(&accum, lease.pass);
+        let path = format!(
+            "/v1/jobs/{}/tasks/{}/result?worker={}",
+            lease.job,
+            lease.task,
+            self.worker_id.as_deref().unwrap_or("")
+        );
+        let mut attempts = 0;
+        loop {
+            attempts += 1;
+            let r = self
+                .client
+                .send(
+                    self.client
+                        .req(reqwest::Method::PUT, &path)
+                        .header(reqwest::header::CONTENT_TYPE, "application/octet-stream")
+                        .body(bytes.clone()),
+                )
+                .await;
+            match r {
+                Ok(resp) => {
+                    let reply = resp.json::<proto::ResultReply>().await.ok();
+                    let c = if reply.as_ref().is_some_and(|r| r.accepted) {
+                        &self.cfg.stats.accepted
+                    } else {
+                        &self.cfg.stats.duplicates
+                    };
+                    c.fetch_add(1, Ordering::Relaxed);
+                    self.backoff.reset();
+                    return Flow::Continue;
+                }
+                Err(e) if e.status.is_some_and(|s| s.is_client_error()) => {
+                    tracing::warn!(job = %lease.job, task = lease.task, "result refused: {e}");
+                    return Flow::Continue;
+                }
+                Err(e) => {
+                    let d = self.backoff.step();
+                    tracing::warn!(
+                        "result upload failed ({e}); retrying in {:.1} s",
+                        d.as_secs_f64()
+                    );
+                    tokio::select! {
+                        biased;
+                        _ = &mut *shutdown, if attempts > 3 => return Flow::Exit,
+                        _ = tokio::time::sleep(d) => {}
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Loads and builds a scene, turning panics into errors.
+fn load_and_build(file: &Path, settings: &RenderSettings) -> anyhow::Result<Scene> {
+    let f = file.to_path_buf();
+    let s = settings.clone();
+    match std::panic::catch_unwind(move || -> Result<Scene, raytile_core::SceneError> {
+        let desc = raytile_core::load_scene(&f)?;
+        Scene::build(&desc, &s)
+    }) {
+        Ok(Ok(scene)) => Ok(scene),
+        Ok(Err(e)) => Err(anyhow!("scene: {e}")),
+        Err(p) => Err(anyhow!("scene loading panicked: {}", panic_message(p))),
+    }
+}

@@ -1,0 +1,32 @@
+//! The `raytile-worker` binary: its flags parse, and a missing coordinator URL is an error.
+//! (Building this test also builds the binary that the slow cluster tests SIGKILL.)
+
+use std::process::Command;
+
+#[test]
+fn help_lists_the_flags() {
+    let out = Command::new(env!("CARGO_BIN_EXE_raytile-worker"))
+        .arg("--help")
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let text = String::from_utf8_lossy(&out.stdout);
+    for flag in [
+        "--coordinator",
+        "--token",
+        "--threads",
+        "--name",
+        "--cache-dir",
+    ] {
+        assert!(text.contains(flag), "{flag} missing from:\n{text}");
+    }
+}
+
+#[test]
+fn coordinator_is_required() {
+    let out = Command::new(env!("CARGO_BIN_EXE_raytile-worker"))
+        .env_remove("RAYTILE_COORDINATOR")
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+}
