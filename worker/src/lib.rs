@@ -127,9 +127,18 @@ impl std::fmt::Display for HttpError {
 
 impl From<reqwest::Error> for HttpError {
     fn from(e: reqwest::Error) -> Self {
+        // reqwest's message is only "error sending request for url (...)": the cause (DNS,
+        // connection refused, timeout) is in the source chain.
+        let mut message = e.to_string();
+        let mut source = std::error::Error::source(&e);
+        while let Some(s) = source {
+            message.push_str(": ");
+            message.push_str(&s.to_string());
+            source = s.source();
+        }
         HttpError {
             status: e.status(),
-            message: e.to_string(),
+            message,
         }
     }
 }
@@ -192,6 +201,11 @@ pub async fn run(config: Config, shutdown: impl Future<Output = ()> + Send) -> a
     let client = Client {
         http: reqwest::Client::builder()
             .connect_timeout(Duration::from_secs(5))
+            // A partition leaves established connections silent, not closed: no read for
+            // longer than a long poll plus slack means the coordinator is gone for now, and
+            // the request fails into the usual retry with backoff instead of hanging.
+            .read_timeout(config.long_poll + Duration::from_secs(30))
+            .tcp_keepalive(Duration::from_secs(15))
             .build()
             .context("creating the HTTP client")?,
         base: config.coordinator.clone(),

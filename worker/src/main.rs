@@ -14,13 +14,13 @@ struct Args {
     #[arg(long, env = "RAYTILE_TOKEN", hide_env_values = true)]
     token: Option<String>,
     /// Render threads (default: every core).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, env = "RAYTILE_THREADS", default_value_t = 0)]
     threads: usize,
     /// Name shown by the coordinator (default: host name).
-    #[arg(long)]
+    #[arg(long, env = "RAYTILE_NAME")]
     name: Option<String>,
     /// Scene cache folder.
-    #[arg(long)]
+    #[arg(long, env = "RAYTILE_CACHE_DIR")]
     cache_dir: Option<PathBuf>,
 }
 
