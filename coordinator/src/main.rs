@@ -10,10 +10,10 @@ use std::time::Duration;
 #[command(version)]
 struct Args {
     /// Address to listen on.
-    #[arg(long, default_value = "127.0.0.1:8080")]
+    #[arg(long, env = "RAYTILE_LISTEN", default_value = "127.0.0.1:8080")]
     listen: String,
     /// Where the database and scenes live.
-    #[arg(long, default_value = "raytile-data")]
+    #[arg(long, env = "RAYTILE_DATA_DIR", default_value = "raytile-data")]
     data_dir: PathBuf,
     /// Bearer token required on every endpoint but /healthz.
     #[arg(long, env = "RAYTILE_TOKEN", hide_env_values = true)]
@@ -22,10 +22,10 @@ struct Args {
     #[arg(long)]
     insecure: bool,
     /// Lease lifetime without a heartbeat, in seconds.
-    #[arg(long, default_value_t = 30.0)]
+    #[arg(long, env = "RAYTILE_LEASE_TIMEOUT", default_value_t = 30.0)]
     lease_timeout: f64,
     /// Start-up grace period before leases expire, in seconds.
-    #[arg(long, default_value_t = 30.0)]
+    #[arg(long, env = "RAYTILE_STARTUP_GRACE", default_value_t = 30.0)]
     startup_grace: f64,
     /// Failures of one tile that fail its job.
     #[arg(long, default_value_t = 3)]
@@ -36,6 +36,10 @@ struct Args {
     /// Most unfinished jobs at once.
     #[arg(long, default_value_t = 1000)]
     max_queued_jobs: usize,
+    /// Do not serve: ask the coordinator listening on --listen for /healthz and exit 0 when
+    /// it answers 200 (a container health check; images have no curl).
+    #[arg(long)]
+    healthcheck: bool,
 }
 
 fn secs(v: f64, flag: &str) -> anyhow::Result<Duration> {
@@ -51,7 +55,17 @@ async fn main() {
         )
         .with_writer(std::io::stderr)
         .init();
-    if let Err(e) = real_main(Args::parse()).await {
+    let a = Args::parse();
+    if a.healthcheck {
+        match healthcheck(&a.listen) {
+            Ok(()) => std::process::exit(0),
+            Err(e) => {
+                eprintln!("raytile-coordinator: unhealthy: {e:#}");
+                std::process::exit(1);
+            }
+        }
+    }
+    if let Err(e) = real_main(a).await {
         eprintln!("raytile-coordinator: {e:#}");
         std::process::exit(1);
     }
@@ -75,6 +89,38 @@ async fn real_main(a: Args) -> anyhow::Result<()> {
         .await
         .map_err(|e| anyhow::anyhow!("cannot listen on {addr}: {e}"))?;
     run(listener, cfg, shutdown_signal()).await
+}
+
+/// `GET /healthz` on the address the coordinator listens on (an unspecified address such as
+/// 0.0.0.0 is reached on loopback), with short timeouts; Ok when the status is 200.
+fn healthcheck(listen: &str) -> anyhow::Result<()> {
+    use std::io::{Read, Write};
+    let mut addr: std::net::SocketAddr = listen
+        .parse()
+        .map_err(|e| anyhow::anyhow!("--listen {listen}: {e}"))?;
+    if addr.ip().is_unspecified() {
+        addr.set_ip(match addr {
+            std::net::SocketAddr::V4(_) => std::net::Ipv4Addr::LOCALHOST.into(),
+            std::net::SocketAddr::V6(_) => std::net::Ipv6Addr::LOCALHOST.into(),
+        });
+    }
+    let timeout = Duration::from_secs(3);
+    let mut s = std::net::TcpStream::connect_timeout(&addr, timeout)?;
+    s.set_read_timeout(Some(timeout))?;
+    s.set_write_timeout(Some(timeout))?;
+    write!(
+        s,
+        "GET /healthz HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
+    )?;
+    let mut head = Vec::new();
+    s.take(4096).read_to_end(&mut head)?;
+    let status_line = String::from_utf8_lossy(&head);
+    let status_line = status_line.lines().next().unwrap_or("");
+    if status_line.split_whitespace().nth(1) == Some("200") {
+        Ok(())
+    } else {
+        anyhow::bail!("{addr}/healthz answered {status_line:?}")
+    }
 }
 
 /// Ctrl-C or SIGTERM.
