@@ -14,9 +14,10 @@ pub struct ClusterArgs {
     /// Render threads in total, split among the workers (default: every core).
     #[arg(long)]
     pub threads: Option<usize>,
-    /// Address of the coordinator.
-    #[arg(long, default_value = "127.0.0.1:8080")]
-    pub listen: String,
+    /// Address of the coordinator (default: 127.0.0.1:8080; with --render, any free port
+    /// on 127.0.0.1).
+    #[arg(long)]
+    pub listen: Option<String>,
     /// Data directory (default: a temporary one, removed at exit).
     #[arg(long)]
     pub data_dir: Option<PathBuf>,
@@ -58,10 +59,16 @@ async fn cluster(a: ClusterArgs) -> anyhow::Result<()> {
     let mut cfg = raytile_coordinator::Config::new(&data_dir);
     cfg.token = a.token.clone().filter(|t| !t.is_empty());
     cfg.startup_grace = std::time::Duration::from_secs(5);
-    let addr: std::net::SocketAddr = a
-        .listen
+    let listen = a.listen.clone().unwrap_or_else(|| {
+        if a.render.is_some() {
+            "127.0.0.1:0".into()
+        } else {
+            "127.0.0.1:8080".into()
+        }
+    });
+    let addr: std::net::SocketAddr = listen
         .parse()
-        .map_err(|e| anyhow::anyhow!("--listen {}: {e}", a.listen))?;
+        .map_err(|e| anyhow::anyhow!("--listen {listen}: {e}"))?;
     let listener = tokio::net::TcpListener::bind(addr)
         .await
         .with_context(|| format!("cannot listen on {addr}"))?;
