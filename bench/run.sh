@@ -208,16 +208,17 @@ status=0
 "$PY" bench/compare.py --rows "$ROWS" --reference "$REF" --reference-label "$REF_LABEL" \
     --markdown "$OUT/results.md" "${NOTE_ARGS[@]}" || status=$?
 
-# ---------------------------------------------------------------- BVH (lead's Rust bench)
+# ---------------------------------------------------------------- BVH and ray throughput
 if [ "$BVH" = 1 ]; then
-    if [ -f core/benches/bvh.rs ] || grep -qs 'name *= *"bvh"' core/Cargo.toml; then
-        say "cargo bench -p raytile-core --bench bvh"
-        cargo bench -p raytile-core --bench bvh 2>&1 | tee "$OUT/bvh.txt"
-        { printf '\n## BVH (cargo bench -p raytile-core --bench bvh)\n\n```\n'
+    say "RAYON_NUM_THREADS=$THREADS $RAYTILE bench (samples/s, Mrays/s, BVH presets on 1M triangles)"
+    if RAYON_NUM_THREADS=$THREADS "$RAYTILE" bench > "$OUT/bvh.txt" 2>&1; then
+        cat "$OUT/bvh.txt" >&2
+        { printf '\n## Rays and BVH (`RAYON_NUM_THREADS=%s raytile bench`)\n\n```\n' "$THREADS"
           cat "$OUT/bvh.txt"; printf '```\n'; } >> "$OUT/results.md"
     else
-        skip "BVH bench: no core/benches/bvh.rs yet (cargo bench -p raytile-core --bench bvh)"
-        printf '\nBVH bench: skipped (no core/benches/bvh.rs yet).\n' >> "$OUT/results.md"
+        cat "$OUT/bvh.txt" >&2
+        echo "run.sh: raytile bench failed (output above)" >&2
+        status=1
     fi
 fi
 
