@@ -486,6 +486,112 @@ mod faults {
         );
         c.stop().await;
     }
+
+    /// A coordinator process killed with SIGKILL mid-job and restarted on the same data
+    /// directory: every finished task survives (SQLite commits each result before answering),
+    /// no task is rendered twice, and the frame equals the local render. (Slow:
+    /// RAYTILE_SLOW_TESTS=1, built binaries.)
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn sigkilled_coordinator_process_loses_no_finished_tile() {
+        if std::env::var("RAYTILE_SLOW_TESTS").as_deref() != Ok("1") {
+            eprintln!("skipping: set RAYTILE_SLOW_TESTS=1");
+            return;
+        }
+        let Some(scene) = cornell() else { return };
+        let bin = std::env::current_exe()
+            .unwrap()
+            .parent()
+            .unwrap()
+            .parent()
+            .unwrap()
+            .join("raytile-coordinator");
+        if !bin.exists() {
+            eprintln!(
+                "skipping: {} not built (cargo build -p raytile-coordinator)",
+                bin.display()
+            );
+            return;
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let base = format!("http://127.0.0.1:{port}");
+        let start = || {
+            std::process::Command::new(&bin)
+                .args(["--listen", &format!("127.0.0.1:{port}")])
+                .arg("--data-dir")
+                .arg(dir.path().join("data"))
+                .args(["--lease-timeout", "2", "--startup-grace", "5"])
+                .env_remove("RAYTILE_TOKEN")
+                .stderr(std::process::Stdio::null())
+                .spawn()
+                .unwrap()
+        };
+        let wait_healthy = || async {
+            for _ in 0..300 {
+                if reqwest::get(format!("{base}/healthz"))
+                    .await
+                    .is_ok_and(|r| r.status().is_success())
+                {
+                    return;
+                }
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+            panic!("the coordinator process did not come up");
+        };
+        let mut coord = start();
+        wait_healthy().await;
+        let ws: Vec<Worker> = (0..2)
+            .map(|i| Worker::start(&base, 1, dir.path(), &format!("w{i}")))
+            .collect();
+        let id = upload(&base, std::fs::read(&scene).unwrap()).await;
+        let j = submit(
+            &base,
+            &JobRequest {
+                spp: Some(64),
+                ..job(&id, 16)
+            },
+        )
+        .await;
+        let before = wait_for(&base, &j.id, 60, |s| s.tasks_done >= 3).await;
+        coord.kill().unwrap(); // SIGKILL: no shutdown code runs
+        assert!(
+            before.tasks_done < before.tasks_total,
+            "the job ended before the kill: make it longer"
+        );
+        let _ = coord.wait();
+        let mut coord = start();
+        wait_healthy().await;
+        let resumed = status(&base, &j.id).await;
+        assert!(
+            resumed.tasks_done >= before.tasks_done,
+            "finished tasks were lost: {} before the kill, {} after",
+            before.tasks_done,
+            resumed.tasks_done
+        );
+        let done = wait_for(&base, &j.id, 300, |s| s.state.is_final()).await;
+        assert_eq!(done.state, JobState::Done, "{done:?}");
+        let renders: u64 = ws
+            .iter()
+            .map(|w| w.stats.renders.load(Ordering::Relaxed))
+            .sum();
+        assert_eq!(
+            renders, done.tasks_total,
+            "a finished task was rendered again"
+        );
+        assert_eq!(
+            image(&base, &j.id, "exr").await,
+            local_exr(&scene, &done.settings)
+        );
+        for w in ws {
+            w.stop().await;
+        }
+        let _ = coord.kill();
+        let _ = coord.wait();
+    }
 }
 
 /// API behaviour with synthetic workers: cancel, duplicates, late results, bad requests; the
