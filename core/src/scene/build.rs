@@ -878,9 +878,21 @@ impl Scene {
                 if let Some(s) = mat.slots.transmission {
                     transmission *= s.lookup(&self.textures, &it.uv).x;
                 }
+                let base_color = Vec3A::new(c.x, c.y, c.z).clamp(Vec3A::ZERO, Vec3A::ONE);
+                if !(metallic > 0.0)
+                    && !(p.specular > 0.0)
+                    && !(transmission > 0.0)
+                    && !(p.clearcoat > 0.0)
+                {
+                    // No metal, no specular lobe (KHR_materials_specular factor 0), no
+                    // transmission, no coat: the model is exactly Lambertian, bit for bit
+                    // (material test `pbr_without_specular_is_exactly_lambertian`), and the
+                    // Lambertian BSDF computes it for a fraction of the cost.
+                    return Bsdf::Diffuse(material::diffuse::Diffuse { albedo: base_color });
+                }
                 let roughness = roughness.clamp(0.0, 1.0);
                 Bsdf::Pbr(material::pbr::Pbr {
-                    base_color: Vec3A::new(c.x, c.y, c.z).clamp(Vec3A::ZERO, Vec3A::ONE),
+                    base_color,
                     metallic: metallic.clamp(0.0, 1.0),
                     alpha: roughness * roughness,
                     specular: p.specular.clamp(0.0, 1.0),
