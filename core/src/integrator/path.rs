@@ -87,7 +87,8 @@ pub(crate) fn light_contribution(
         return Vec3A::ZERO;
     }
     let wi_local = frame.to_local(wi);
-    let f = bsdf.eval(wo, wi_local) * wi_local.z.abs();
+    let (f, bsdf_pdf) = bsdf.eval_pdf(wo, wi_local);
+    let f = f * wi_local.z.abs();
     if f.max_element() <= 0.0 {
         return Vec3A::ZERO;
     }
@@ -98,7 +99,7 @@ pub(crate) fn light_contribution(
         f * li / pdf
     } else {
         let pmf = scene.lights.pmf(index);
-        let w = power_heuristic(pdf * pmf, bsdf.pdf(wo, wi_local));
+        let w = power_heuristic(pdf * pmf, bsdf_pdf);
         f * li * (w / pdf)
     }
 }

@@ -371,7 +371,7 @@ impl GgxAlbedo {
     /// Single-scattering albedo under Schlick's F0 + (F90 − F0)(1 − |wo·wm|)⁵ (per channel).
     #[inline]
     pub fn e_schlick(&self, mu: f32, f0: Vec3A, f90: Vec3A) -> Vec3A {
-        f0 * self.e(mu) + (f90 - f0) * self.e5(mu)
+        schlick_albedo(self.e(mu), self.e5(mu), f0, f90)
     }
 
     /// E_avg = 2 ∫ E(μ) μ dμ, the hemispherical average albedo.
@@ -417,6 +417,12 @@ impl GgxAlbedo {
 fn pow5(x: f32) -> f32 {
     let x2 = x * x;
     x2 * x2 * x
+}
+
+/// [`GgxAlbedo::e_schlick`] from E(μ) and E₅(μ) already looked up (the same arithmetic).
+#[inline]
+pub fn schlick_albedo(e: f32, e5: f32, f0: Vec3A, f90: Vec3A) -> Vec3A {
+    f0 * e + (f90 - f0) * e5
 }
 
 /// Hemispherical average 2 ∫ F(μ) μ dμ of Schlick's F0 + (F90 − F0)(1 − μ)⁵ in closed form:

@@ -114,6 +114,16 @@ impl Bsdf {
         dispatch!(self, b => b.pdf(wo, wi))
     }
 
+    /// `(eval, pdf)` in one call: the same values, computed once where the two share work
+    /// (the glTF pbr model's albedo tables and lobe probabilities).
+    #[inline]
+    pub fn eval_pdf(&self, wo: Vec3A, wi: Vec3A) -> (Vec3A, f32) {
+        match self {
+            Bsdf::Pbr(b) => b.eval_pdf(wo, wi),
+            _ => (self.eval(wo, wi), self.pdf(wo, wi)),
+        }
+    }
+
     /// Samples `wi` given `wo`, a uniform number `uc` (lobe choice) and uniform `u` (direction).
     #[inline]
     pub fn sample(&self, wo: Vec3A, uc: f32, u: Vec2) -> Option<BsdfSample> {

@@ -72,7 +72,7 @@
 
 use super::conductor::reflection_pdf;
 use super::dielectric::finite_sample;
-use super::microfacet::{schlick_f_avg, Ggx, GgxAlbedo};
+use super::microfacet::{schlick_albedo, schlick_f_avg, Ggx, GgxAlbedo};
 use super::{reflect, refract, sanitize_eta, BsdfSample, Lobe};
 use crate::sampling::warp::{cosine_hemisphere, cosine_hemisphere_pdf};
 use glam::{Vec2, Vec3A};
@@ -230,9 +230,11 @@ impl Pbr {
     fn at_wo(p: &Params, cos_o: f32) -> AtWo {
         let mean = |v: Vec3A| (v.x + v.y + v.z) * (1.0 / 3.0);
         let dielectric = 1.0 - p.metallic;
+        // Two table lookups serve every albedo at wo.
         let e_o = p.alb.e(cos_o);
-        let ss_d = p.alb.e_schlick(cos_o, p.f0, Vec3A::splat(p.specular));
-        let ss_m = p.alb.e_schlick(cos_o, p.base, Vec3A::ONE);
+        let e5_o = p.alb.e5(cos_o);
+        let ss_d = schlick_albedo(e_o, e5_o, p.f0, Vec3A::splat(p.specular));
+        let ss_m = schlick_albedo(e_o, e5_o, p.base, Vec3A::ONE);
         let e_spec = ss_d + p.fms_dielectric * (1.0 - e_o);
         let base_w = (1.0 - e_spec.max_element()).clamp(0.0, 1.0);
         let fms = dielectric * p.fms_dielectric + p.metallic * p.fms_metal;
@@ -287,12 +289,19 @@ impl Pbr {
 
     /// Value and density for `wo` flipped into the upper hemisphere (`wi` flipped with it).
     /// `etap` is the index ratio for refraction. Returns (f, pdf).
-    fn eval_pdf_upper(&self, p: &Params, wo: Vec3A, wi: Vec3A, etap: f32) -> (Vec3A, f32) {
+    /// `at` is [`Pbr::at_wo`] of `wo`.
+    fn eval_pdf_upper(
+        &self,
+        p: &Params,
+        at: &AtWo,
+        wo: Vec3A,
+        wi: Vec3A,
+        etap: f32,
+    ) -> (Vec3A, f32) {
         let zero = (Vec3A::ZERO, 0.0);
         if !(wo.z > 0.0) || wi.z == 0.0 || !wi.is_finite() {
             return zero;
         }
-        let at = Self::at_wo(p, wo.z);
         let probs = &at.probs;
         let dielectric = 1.0 - p.metallic;
         let ggx = &p.ggx;
@@ -368,35 +377,31 @@ impl Pbr {
 
     /// f(wo, wi) without cosine.
     pub fn eval(&self, wo: Vec3A, wi: Vec3A) -> Vec3A {
-        let Some((wo, wi, below)) = Self::flip(wo, wi) else {
-            return Vec3A::ZERO;
-        };
-        let p = self.params();
-        let (f, _) = self.eval_pdf_upper(&p, wo, wi, self.etap(&p, below));
-        if f.is_finite() {
-            f
-        } else {
-            Vec3A::ZERO
-        }
+        self.eval_pdf(wo, wi).0
     }
     /// Density of `sample`: the lobe-probability-weighted mixture of the lobe densities.
     pub fn pdf(&self, wo: Vec3A, wi: Vec3A) -> f32 {
+        self.eval_pdf(wo, wi).1
+    }
+    /// `eval` and `pdf` together, for the price of one (they share every term at wo).
+    pub fn eval_pdf(&self, wo: Vec3A, wi: Vec3A) -> (Vec3A, f32) {
         let Some((wo, wi, below)) = Self::flip(wo, wi) else {
-            return 0.0;
+            return (Vec3A::ZERO, 0.0);
         };
         let p = self.params();
-        let (_, pdf) = self.eval_pdf_upper(&p, wo, wi, self.etap(&p, below));
-        if pdf.is_finite() {
-            pdf
-        } else {
-            0.0
-        }
+        let at = Self::at_wo(&p, wo.z);
+        let (f, pdf) = self.eval_pdf_upper(&p, &at, wo, wi, self.etap(&p, below));
+        (
+            if f.is_finite() { f } else { Vec3A::ZERO },
+            if pdf.is_finite() { pdf } else { 0.0 },
+        )
     }
     /// Picks a lobe with `uc`, samples it with `u`, and returns the full mixture f and pdf.
     pub fn sample(&self, wo: Vec3A, uc: f32, u: Vec2) -> Option<BsdfSample> {
         let (wo_u, _, below) = Self::flip(wo, Vec3A::Z)?;
         let p = self.params();
-        let probs = Self::at_wo(&p, wo_u.z).probs;
+        let at = Self::at_wo(&p, wo_u.z);
+        let probs = &at.probs;
         let etap = self.etap(&p, below);
         let (wi, lobe, eta) = if uc < probs.coat {
             let wm = p.coat_ggx.sample_wm(wo_u, u);
@@ -424,7 +429,7 @@ impl Pbr {
         if lobe.is_transmission() != (wi.z < 0.0) || wi.z == 0.0 {
             return None;
         }
-        let (f, pdf) = self.eval_pdf_upper(&p, wo_u, wi, etap);
+        let (f, pdf) = self.eval_pdf_upper(&p, &at, wo_u, wi, etap);
         let wi = if below {
             Vec3A::new(wi.x, wi.y, -wi.z)
         } else {
