@@ -316,12 +316,14 @@ impl Pbr {
             let ms_f = at.fms * p.alb.ms_shape(at.e_o, p.alb.e(wi.z));
             let spec_f = (dielectric * fd + p.metallic * p.f_metal(vh)) * spec_brdf + ms_f;
             let diffuse_w = dielectric * (1.0 - p.transmission) * at.base_w;
-            let cg = &p.coat_ggx;
-            let coat_f = coat * cg.d(h) * cg.g(wo, wi) / (4.0 * wo.z * wi.z);
-            let f = (spec_f + p.base * FRAC_1_PI * diffuse_w) * (1.0 - coat) + Vec3A::splat(coat_f);
-            let pdf = probs.coat * reflection_pdf(cg, wo, h)
-                + probs.spec * reflection_pdf(ggx, wo, h)
+            let mut f = (spec_f + p.base * FRAC_1_PI * diffuse_w) * (1.0 - coat);
+            let mut pdf = probs.spec * reflection_pdf(ggx, wo, h)
                 + (probs.diffuse + probs.ms) * cosine_hemisphere_pdf(wi.z);
+            if coat > 0.0 {
+                let cg = &p.coat_ggx;
+                f += Vec3A::splat(coat * cg.d(h) * cg.g(wo, wi) / (4.0 * wo.z * wi.z));
+                pdf += probs.coat * reflection_pdf(cg, wo, h);
+            }
             return (f, pdf);
         }
         let weight = dielectric * p.transmission * (1.0 - coat);
