@@ -2,6 +2,11 @@
 //! compressed wide BVH (CWBVH, 8 children per node, traversed 4 nodes at a time with SIMD) from
 //! primitive bounds, and traverses it with a closure that intersects one primitive.
 //!
+//! CWBVH over obvhs's BVH2 traversal, measured (2026-11-30, 2 threads, `raytile bench`): on
+//! the Cornell box 34.7 vs 15.9 Mrays/s for coherent rays and 20.8 vs 5.3 incoherent, path
+//! tracing 2.56 vs 0.93 Msamples/s; on a 1 M-triangle mesh (fast_build) 8.1 vs 6.3 Mrays/s
+//! coherent and 2.40 vs 0.66 incoherent.
+//!
 //! Primitives are identified by their *slot*: the position in BVH order. [`Bvh::build`] returns
 //! the permutation so callers can store their primitives in slot order (no indirection per hit).
 
