@@ -146,8 +146,22 @@ pub struct SceneStats {
     pub lights: usize,
 }
 
+/// A mesh triangle that emits, in world space, precomputed at build time.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct LightTri {
+    /// Its corners.
+    pub geom: TriangleGeom,
+    /// Unit geometric normal (front side).
+    pub ng: Vec3A,
+    /// Area.
+    pub area: f32,
+}
+
 /// A scene ready to render.
 pub struct Scene {
+    /// World-space geometry of each mesh-triangle area light, by light index (`None` for
+    /// other lights): sampling a light does no transform per sample.
+    pub(crate) light_tris: Vec<Option<LightTri>>,
     pub(crate) camera: Camera,
     pub(crate) objects: Vec<Object>,
     pub(crate) meshes: Vec<Mesh>,
@@ -377,6 +391,7 @@ impl Scene {
 
         // Lights.
         let mut lights = Vec::new();
+        let mut light_tris: Vec<Option<LightTri>> = Vec::new();
         for (li, l) in desc.lights.iter().enumerate() {
             lights.push(build_light(l).map_err(|e| invalid(format!("light {li}: {e}")))?);
         }
@@ -392,8 +407,17 @@ impl Scene {
                     o.light_base = lights.len() as u32;
                     let m = &meshes[*mesh as usize];
                     for ti in 0..m.indices.len() {
-                        let c = m.corners(ti).map(|v| o.to_world.transform_point3a(v));
-                        let area = 0.5 * (c[1] - c[0]).cross(c[2] - c[0]).length();
+                        let local = TriangleGeom::new(m.corners(ti));
+                        let geom = TriangleGeom::new(
+                            m.corners(ti).map(|v| o.to_world.transform_point3a(v)),
+                        );
+                        let area = 0.5 * geom.normal().length();
+                        light_tris.resize(lights.len(), None);
+                        light_tris.push(Some(LightTri {
+                            geom,
+                            ng: (o.normal_matrix * local.normal()).normalize_or(Vec3A::Y),
+                            area,
+                        }));
                         lights.push(Light::Area {
                             object: oi as u32,
                             prim: ti as u32,
@@ -425,9 +449,11 @@ impl Scene {
             lights.push(Light::Environment);
         }
         stats.lights = lights.len();
+        light_tris.resize(lights.len(), None);
         let lights = LightSet::new(lights, scene_radius, env_power);
 
         Ok(Scene {
+            light_tris,
             camera,
             objects,
             meshes,
@@ -923,13 +949,8 @@ impl Scene {
                 let m = &self.meshes[*mesh as usize];
                 let (b1, b2) = crate::sampling::warp::uniform_triangle(u);
                 // Only what emission needs: point, front normal, and uv if it is textured.
-                let local = TriangleGeom::new(m.corners(prim as usize));
-                let geom = TriangleGeom::new(
-                    m.corners(prim as usize)
-                        .map(|v| o.to_world.transform_point3a(v)),
-                );
-                let area = 0.5 * geom.normal().length();
-                let ng = (o.normal_matrix * local.normal()).normalize_or(Vec3A::Y);
+                let lt = self.light_tris[(o.light_base + prim) as usize].as_ref()?;
+                let (geom, ng, area) = (&lt.geom, lt.ng, lt.area);
                 let textured = self.materials[o.material as usize].slots.emission.is_some();
                 let uv = if textured {
                     self.mesh_uvs(m, prim, b1, b2)
@@ -998,13 +1019,10 @@ impl Scene {
             };
         let pmf = self.lights.pmf(li as usize);
         let pdf_area = match &o.kind {
-            ObjectKind::Mesh { mesh, .. } => {
-                let m = &self.meshes[*mesh as usize];
-                let c = m
-                    .corners(it.prim as usize)
-                    .map(|v| o.to_world.transform_point3a(v));
-                1.0 / (0.5 * (c[1] - c[0]).cross(c[2] - c[0]).length())
-            }
+            ObjectKind::Mesh { .. } => match &self.light_tris[li as usize] {
+                Some(lt) => 1.0 / lt.area,
+                None => return 0.0,
+            },
             ObjectKind::Analytic(a) => {
                 let n_obj = o.to_world.matrix3.transpose() * it.ng;
                 // |M⁻ᵀ n_obj| with n_obj unit: recover from the world normal.
