@@ -45,6 +45,10 @@ pub struct RenderFlags {
     /// Progressive passes the samples are split into (part of the job: same passes, same bits).
     #[arg(long)]
     pub passes: Option<u32>,
+    /// A glTF scene without any light renders black instead of under the default white
+    /// environment.
+    #[arg(long)]
+    pub no_default_light: bool,
 }
 
 impl RenderFlags {
@@ -73,6 +77,7 @@ impl RenderFlags {
         };
         s.tile_size = self.tile_size.unwrap_or(s.tile_size);
         s.passes = self.passes.unwrap_or(s.passes);
+        s.default_light = !self.no_default_light;
         if let Err((field, msg)) = s.validate() {
             bail!("--{}: {msg}", field.replace('_', "-"));
         }

@@ -32,6 +32,9 @@ pub struct JobFlags {
     /// Camera name or index.
     #[arg(long)]
     pub camera: Option<String>,
+    /// Pixel filter: box, gaussian, blackman-harris.
+    #[arg(long)]
+    pub filter: Option<String>,
     /// Tile edge in pixels.
     #[arg(long)]
     pub tile_size: Option<u32>,
@@ -41,6 +44,10 @@ pub struct JobFlags {
     /// Job priority (higher first).
     #[arg(long, allow_hyphen_values = true)]
     pub priority: Option<i32>,
+    /// A glTF scene without any light renders black instead of under the default white
+    /// environment.
+    #[arg(long)]
+    pub no_default_light: bool,
 }
 
 impl JobFlags {
@@ -60,10 +67,16 @@ impl JobFlags {
                 .map_err(|e: String| anyhow!("--integrator: {e}"))?,
             seed: self.seed,
             camera: self.camera.clone(),
-            filter: None,
+            filter: self
+                .filter
+                .as_deref()
+                .map(str::parse)
+                .transpose()
+                .map_err(|e: String| anyhow!("--filter: {e}"))?,
             tile_size: self.tile_size,
             passes: self.passes,
             priority: self.priority,
+            default_light: self.no_default_light.then_some(false),
         })
     }
 }

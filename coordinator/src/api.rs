@@ -223,6 +223,7 @@ pub fn job_settings(
     s.camera = r.camera.clone().or(d.camera.clone());
     s.tile_size = r.tile_size.unwrap_or(s.tile_size);
     s.passes = r.passes.unwrap_or(s.passes);
+    s.default_light = r.default_light.unwrap_or(s.default_light);
     s.integrator = match (r.integrator, &d.integrator) {
         (Some(i), _) => i,
         (None, Some(name)) => name

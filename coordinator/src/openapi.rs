@@ -35,7 +35,8 @@ pub fn document() -> Value {
                     "scene": {"type": "string"}, "width": {"type": "integer"}, "height": {"type": "integer"}, "spp": {"type": "integer"},
                     "max_depth": {"type": "integer"}, "integrator": {"type": "string", "enum": ["path", "whitted", "normals", "albedo", "depth", "ao"]},
                     "seed": {"type": "integer"}, "camera": {"type": "string"}, "filter": {"type": "string", "enum": ["box", "gaussian", "blackman-harris"]},
-                    "tile_size": {"type": "integer"}, "passes": {"type": "integer"}, "priority": {"type": "integer"}}},
+                    "tile_size": {"type": "integer"}, "passes": {"type": "integer"}, "priority": {"type": "integer"},
+                    "default_light": {"type": "boolean"}}},
                 "JobStatus": {"type": "object", "properties": {
                     "id": {"type": "string"}, "scene": {"type": "string"}, "state": {"type": "string", "enum": ["queued", "running", "done", "failed", "cancelled"]},
                     "priority": {"type": "integer"}, "settings": {"type": "object"}, "tiles_total": {"type": "integer"}, "tiles_done": {"type": "integer"},

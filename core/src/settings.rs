@@ -157,6 +157,9 @@ pub struct RenderSettings {
     /// Number of progressive passes the samples are split into. Part of the job's identity: the
     /// per-pixel sums are added pass by pass in order, so the same `passes` gives the same bits.
     pub passes: u32,
+    /// Whether a glTF scene without any light gets the default white environment its loader
+    /// adds (as glTF viewers do). `false` renders such a scene black.
+    pub default_light: bool,
 }
 
 impl Default for RenderSettings {
@@ -172,6 +175,7 @@ impl Default for RenderSettings {
             filter: FilterKind::Box,
             tile_size: 32,
             passes: 1,
+            default_light: true,
         }
     }
 }

@@ -225,3 +225,35 @@ fn each_camera_renders_its_own_view() {
         "the cameras must see different images"
     );
 }
+
+/// Box has no light: the loader adds the default white environment, so the path tracer sees
+/// the box and the background; with `default_light` off (`--no-default-light`) the same
+/// scene renders black. A scene with its own light keeps it either way.
+#[test]
+fn default_light_can_be_turned_off() {
+    let Some(desc) = load(SAMPLES, "Box/Box.glb") else {
+        return;
+    };
+    assert!(desc.default_environment);
+    let sum = |default_light: bool, desc: &SceneDesc| {
+        let settings = RenderSettings {
+            width: 16,
+            height: 16,
+            spp: 4,
+            default_light,
+            ..Default::default()
+        };
+        let scene = Scene::build(desc, &settings).unwrap();
+        let film = render(&scene, &settings, &());
+        film.resolve()
+            .into_iter()
+            .map(|p| Vec3::from(p).element_sum())
+            .sum::<f32>()
+    };
+    assert!(sum(true, &desc) > 0.0);
+    assert_eq!(sum(false, &desc), 0.0);
+    if let Some(cornell) = load(SCENES, "cornell-box.gltf") {
+        assert!(!cornell.default_environment);
+        assert!(sum(false, &cornell) > 0.0);
+    }
+}

@@ -80,6 +80,9 @@ pub struct JobRequest {
     /// Higher runs first; equal priorities run in submission order. Default 0.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub priority: Option<i32>,
+    /// `false`: no default environment for a glTF scene without lights (default true).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub default_light: Option<bool>,
 }
 
 /// State of a job.

@@ -443,7 +443,11 @@ impl Scene {
                 }
             }
         }
-        let environment = desc.environment.as_ref().map(Environment::new);
+        let environment = if desc.default_environment && !settings.default_light {
+            None
+        } else {
+            desc.environment.as_ref().map(Environment::new)
+        };
         let env_power = environment.as_ref().map_or(0.0, |e| e.power(scene_radius));
         if environment.is_some() {
             lights.push(Light::Environment);

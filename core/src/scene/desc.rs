@@ -26,6 +26,9 @@ pub struct SceneDesc {
     pub lights: Vec<LightDesc>,
     /// Light arriving from infinitely far away, if any.
     pub environment: Option<EnvironmentDesc>,
+    /// `environment` is the default one a loader added because the scene has no light;
+    /// [`crate::RenderSettings::default_light`] `false` leaves it out.
+    pub default_environment: bool,
     /// Cameras; the render picks one by name or index (`--camera`), the first by default.
     pub cameras: Vec<CameraDesc>,
     /// Render settings the scene file asks for; command-line flags and job settings override them.

@@ -630,6 +630,7 @@ impl Loader<'_> {
             self.desc.environment = Some(EnvironmentDesc::Constant {
                 radiance: Vec3::ONE,
             });
+            self.desc.default_environment = true;
             self.warn(
                 "the scene has no light (no punctual light, no emissive material): a constant white environment was added".into(),
             );
