@@ -261,7 +261,7 @@ pub async fn submit_and_follow(
         .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     while !job.state.is_final() {
-        tokio::time::sleep(Duration::from_millis(300)).await;
+        tokio::time::sleep(Duration::from_millis(100)).await;
         job = c
             .send(c.req(reqwest::Method::GET, &format!("/v1/jobs/{}", job.id)))
             .await?

@@ -143,6 +143,7 @@ impl From<reqwest::Error> for HttpError {
     }
 }
 
+#[derive(Clone)]
 struct Client {
     http: reqwest::Client,
     base: String,
@@ -221,6 +222,7 @@ pub async fn run(config: Config, shutdown: impl Future<Output = ()> + Send) -> a
         scenes: HashMap::new(),
         verified: HashSet::new(),
         backoff: Backoff::new(Duration::from_secs(30)),
+        uploads: tokio::task::JoinSet::new(),
     };
     w.backoff = Backoff::new(w.cfg.max_backoff);
     tokio::pin!(shutdown);
@@ -236,6 +238,16 @@ pub async fn run(config: Config, shutdown: impl Future<Output = ()> + Send) -> a
             Some(None) => Flow::Continue,
         };
         if let Flow::Exit = flow {
+            if !w.uploads.is_empty() {
+                tracing::info!("worker stopping: delivering the last result first");
+                let drain = async { while w.uploads.join_next().await.is_some() {} };
+                if tokio::time::timeout(Duration::from_secs(30), drain)
+                    .await
+                    .is_err()
+                {
+                    tracing::warn!("the last result could not be delivered; its lease will expire");
+                }
+            }
             tracing::info!("worker stopping");
             return Ok(());
         }
@@ -253,6 +265,9 @@ struct Worker {
     scenes: HashMap<String, Arc<Scene>>,
     verified: HashSet<String>,
     backoff: Backoff,
+    /// The result being uploaded while the next task renders (at most one). Dropping the
+    /// worker aborts it, as killing the process would.
+    uploads: tokio::task::JoinSet<()>,
 }
 
 fn panic_message(p: Box<dyn std::any::Any + Send>) -> String {
@@ -556,46 +571,70 @@ impl Worker {
             lease.task,
             self.worker_id.as_deref().unwrap_or("")
         );
-        let mut attempts = 0;
-        loop {
-            attempts += 1;
-            let r = self
-                .client
-                .send(
-                    self.client
-                        .req(reqwest::Method::PUT, &path)
-                        .header(reqwest::header::CONTENT_TYPE, "application/octet-stream")
-                        .body(bytes.clone()),
-                )
-                .await;
-            match r {
-                Ok(resp) => {
-                    let reply = resp.json::<proto::ResultReply>().await.ok();
-                    let c = if reply.as_ref().is_some_and(|r| r.accepted) {
-                        &self.cfg.stats.accepted
-                    } else {
-                        &self.cfg.stats.duplicates
-                    };
-                    c.fetch_add(1, Ordering::Relaxed);
-                    self.backoff.reset();
-                    return Flow::Continue;
-                }
-                Err(e) if e.status.is_some_and(|s| s.is_client_error()) => {
-                    tracing::warn!(job = %lease.job, task = lease.task, "result refused: {e}");
-                    return Flow::Continue;
-                }
-                Err(e) => {
-                    let d = self.backoff.step();
-                    tracing::warn!(
-                        "result upload failed ({e}); retrying in {:.1} s",
-                        d.as_secs_f64()
-                    );
-                    tokio::select! {
-                        biased;
-                        _ = &mut *shutdown, if attempts > 3 => return Flow::Exit,
-                        _ = tokio::time::sleep(d) => {}
-                    }
-                }
+        // Upload in the background while the next task renders (the round trip and the
+        // coordinator's commit would otherwise idle the render threads), but keep at most one
+        // result in flight: wait for the previous upload first.
+        let stopping = tokio::select! {
+            biased;
+            _ = &mut *shutdown => true,
+            _ = async { while self.uploads.join_next().await.is_some() {} } => false,
+        };
+        self.uploads.spawn(upload_result(
+            self.client.clone(),
+            path,
+            bytes,
+            self.cfg.stats.clone(),
+            self.cfg.max_backoff,
+        ));
+        if stopping {
+            Flow::Exit
+        } else {
+            Flow::Continue
+        }
+    }
+}
+
+/// Uploads one tile result, retrying with backoff until the coordinator answers; a refusal
+/// (4xx) is logged and dropped (the task is someone else's by now, or the job is gone).
+async fn upload_result(
+    client: Client,
+    path: String,
+    bytes: Vec<u8>,
+    stats: Arc<Stats>,
+    max_backoff: Duration,
+) {
+    let mut backoff = Backoff::new(max_backoff);
+    loop {
+        let r = client
+            .send(
+                client
+                    .req(reqwest::Method::PUT, &path)
+                    .header(reqwest::header::CONTENT_TYPE, "application/octet-stream")
+                    .body(bytes.clone()),
+            )
+            .await;
+        match r {
+            Ok(resp) => {
+                let reply = resp.json::<proto::ResultReply>().await.ok();
+                let c = if reply.as_ref().is_some_and(|r| r.accepted) {
+                    &stats.accepted
+                } else {
+                    &stats.duplicates
+                };
+                c.fetch_add(1, Ordering::Relaxed);
+                return;
+            }
+            Err(e) if e.status.is_some_and(|s| s.is_client_error()) => {
+                tracing::warn!("result refused ({path}): {e}");
+                return;
+            }
+            Err(e) => {
+                let d = backoff.step();
+                tracing::warn!(
+                    "result upload failed ({e}); retrying in {:.1} s",
+                    d.as_secs_f64()
+                );
+                tokio::time::sleep(d).await;
             }
         }
     }
