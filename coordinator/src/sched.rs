@@ -832,7 +832,29 @@ impl Sched {
         let wf = *wf;
         job.cursor = job.cursor.min(idx);
         let (tile, pass, _) = job.task_work(idx);
-        if fatal {
+        // A job every live worker is blocked from would wait for ever: fail it instead. Live:
+        // seen within three lease timeouts (at least a minute); workers that vanished long
+        // ago do not keep it alive.
+        let block = self.cfg.block_worker_after;
+        let live_ms = (3 * self.cfg.lease_timeout.as_millis() as u64).max(60_000);
+        let now_ms = wall_ms();
+        let all_blocked = !fatal
+            && wf >= block
+            && self
+                .workers
+                .iter()
+                .filter(|(_, w)| now_ms.saturating_sub(w.last_seen_ms) <= live_ms)
+                .all(|(id, _)| job.worker_failures.get(id).copied().unwrap_or(0) >= block);
+        if all_blocked {
+            job.state = JobState::Failed;
+            job.finished_ms = Some(wall_ms());
+            job.error = Some(format!(
+                "every worker failed this job {block} times, so none may take it any more; last error, from worker {worker} on tile [{}, {}) × [{}, {}) pass {pass}: {error}",
+                tile.x0, tile.x1, tile.y0, tile.y1
+            ));
+        }
+        let fatal = fatal || all_blocked;
+        if fatal && !all_blocked {
             job.state = JobState::Failed;
             job.finished_ms = Some(wall_ms());
             job.error = Some(format!(

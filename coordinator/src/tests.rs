@@ -221,6 +221,57 @@ fn repeated_failures_fail_the_job_and_block_the_worker() {
 }
 
 #[test]
+fn a_job_every_live_worker_is_blocked_from_fails_instead_of_waiting() {
+    let dir = tempfile::tempdir().unwrap();
+    let now = Instant::now();
+    // Tasks may fail often (10 times) but a worker is blocked after 2 failures.
+    let config = SchedConfig {
+        max_task_failures: 10,
+        ..cfg()
+    };
+    let mut s = Sched::restore(
+        config.clone(),
+        Store::open(dir.path()).unwrap(),
+        now,
+        Duration::ZERO,
+    )
+    .unwrap();
+    let a = s.register("a", 1).unwrap();
+    let b = s.register("b", 1).unwrap();
+    // A worker not seen for a long time does not keep the job alive.
+    let gone = s.register("gone", 1).unwrap();
+    s.workers.get_mut(&gone).unwrap().last_seen_ms = 0;
+    let job = s.create_job("s".into(), small(2), 0).unwrap().id;
+    // Each worker fails twice: no task reaches 10 failures, both get blocked.
+    for w in [&a, &b] {
+        for _ in 0..2 {
+            let (_, _, l) = s.lease(w, now).unwrap().unwrap();
+            assert!(s.fail(&l, &format!("no GPU on {w}")).unwrap());
+        }
+        if *w == a {
+            assert_eq!(s.jobs[&job].state, JobState::Running, "b may still take it");
+        }
+    }
+    let j = &s.jobs[&job];
+    assert_eq!(j.state, JobState::Failed);
+    let err = j.error.as_deref().unwrap();
+    assert!(
+        err.contains("every worker") && err.contains("no GPU"),
+        "{err}"
+    );
+    // Persisted: a restarted coordinator sees the job failed.
+    drop(s);
+    let s = Sched::restore(
+        config,
+        Store::open(dir.path()).unwrap(),
+        now,
+        Duration::ZERO,
+    )
+    .unwrap();
+    assert_eq!(s.jobs[&job].state, JobState::Failed);
+}
+
+#[test]
 fn restart_resumes_without_redoing_finished_tasks() {
     let dir = tempfile::tempdir().unwrap();
     let t0 = Instant::now();
