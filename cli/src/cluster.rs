@@ -74,7 +74,10 @@ async fn cluster(a: ClusterArgs) -> anyhow::Result<()> {
         .with_context(|| format!("cannot listen on {addr}"))?;
     let addr = listener.local_addr()?;
     let base = format!("http://{addr}");
+    // Workers stop first (handing back leases, delivering their last result), then the
+    // coordinator: each has its own signal.
     let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+    let (stop_workers_tx, stop_workers_rx) = tokio::sync::watch::channel(false);
     let stopped = |mut rx: tokio::sync::watch::Receiver<bool>| async move {
         let _ = rx.wait_for(|v| *v).await;
     };
@@ -96,7 +99,7 @@ async fn cluster(a: ClusterArgs) -> anyhow::Result<()> {
         wc.cache_dir = tmp.path().join(format!("cache-{i}"));
         workers.push(tokio::spawn(raytile_worker::run(
             wc,
-            stopped(stop_rx.clone()),
+            stopped(stop_workers_rx.clone()),
         )));
     }
     let result = match &a.render {
@@ -112,10 +115,11 @@ async fn cluster(a: ClusterArgs) -> anyhow::Result<()> {
             Ok(())
         }
     };
-    let _ = stop_tx.send(true);
+    let _ = stop_workers_tx.send(true);
     for w in workers {
         let _ = w.await;
     }
+    let _ = stop_tx.send(true);
     let _ = coord.await;
     result
 }

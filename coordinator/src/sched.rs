@@ -410,6 +410,27 @@ pub struct Sched {
     pub counters: Counters,
     /// Recent (time, samples) for the samples-per-second gauge.
     recent: VecDeque<(Instant, u64)>,
+    /// When this coordinator started (wall ms): restored workers count as live from then on
+    /// until they have had time to call in.
+    pub(crate) started_ms: u64,
+}
+
+/// Whether every live worker is blocked from a job (and at least one is live). Live: seen,
+/// or restored at start-up, within three lease timeouts (at least a minute).
+fn all_live_blocked(
+    workers: &HashMap<String, WorkerRec>,
+    failures: &HashMap<String, u32>,
+    cfg: &SchedConfig,
+    started_ms: u64,
+) -> bool {
+    let live_ms = (3 * cfg.lease_timeout.as_millis() as u64).max(60_000);
+    let now_ms = wall_ms();
+    let mut live = workers
+        .iter()
+        .filter(|(_, w)| now_ms.saturating_sub(w.last_seen_ms.max(started_ms)) <= live_ms)
+        .peekable();
+    live.peek().is_some()
+        && live.all(|(id, _)| failures.get(id).copied().unwrap_or(0) >= cfg.block_worker_after)
 }
 
 fn task_row(idx: usize, t: &Task) -> TaskRow {
@@ -449,6 +470,7 @@ impl Sched {
             ids: 0,
             counters: Counters::default(),
             recent: VecDeque::new(),
+            started_ms: wall_ms(),
         };
         for (id, name, threads, registered_ms) in s.store.workers()? {
             s.workers.insert(
@@ -832,19 +854,21 @@ impl Sched {
         let wf = *wf;
         job.cursor = job.cursor.min(idx);
         let (tile, pass, _) = job.task_work(idx);
-        // A job every live worker is blocked from would wait for ever: fail it instead. Live:
-        // seen within three lease timeouts (at least a minute); workers that vanished long
-        // ago do not keep it alive.
+        // A job every live worker is blocked from would wait for ever: fail it instead.
+        // Workers that vanished long ago do not keep it alive (see `all_live_blocked`; the
+        // expiry tick checks again as workers come and go).
         let block = self.cfg.block_worker_after;
-        let live_ms = (3 * self.cfg.lease_timeout.as_millis() as u64).max(60_000);
-        let now_ms = wall_ms();
+        if let Some(w) = self.workers.get_mut(&worker) {
+            w.last_seen_ms = wall_ms();
+        }
         let all_blocked = !fatal
             && wf >= block
-            && self
-                .workers
-                .iter()
-                .filter(|(_, w)| now_ms.saturating_sub(w.last_seen_ms) <= live_ms)
-                .all(|(id, _)| job.worker_failures.get(id).copied().unwrap_or(0) >= block);
+            && all_live_blocked(
+                &self.workers,
+                &job.worker_failures,
+                &self.cfg,
+                self.started_ms,
+            );
         if all_blocked {
             job.state = JobState::Failed;
             job.finished_ms = Some(wall_ms());
@@ -918,6 +942,33 @@ impl Sched {
             tracing::info!(job = %job_id, task = i, "lease expired; task re-queued");
         }
         self.counters.expired += expired.len() as u64;
+        // Jobs every live worker is blocked from (the last one blocked may have gone since).
+        let stuck: Vec<String> = self
+            .jobs
+            .values()
+            .filter(|j| !j.state.is_final() && !j.worker_failures.is_empty())
+            .filter(|j| {
+                all_live_blocked(
+                    &self.workers,
+                    &j.worker_failures,
+                    &self.cfg,
+                    self.started_ms,
+                )
+            })
+            .map(|j| j.id.clone())
+            .collect();
+        for id in stuck {
+            let job = self.jobs.get_mut(&id).expect("listed above");
+            job.state = JobState::Failed;
+            job.finished_ms = Some(wall_ms());
+            job.error = Some(format!(
+                "every live worker failed this job {} times, so none may take it any more",
+                self.cfg.block_worker_after
+            ));
+            tracing::warn!(job = %id, "failed: every live worker is blocked from it");
+            let job = self.jobs.get(&id).expect("present");
+            self.save_job(job)?;
+        }
         Ok(expired.len())
     }
 

@@ -238,9 +238,11 @@ fn a_job_every_live_worker_is_blocked_from_fails_instead_of_waiting() {
     .unwrap();
     let a = s.register("a", 1).unwrap();
     let b = s.register("b", 1).unwrap();
-    // A worker not seen for a long time does not keep the job alive.
+    // A worker not seen for a long time (nor restored at a recent start) does not keep the
+    // job alive.
     let gone = s.register("gone", 1).unwrap();
     s.workers.get_mut(&gone).unwrap().last_seen_ms = 0;
+    s.started_ms = 0;
     let job = s.create_job("s".into(), small(2), 0).unwrap().id;
     // Each worker fails twice: no task reaches 10 failures, both get blocked.
     for w in [&a, &b] {
@@ -259,7 +261,28 @@ fn a_job_every_live_worker_is_blocked_from_fails_instead_of_waiting() {
         err.contains("every worker") && err.contains("no GPU"),
         "{err}"
     );
-    // Persisted: a restarted coordinator sees the job failed.
+    // The expiry tick fails a job whose last blocked worker's peers have gone since.
+    let job2 = s.create_job("s".into(), small(1), 0).unwrap().id;
+    for _ in 0..2 {
+        let (_, _, l) = s.lease(&a, now).unwrap().unwrap();
+        assert!(s.fail(&l, "no GPU").unwrap());
+    }
+    assert_eq!(s.jobs[&job2].state, JobState::Running, "b is live");
+    s.workers.get_mut(&b).unwrap().last_seen_ms = 0;
+    s.expire(now).unwrap();
+    let j2 = &s.jobs[&job2];
+    assert_eq!(j2.state, JobState::Failed);
+    assert!(j2.error.as_deref().unwrap().contains("every live worker"));
+    // With no live worker at all, nothing is failed: workers may come back.
+    let job3 = s.create_job("s".into(), small(1), 0).unwrap().id;
+    let (_, _, l) = s.lease(&b, now).unwrap().unwrap();
+    assert!(s.fail(&l, "oops").unwrap());
+    for w in s.workers.values_mut() {
+        w.last_seen_ms = 0;
+    }
+    s.expire(now).unwrap();
+    assert_ne!(s.jobs[&job3].state, JobState::Failed);
+    // Persisted: a restarted coordinator sees the jobs failed.
     drop(s);
     let s = Sched::restore(
         config,

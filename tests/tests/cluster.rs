@@ -131,6 +131,34 @@ mod support {
         }
     }
 
+    /// A child process killed (SIGKILL) and reaped when dropped, also when a test fails.
+    pub struct Proc(pub std::process::Child);
+
+    impl Drop for Proc {
+        fn drop(&mut self) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+
+    /// A built binary next to the test executable. With RAYTILE_SLOW_TESTS=1 a missing one is
+    /// a failure, not a skip.
+    pub fn built_binary(name: &str) -> PathBuf {
+        let p = std::env::current_exe()
+            .unwrap()
+            .parent()
+            .unwrap()
+            .parent()
+            .unwrap()
+            .join(name);
+        assert!(
+            p.exists(),
+            "{} not built: run the workspace's tests (cargo test --workspace builds it)",
+            p.display()
+        );
+        p
+    }
+
     /// Uploads a scene file, returns its id.
     pub async fn upload(base: &str, bytes: Vec<u8>) -> String {
         let r = reqwest::Client::new()
@@ -440,31 +468,20 @@ mod faults {
             return;
         }
         let Some(scene) = cornell() else { return };
-        let bin_dir = std::env::current_exe()
-            .unwrap()
-            .parent()
-            .unwrap()
-            .parent()
-            .unwrap()
-            .to_path_buf();
-        let worker_bin = bin_dir.join("raytile-worker");
-        if !worker_bin.exists() {
-            eprintln!(
-                "skipping: {} not built (cargo build -p raytile-worker)",
-                worker_bin.display()
-            );
-            return;
-        }
+        let worker_bin = built_binary("raytile-worker");
         let dir = tempfile::tempdir().unwrap();
         let c = Coord::start(test_config(&dir.path().join("data")), 0).await;
         let spawn = |name: &str| {
-            std::process::Command::new(&worker_bin)
-                .args(["--coordinator", &c.base, "--threads", "1", "--name", name])
-                .arg("--cache-dir")
-                .arg(dir.path().join(name))
-                .stderr(std::process::Stdio::null())
-                .spawn()
-                .unwrap()
+            Proc(
+                std::process::Command::new(&worker_bin)
+                    .args(["--coordinator", &c.base, "--threads", "1", "--name", name])
+                    .arg("--cache-dir")
+                    .arg(dir.path().join(name))
+                    .stdout(std::process::Stdio::null())
+                    .stderr(std::process::Stdio::null())
+                    .spawn()
+                    .unwrap(),
+            )
         };
         let mut victim = spawn("victim");
         let id = upload(&c.base, std::fs::read(&scene).unwrap()).await;
@@ -473,12 +490,11 @@ mod faults {
             s.tasks_leased > 0 || s.state.is_final()
         })
         .await;
-        victim.kill().unwrap(); // SIGKILL
-        let _ = victim.wait();
-        let mut survivor = spawn("survivor");
+        victim.0.kill().unwrap(); // SIGKILL
+        let _ = victim.0.wait();
+        let survivor = spawn("survivor");
         let done = wait_for(&c.base, &j.id, 300, |s| s.state.is_final()).await;
-        let _ = survivor.kill();
-        let _ = survivor.wait();
+        drop(survivor);
         assert_eq!(done.state, JobState::Done);
         assert_eq!(
             image(&c.base, &j.id, "exr").await,
@@ -498,20 +514,7 @@ mod faults {
             return;
         }
         let Some(scene) = cornell() else { return };
-        let bin = std::env::current_exe()
-            .unwrap()
-            .parent()
-            .unwrap()
-            .parent()
-            .unwrap()
-            .join("raytile-coordinator");
-        if !bin.exists() {
-            eprintln!(
-                "skipping: {} not built (cargo build -p raytile-coordinator)",
-                bin.display()
-            );
-            return;
-        }
+        let bin = built_binary("raytile-coordinator");
         let dir = tempfile::tempdir().unwrap();
         let port = std::net::TcpListener::bind("127.0.0.1:0")
             .unwrap()
@@ -519,16 +522,21 @@ mod faults {
             .unwrap()
             .port();
         let base = format!("http://127.0.0.1:{port}");
-        let start = || {
-            std::process::Command::new(&bin)
-                .args(["--listen", &format!("127.0.0.1:{port}")])
-                .arg("--data-dir")
-                .arg(dir.path().join("data"))
-                .args(["--lease-timeout", "2", "--startup-grace", "5"])
-                .env_remove("RAYTILE_TOKEN")
-                .stderr(std::process::Stdio::null())
-                .spawn()
-                .unwrap()
+        // Leases long enough that no stall on a loaded machine expires one (a task rendered
+        // twice would fail the count below); the grace covers the leases out at the kill.
+        let start = |log: &str| {
+            Proc(
+                std::process::Command::new(&bin)
+                    .args(["--listen", &format!("127.0.0.1:{port}")])
+                    .arg("--data-dir")
+                    .arg(dir.path().join("data"))
+                    .args(["--lease-timeout", "10", "--startup-grace", "10"])
+                    .env_remove("RAYTILE_TOKEN")
+                    .stdout(std::process::Stdio::null())
+                    .stderr(std::fs::File::create(dir.path().join(log)).unwrap())
+                    .spawn()
+                    .unwrap(),
+            )
         };
         let wait_healthy = || async {
             for _ in 0..300 {
@@ -540,9 +548,13 @@ mod faults {
                 }
                 tokio::time::sleep(Duration::from_millis(50)).await;
             }
-            panic!("the coordinator process did not come up");
+            let logs: Vec<String> = ["first.log", "second.log"]
+                .iter()
+                .map(|l| std::fs::read_to_string(dir.path().join(l)).unwrap_or_default())
+                .collect();
+            panic!("the coordinator process did not come up; its logs:\n{logs:#?}");
         };
-        let mut coord = start();
+        let mut coord = start("first.log");
         wait_healthy().await;
         let ws: Vec<Worker> = (0..2)
             .map(|i| Worker::start(&base, 1, dir.path(), &format!("w{i}")))
@@ -551,21 +563,21 @@ mod faults {
         let j = submit(
             &base,
             &JobRequest {
-                spp: Some(64),
+                spp: Some(128),
                 ..job(&id, 16)
             },
         )
         .await;
         let before = wait_for(&base, &j.id, 60, |s| s.tasks_done >= 3).await;
-        coord.kill().unwrap(); // SIGKILL: no shutdown code runs
-        assert!(
-            before.tasks_done < before.tasks_total,
-            "the job ended before the kill: make it longer"
-        );
-        let _ = coord.wait();
-        let mut coord = start();
+        coord.0.kill().unwrap(); // SIGKILL: no shutdown code runs
+        let _ = coord.0.wait();
+        let coord = start("second.log");
         wait_healthy().await;
         let resumed = status(&base, &j.id).await;
+        assert!(
+            !resumed.state.is_final(),
+            "the job ended before the kill: make it longer"
+        );
         assert!(
             resumed.tasks_done >= before.tasks_done,
             "finished tasks were lost: {} before the kill, {} after",
@@ -589,8 +601,7 @@ mod faults {
         for w in ws {
             w.stop().await;
         }
-        let _ = coord.kill();
-        let _ = coord.wait();
+        drop(coord);
     }
 }
 

@@ -594,8 +594,14 @@ impl Worker {
     }
 }
 
-/// Uploads one tile result, retrying with backoff until the coordinator answers; a refusal
-/// (4xx) is logged and dropped (the task is someone else's by now, or the job is gone).
+/// Server errors (5xx) after which a result upload is given up.
+const UPLOAD_SERVER_ERRORS: u32 = 5;
+
+/// Uploads one tile result. While the coordinator cannot be reached it retries with backoff
+/// for as long as it takes (a restarted coordinator accepts the result); a refusal (4xx) is
+/// dropped at once (the task is someone else's by now, or the job is gone), and a server
+/// error (5xx) after [`UPLOAD_SERVER_ERRORS`] attempts, so that one result the coordinator
+/// cannot store never wedges the worker: its lease expires and the tile is rendered again.
 async fn upload_result(
     client: Client,
     path: String,
@@ -604,6 +610,7 @@ async fn upload_result(
     max_backoff: Duration,
 ) {
     let mut backoff = Backoff::new(max_backoff);
+    let mut server_errors = 0;
     loop {
         let r = client
             .send(
@@ -629,6 +636,13 @@ async fn upload_result(
                 return;
             }
             Err(e) => {
+                if e.status.is_some() {
+                    server_errors += 1;
+                    if server_errors >= UPLOAD_SERVER_ERRORS {
+                        tracing::warn!("result dropped after {server_errors} errors ({path}): {e}");
+                        return;
+                    }
+                }
                 let d = backoff.step();
                 tracing::warn!(
                     "result upload failed ({e}); retrying in {:.1} s",
