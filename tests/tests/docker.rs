@@ -119,15 +119,23 @@ impl Compose {
         c
     }
 
-    /// `up -d` with `workers` workers.
+    /// `up -d` with `workers` workers (2, the file's `deploy.replicas`, without `--scale`).
     fn up(name: &str, workers: usize) -> Compose {
         let c = Compose {
             project: format!("raytiletest{name}{}", std::process::id()),
             port: free_port(),
         };
-        run(c
-            .cmd()
-            .args(["up", "-d", "--scale", &format!("worker={workers}")]));
+        let mut cmd = c.cmd();
+        cmd.args(["up", "-d"]);
+        if workers != 2 {
+            cmd.args(["--scale", &format!("worker={workers}")]);
+        }
+        run(&mut cmd);
+        assert_eq!(
+            c.containers("worker").len(),
+            workers,
+            "compose started the wrong number of workers"
+        );
         c
     }
 
