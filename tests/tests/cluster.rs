@@ -516,11 +516,7 @@ mod faults {
         let Some(scene) = cornell() else { return };
         let bin = built_binary("raytile-coordinator");
         let dir = tempfile::tempdir().unwrap();
-        let port = std::net::TcpListener::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port();
+        let port = raytile_tests::free_port();
         let base = format!("http://127.0.0.1:{port}");
         // Leases long enough that no stall on a loaded machine expires one (a task rendered
         // twice would fail the count below); the grace covers the leases out at the kill.

@@ -12,6 +12,7 @@
 
 use raytile_core::RenderSettings;
 use raytile_proto::{self as proto, JobRequest, JobState, JobStatus};
+use raytile_tests::free_port;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::sync::{Mutex, OnceLock};
@@ -86,14 +87,6 @@ fn compose_program() -> Option<Vec<&'static str>> {
     } else {
         None
     }
-}
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
 }
 
 /// A Compose project of the top-level `docker-compose.yml`, taken down (with its volumes)
