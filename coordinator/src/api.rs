@@ -307,11 +307,22 @@ async fn get_job(
         .ok_or_else(|| no_job(&id))
 }
 
+#[derive(Deserialize)]
+struct DeleteQuery {
+    /// Also delete the job and its tile data (default: only cancel).
+    purge: Option<bool>,
+}
+
 async fn cancel_job(
     State(state): State<AppState>,
     Path(id): Path<String>,
+    Query(q): Query<DeleteQuery>,
 ) -> Result<Json<proto::JobStatus>, AppError> {
-    let st = state.sched().cancel(&id)?;
+    let st = if q.purge.unwrap_or(false) {
+        state.sched().purge(&id)?
+    } else {
+        state.sched().cancel(&id)?
+    };
     st.map(Json).ok_or_else(|| no_job(&id))
 }
 

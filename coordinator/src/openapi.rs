@@ -81,7 +81,7 @@ pub fn document() -> Value {
                 "get": {"summary": "List jobs", "responses": {"200": ok_json("Jobs", "JobList"), "401": unauthorized}}},
             "/v1/jobs/{id}": {
                 "get": {"summary": "Job status", "parameters": [path_param("id", "Job id")], "responses": {"200": ok_json("Job", "JobStatus"), "404": err("Unknown job"), "401": unauthorized}},
-                "delete": {"summary": "Cancel a job", "parameters": [path_param("id", "Job id")], "responses": {"200": ok_json("Job", "JobStatus"), "404": err("Unknown job"), "401": unauthorized}}},
+                "delete": {"summary": "Cancel a job; with purge=true also delete it and its tile data", "parameters": [path_param("id", "Job id"), {"name": "purge", "in": "query", "schema": {"type": "boolean"}, "description": "Delete the job and its stored tiles after cancelling it."}], "responses": {"200": ok_json("Job", "JobStatus"), "404": err("Unknown job"), "401": unauthorized}}},
             "/v1/jobs/{id}/image": {"get": {"summary": "The frame so far (partial while running)",
                 "parameters": [path_param("id", "Job id"), {"name": "format", "in": "query", "schema": {"type": "string", "enum": ["png", "exr", "hdr"]}}],
                 "responses": {"200": {"description": "Image", "content": {"image/png": {}, "image/x-exr": {}, "image/vnd.radiance": {}}}, "404": err("Unknown job"), "422": err("Unknown format"), "401": unauthorized}}},

@@ -972,6 +972,19 @@ impl Sched {
         Ok(expired.len())
     }
 
+    /// Cancels a job if it is not finished, then deletes it with its tiles from memory and the
+    /// store. Returns its last status, or `None` if unknown. Workers still holding one of its
+    /// leases learn it is gone at their next heartbeat; their results are refused (404).
+    pub fn purge(&mut self, job_id: &str) -> Result<Option<JobStatus>, SchedError> {
+        let Some(status) = self.cancel(job_id)? else {
+            return Ok(None);
+        };
+        self.store.delete_job(job_id)?;
+        self.jobs.remove(job_id);
+        self.leases.retain(|_, (j, _)| j != job_id);
+        Ok(Some(status))
+    }
+
     /// Cancels a job. Returns its status, or `None` if unknown.
     pub fn cancel(&mut self, job_id: &str) -> Result<Option<JobStatus>, SchedError> {
         let Some(job) = self.jobs.get_mut(job_id) else {

@@ -174,6 +174,19 @@ impl Store {
         tx.commit()
     }
 
+    /// Deletes a job with its tasks, results and failure counts, in one transaction.
+    pub fn delete_job(&mut self, job: &str) -> rusqlite::Result<()> {
+        let tx = self.conn.transaction()?;
+        for table in ["results", "tasks", "blocked"] {
+            tx.execute(
+                &format!("DELETE FROM {table} WHERE job_id = ?1"),
+                params![job],
+            )?;
+        }
+        tx.execute("DELETE FROM jobs WHERE id = ?1", params![job])?;
+        tx.commit()
+    }
+
     /// Records a worker's failure count on a job.
     pub fn set_blocked(&self, job: &str, worker: &str, failures: u32) -> rusqlite::Result<()> {
         self.conn.execute(

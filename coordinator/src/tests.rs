@@ -336,6 +336,60 @@ fn restart_resumes_without_redoing_finished_tasks() {
 
 // --- HTTP level (router called with oneshot, no socket) -------------------------------------
 
+#[test]
+fn purge_deletes_a_job_and_its_tiles_for_good() {
+    let dir = tempfile::tempdir().unwrap();
+    let now = Instant::now();
+    let mut s = open(dir.path(), now);
+    let w = s.register("w", 1).unwrap();
+    let keep = s.create_job("s".into(), small(1), 0).unwrap().id;
+    let gone = s.create_job("s".into(), small(1), 1).unwrap().id;
+    finish(&mut s, &w, now).unwrap();
+    let (_, _, lease) = s.lease(&w, now).unwrap().unwrap();
+    let st = s.purge(&gone).unwrap().unwrap();
+    assert_eq!(
+        st.state,
+        JobState::Cancelled,
+        "a running job is cancelled first"
+    );
+    assert!(!s.jobs.contains_key(&gone));
+    assert!(s.purge(&gone).unwrap().is_none(), "unknown after the purge");
+    assert!(!s.fail(&lease, "late").unwrap(), "its leases are gone too");
+    drop(s);
+    let s = open(dir.path(), now);
+    assert!(!s.jobs.contains_key(&gone), "purged for good");
+    assert!(s.jobs.contains_key(&keep), "other jobs untouched");
+}
+
+#[tokio::test]
+async fn delete_with_purge_removes_the_job_from_the_api() {
+    let dir = tempfile::tempdir().unwrap();
+    let st = test_state(dir.path(), None);
+    let (_, scene) = call(&st, post("/v1/scenes", r#"{"objects": []}"#)).await;
+    let body = format!(r#"{{"scene": "{}"}}"#, scene["id"].as_str().unwrap());
+    let (code, job) = call(&st, post("/v1/jobs", body)).await;
+    assert_eq!(code, StatusCode::CREATED);
+    let uri = format!("/v1/jobs/{}", job["id"].as_str().unwrap());
+    let del = |q: &str| {
+        Request::delete(format!("{uri}{q}"))
+            .body(Body::empty())
+            .unwrap()
+    };
+    let (code, body) = call(&st, del("")).await;
+    assert_eq!(
+        (code, body["state"].as_str()),
+        (StatusCode::OK, Some("cancelled"))
+    );
+    assert_eq!(
+        call(&st, get(&uri)).await.0,
+        StatusCode::OK,
+        "cancel keeps the job"
+    );
+    assert_eq!(call(&st, del("?purge=true")).await.0, StatusCode::OK);
+    assert_eq!(call(&st, get(&uri)).await.0, StatusCode::NOT_FOUND);
+    assert_eq!(call(&st, del("?purge=true")).await.0, StatusCode::NOT_FOUND);
+}
+
 fn test_state(dir: &std::path::Path, token: Option<&str>) -> AppState {
     let mut c = Config::new(dir);
     c.token = token.map(String::from);
