@@ -1,26 +1,30 @@
-//! The bounding-volume hierarchy. This is the only module that talks to obvhs: it builds a
-//! compressed wide BVH (CWBVH, 8 children per node, traversed 4 nodes at a time with SIMD) from
-//! primitive bounds, and traverses it with a closure that intersects one primitive.
+//! The bounding-volume hierarchy: a 4-wide BVH with uncompressed single-precision child bounds,
+//! traversed with one SIMD slab test per node (four children at once, SSE through glam's
+//! `Vec4`) and children visited nearest first. obvhs builds it: a PLOC binary BVH, reinsertion
+//! optimisation and SAH leaf collapsing ([`obvhs::bvh2::builder::build_bvh2`]); we then collapse
+//! the binary tree into 4-wide nodes, always opening the child with the largest surface area
+//! (Embree's and pbrt's way of making wide BVHs from binary ones). This is the only module that
+//! talks to obvhs.
 //!
-//! CWBVH over obvhs's BVH2 traversal, measured (2026-11-30, 2 threads, `raytile bench`): on
-//! the Cornell box 34.7 vs 15.9 Mrays/s for coherent rays and 20.8 vs 5.3 incoherent, path
-//! tracing 2.56 vs 0.93 Msamples/s; on a 1 M-triangle mesh (fast_build) 8.1 vs 6.3 Mrays/s
-//! coherent and 2.40 vs 0.66 incoherent.
+//! Why our own traversal: the closure that intersects a primitive is inlined into the loop, the
+//! slab test needs no decompression and the ray's reciprocal direction and octant are computed
+//! once. Measured (2026-11-30, 2 threads, `raytile bench`), see ARCHITECTURE.md for the figures
+//! against obvhs's compressed 8-wide BVH (CWBVH), which this replaced.
+//!
+//! Robustness: the slab test is conservative (pbrt's `1 + 2γ₃` scaling of the far distance; a
+//! slab whose distance is NaN, a ray lying in a bounding plane, does not cull), so every
+//! primitive a ray can hit is offered to the closure, whatever the rounding. Which primitive is
+//! the nearest is decided by the primitive tests alone.
 //!
 //! Primitives are identified by their *slot*: the position in BVH order. [`Bvh::build`] returns
 //! the permutation so callers can store their primitives in slot order (no indirection per hit).
 
 use crate::geometry::{Aabb, Ray};
-use obvhs::cwbvh::{builder::build_cwbvh, CwBvh};
-use obvhs::ray::{Ray as BvhRay, RayHit};
+use glam::Vec4;
+use obvhs::bvh2::{builder::build_bvh2, Bvh2};
 use obvhs::BvhBuildParams;
+use std::mem::MaybeUninit;
 use std::time::Duration;
-
-/// A BVH over primitive bounds.
-#[derive(Clone)]
-pub struct Bvh {
-    inner: Option<CwBvh>,
-}
 
 /// obvhs build presets, fastest to best quality.
 pub const PRESETS: [(&str, BvhBuildParams); 6] = [
@@ -32,6 +36,147 @@ pub const PRESETS: [(&str, BvhBuildParams); 6] = [
     ("very_slow_build", BvhBuildParams::very_slow_build()),
 ];
 
+/// Most primitives in one leaf.
+const MAX_LEAF: u32 = 4;
+
+/// `count` of an internal child.
+const INTERNAL: u32 = 0;
+
+/// `child` of an empty lane.
+const EMPTY: u32 = u32::MAX;
+
+/// `1 + 2γ₃` (pbrt-v4, `Bounds3::IntersectP`): scaling the far distance by it makes the slab
+/// test conservative under rounding.
+const FAR_SCALE: f32 = 1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
+
+/// Four children: their bounds as SIMD lanes, and what each lane is.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(64))]
+struct Node4 {
+    /// `bounds[2 * axis]` holds the four children's minima on `axis`, `bounds[2 * axis + 1]`
+    /// their maxima. Empty lanes hold an empty box (min +∞, max −∞), which no ray enters.
+    bounds: [Vec4; 6],
+    /// Internal child: its node index. Leaf: its index in [`Bvh::leaves`]. Empty lane:
+    /// [`EMPTY`].
+    child: [u32; 4],
+    /// Leaf: its primitive count; internal child: [`INTERNAL`].
+    count: [u32; 4],
+}
+
+impl Node4 {
+    const EMPTY: Self = Self {
+        bounds: [
+            Vec4::INFINITY,
+            Vec4::NEG_INFINITY,
+            Vec4::INFINITY,
+            Vec4::NEG_INFINITY,
+            Vec4::INFINITY,
+            Vec4::NEG_INFINITY,
+        ],
+        child: [EMPTY; 4],
+        count: [INTERNAL; 4],
+    };
+}
+
+/// A ray prepared for slab tests: origin and reciprocal direction splatted across lanes, and
+/// for each axis the index of its near bound in [`Node4::bounds`].
+struct SlabRay {
+    o: [Vec4; 3],
+    inv: [Vec4; 3],
+    near: [usize; 3],
+}
+
+impl SlabRay {
+    #[inline(always)]
+    fn new(ray: &Ray) -> Self {
+        let inv = ray.d.recip();
+        let near = |i: f32| usize::from(i < 0.0);
+        Self {
+            o: [
+                Vec4::splat(ray.o.x),
+                Vec4::splat(ray.o.y),
+                Vec4::splat(ray.o.z),
+            ],
+            inv: [Vec4::splat(inv.x), Vec4::splat(inv.y), Vec4::splat(inv.z)],
+            near: [near(inv.x), 2 + near(inv.y), 4 + near(inv.z)],
+        }
+    }
+
+    /// Entry distances of the four children and the mask of those the ray enters within
+    /// (0, `tmax`).
+    #[inline(always)]
+    fn test(&self, node: &Node4, tmax: f32) -> (Vec4, u32) {
+        let b = &node.bounds;
+        // The far bound of an axis is the other bound of its pair: index ^ 1.
+        let tn_x = (b[self.near[0]] - self.o[0]) * self.inv[0];
+        let tf_x = (b[self.near[0] ^ 1] - self.o[0]) * self.inv[0];
+        let tn_y = (b[self.near[1]] - self.o[1]) * self.inv[1];
+        let tf_y = (b[self.near[1] ^ 1] - self.o[1]) * self.inv[1];
+        let tn_z = (b[self.near[2]] - self.o[2]) * self.inv[2];
+        let tf_z = (b[self.near[2] ^ 1] - self.o[2]) * self.inv[2];
+        // max/min return their second operand when the first is NaN (0·∞: the ray lies in a
+        // bounding plane), so a NaN slab never culls: candidates come first, accumulators second.
+        let tnear = tn_x.max(tn_y.max(tn_z.max(Vec4::ZERO)));
+        let tfar = tf_x.min(tf_y.min(tf_z.min(Vec4::splat(tmax)))) * FAR_SCALE;
+        (tnear, tnear.cmple(tfar).bitmask())
+    }
+}
+
+/// A traversal stack that lives on the call stack (no allocation per ray) for BVHs up to
+/// `N` entries deep, the common case, and on the heap beyond.
+struct Stack<const N: usize> {
+    inline: [MaybeUninit<(u32, f32)>; N],
+    heap: Vec<(u32, f32)>,
+    len: usize,
+}
+
+impl<const N: usize> Stack<N> {
+    #[inline(always)]
+    fn new() -> Self {
+        Self {
+            // Uninitialised: zeroing it cost as much as a third of a shadow ray.
+            inline: [const { MaybeUninit::uninit() }; N],
+            heap: Vec::new(),
+            len: 0,
+        }
+    }
+
+    #[inline(always)]
+    fn push(&mut self, e: (u32, f32)) {
+        if self.len < N {
+            self.inline[self.len].write(e);
+        } else {
+            self.heap.push(e);
+        }
+        self.len += 1;
+    }
+
+    #[inline(always)]
+    fn pop(&mut self) -> Option<(u32, f32)> {
+        if self.len == 0 {
+            return None;
+        }
+        self.len -= 1;
+        if self.len < N {
+            // SAFETY: entries below the length before this pop were written by `push`.
+            Some(unsafe { self.inline[self.len].assume_init() })
+        } else {
+            self.heap.pop()
+        }
+    }
+}
+
+/// Entries on the stack that live on the call stack.
+const STACK: usize = 64;
+
+/// A BVH over primitive bounds.
+#[derive(Clone, Default)]
+pub struct Bvh {
+    nodes: Vec<Node4>,
+    /// Each leaf's first slot and primitive count.
+    leaves: Vec<(u32, u32)>,
+}
+
 impl Bvh {
     /// Builds over `bounds` with the default preset; returns the BVH and the slot order
     /// (`order[slot]` = index into `bounds`).
@@ -39,19 +184,21 @@ impl Bvh {
         Self::build_with(bounds, BvhBuildParams::fast_build())
     }
 
-    /// Builds with explicit obvhs parameters.
-    pub fn build_with(bounds: &[Aabb], params: BvhBuildParams) -> (Self, Vec<u32>) {
+    /// Builds with explicit obvhs parameters (leaves hold at most 8 primitives).
+    pub fn build_with(bounds: &[Aabb], mut params: BvhBuildParams) -> (Self, Vec<u32>) {
         if bounds.is_empty() {
-            return (Self { inner: None }, Vec::new());
+            return (Self::default(), Vec::new());
         }
+        params.max_prims_per_leaf = params.max_prims_per_leaf.clamp(1, MAX_LEAF);
         let mut build_time = Duration::ZERO;
-        let bvh = build_cwbvh(bounds, params, &mut build_time);
-        let order = bvh.primitive_indices.clone();
-        (Self { inner: Some(bvh) }, order)
+        let bvh2 = build_bvh2(bounds, params, &mut build_time);
+        let (nodes, leaves) = collapse_to_4(&bvh2);
+        (Self { nodes, leaves }, bvh2.primitive_indices.clone())
     }
 
     /// Closest hit: `hit(slot, ray_tmax)` returns the hit parameter of that primitive or
     /// `f32::INFINITY`. Returns the slot and parameter of the nearest hit before `tmax`.
+    /// Among hits at the same distance, the first one offered wins.
     #[inline]
     pub fn closest(
         &self,
@@ -59,30 +206,202 @@ impl Bvh {
         tmax: f32,
         mut hit: impl FnMut(usize, f32) -> f32,
     ) -> Option<(usize, f32)> {
-        let bvh = self.inner.as_ref()?;
-        let r = BvhRay::new(ray.o, ray.d, 0.0, tmax);
-        let mut rh = RayHit::none();
-        if bvh.ray_traverse(r, &mut rh, |r, slot| hit(slot, r.tmax)) {
-            Some((rh.primitive_id as usize, rh.t))
-        } else {
-            None
+        self.closest_leaves(ray, tmax, |_, start, count, mut tmax| {
+            let mut best = None;
+            for slot in start as usize..(start + count) as usize {
+                let t = hit(slot, tmax);
+                if t < tmax {
+                    tmax = t;
+                    best = Some((slot, t));
+                }
+            }
+            best
+        })
+    }
+
+    /// Closest hit, a leaf at a time: `leaf(id, first_slot, count, ray_tmax)` returns the
+    /// nearest hit in leaf `id` (see [`Bvh::leaves`]) before `ray_tmax`, as (slot, t).
+    #[inline]
+    pub fn closest_leaves(
+        &self,
+        ray: &Ray,
+        tmax: f32,
+        mut leaf: impl FnMut(u32, u32, u32, f32) -> Option<(usize, f32)>,
+    ) -> Option<(usize, f32)> {
+        if self.nodes.is_empty() {
+            return None;
+        }
+        let sr = SlabRay::new(ray);
+        let mut tmax = tmax;
+        let mut best = None;
+        let mut stack = Stack::<STACK>::new();
+        let mut node = 0u32;
+        loop {
+            let n = &self.nodes[node as usize];
+            let (tnear, mut mask) = sr.test(n, tmax);
+            // Hit children sorted far to near (at most four: insertion sort).
+            let mut hits = [(0u32, 0u32, 0.0f32); 4];
+            let mut k = 0;
+            let tn = tnear.to_array();
+            while mask != 0 {
+                let lane = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                if n.child[lane] == EMPTY {
+                    continue;
+                }
+                let e = (n.child[lane], n.count[lane], tn[lane]);
+                let mut j = k;
+                while j > 0 && hits[j - 1].2 < e.2 {
+                    hits[j] = hits[j - 1];
+                    j -= 1;
+                }
+                hits[j] = e;
+                k += 1;
+            }
+            // Leaves are intersected at once, nearest first; inner children are pushed so the
+            // nearest is popped first.
+            for &(child, count, t) in hits[..k].iter().rev() {
+                if count != INTERNAL && t <= tmax {
+                    let (start, count) = self.leaves[child as usize];
+                    if let Some((slot, th)) = leaf(child, start, count, tmax) {
+                        tmax = th;
+                        best = Some(slot);
+                    }
+                }
+            }
+            for &(child, count, t) in &hits[..k] {
+                if count == INTERNAL && t <= tmax {
+                    stack.push((child, t));
+                }
+            }
+            loop {
+                match stack.pop() {
+                    None => return best.map(|s| (s, tmax)),
+                    Some((c, t)) if t <= tmax => {
+                        node = c;
+                        break;
+                    }
+                    Some(_) => {}
+                }
+            }
         }
     }
 
     /// Any hit before `tmax`: `hit(slot)` says whether that primitive blocks the ray.
     #[inline]
     pub fn any(&self, ray: &Ray, tmax: f32, mut hit: impl FnMut(usize) -> bool) -> bool {
-        let Some(bvh) = self.inner.as_ref() else {
+        self.any_leaves(ray, tmax, |_, start, count| {
+            (start..start + count).any(|slot| hit(slot as usize))
+        })
+    }
+
+    /// Any hit, a leaf at a time: `leaf(id, first_slot, count)` says whether anything in
+    /// leaf `id` blocks the ray.
+    #[inline]
+    pub fn any_leaves(
+        &self,
+        ray: &Ray,
+        tmax: f32,
+        mut leaf: impl FnMut(u32, u32, u32) -> bool,
+    ) -> bool {
+        if self.nodes.is_empty() {
             return false;
-        };
-        let r = BvhRay::new(ray.o, ray.d, 0.0, tmax);
-        !bvh.ray_traverse_miss(r, |_, slot| if hit(slot) { 0.0 } else { f32::INFINITY })
+        }
+        let sr = SlabRay::new(ray);
+        let mut stack = Stack::<STACK>::new();
+        let mut node = 0u32;
+        loop {
+            let n = &self.nodes[node as usize];
+            let (_, mut mask) = sr.test(n, tmax);
+            while mask != 0 {
+                let lane = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                let (child, count) = (n.child[lane], n.count[lane]);
+                if child == EMPTY {
+                    continue;
+                }
+                if count == INTERNAL {
+                    stack.push((child, 0.0));
+                } else {
+                    let (start, count) = self.leaves[child as usize];
+                    if leaf(child, start, count) {
+                        return true;
+                    }
+                }
+            }
+            match stack.pop() {
+                None => return false,
+                Some((c, _)) => node = c,
+            }
+        }
+    }
+
+    /// The leaves: (first slot, primitive count) by leaf id. Every slot is in exactly one.
+    pub fn leaves(&self) -> &[(u32, u32)] {
+        &self.leaves
     }
 
     /// Number of BVH nodes (for statistics).
     pub fn node_count(&self) -> usize {
-        self.inner.as_ref().map_or(0, |b| b.nodes.len())
+        self.nodes.len()
     }
+}
+
+/// Collapses obvhs's binary BVH into 4-wide nodes: each node takes the two children of a binary
+/// node and keeps opening its inner child with the largest surface area until it has four.
+fn collapse_to_4(bvh2: &Bvh2) -> (Vec<Node4>, Vec<(u32, u32)>) {
+    let b2 = &bvh2.nodes;
+    let mut nodes = vec![Node4::EMPTY];
+    let mut leaves = Vec::new();
+    // (binary node, index of the 4-wide node it becomes)
+    let mut work = vec![(0usize, 0usize)];
+    while let Some((n2, n4)) = work.pop() {
+        let mut kids: Vec<usize> = if b2[n2].is_leaf() {
+            vec![n2]
+        } else {
+            let f = b2[n2].first_index as usize;
+            vec![f, f + 1]
+        };
+        while kids.len() < 4 {
+            let open = kids
+                .iter()
+                .enumerate()
+                .filter(|(_, &k)| !b2[k].is_leaf())
+                .max_by(|a, b| {
+                    b2[*a.1]
+                        .aabb()
+                        .half_area()
+                        .total_cmp(&b2[*b.1].aabb().half_area())
+                })
+                .map(|(i, _)| i);
+            let Some(i) = open else { break };
+            let f = b2[kids[i]].first_index as usize;
+            kids[i] = f;
+            kids.insert(i + 1, f + 1);
+        }
+        let mut node = Node4::EMPTY;
+        for (lane, &k) in kids.iter().enumerate() {
+            let bb = b2[k].aabb();
+            let (lo, hi) = (bb.min.to_array(), bb.max.to_array());
+            for axis in 0..3 {
+                node.bounds[2 * axis][lane] = lo[axis];
+                node.bounds[2 * axis + 1][lane] = hi[axis];
+            }
+            if b2[k].is_leaf() {
+                node.child[lane] = leaves.len() as u32;
+                node.count[lane] = b2[k].prim_count;
+                leaves.push((b2[k].first_index, b2[k].prim_count));
+            } else {
+                let idx = nodes.len();
+                nodes.push(Node4::EMPTY);
+                work.push((k, idx));
+                node.child[lane] = idx as u32;
+                node.count[lane] = INTERNAL;
+            }
+        }
+        nodes[n4] = node;
+    }
+    (nodes, leaves)
 }
 
 #[cfg(test)]

@@ -1,6 +1,6 @@
 //! Triangle meshes: storage in object space and the ray–triangle test.
 
-use glam::{Vec2, Vec3A};
+use glam::{Vec2, Vec3A, Vec4};
 
 /// A mesh ready for rendering, in object space. Shared by every object that instances it.
 #[derive(Clone, Debug, Default)]
@@ -57,25 +57,37 @@ impl TriangleGeom {
     /// Möller–Trumbore: the hit parameter and barycentrics (b1, b2) of v1 and v2, if the ray
     /// hits within (tmin, tmax). Edges are inclusive so rays through a shared edge hit one of
     /// its two triangles. `d` need not be unit length.
+    ///
+    /// Written out per component in a fixed order, the same operations as one lane of
+    /// [`Tri4::intersect`], so the scalar and the 4-wide test agree to the bit.
     #[inline(always)]
     pub fn intersect(&self, o: Vec3A, d: Vec3A, tmin: f32, tmax: f32) -> Option<(f32, f32, f32)> {
-        let p = d.cross(self.e2);
-        let det = self.e1.dot(p);
+        let (e1, e2) = (self.e1, self.e2);
+        let p = Vec3A::new(
+            d.y * e2.z - d.z * e2.y,
+            d.z * e2.x - d.x * e2.z,
+            d.x * e2.y - d.y * e2.x,
+        );
+        let det = e1.x * p.x + e1.y * p.y + e1.z * p.z;
         if det == 0.0 || !det.is_finite() {
             return None;
         }
         let inv = 1.0 / det;
-        let s = o - self.v0;
-        let b1 = s.dot(p) * inv;
+        let s = Vec3A::new(o.x - self.v0.x, o.y - self.v0.y, o.z - self.v0.z);
+        let b1 = (s.x * p.x + s.y * p.y + s.z * p.z) * inv;
         if !(0.0..=1.0).contains(&b1) {
             return None;
         }
-        let q = s.cross(self.e1);
-        let b2 = d.dot(q) * inv;
-        if b2 < 0.0 || b1 + b2 > 1.0 {
+        let q = Vec3A::new(
+            s.y * e1.z - s.z * e1.y,
+            s.z * e1.x - s.x * e1.z,
+            s.x * e1.y - s.y * e1.x,
+        );
+        let b2 = (d.x * q.x + d.y * q.y + d.z * q.z) * inv;
+        if !(b2 >= 0.0) || !(b1 + b2 <= 1.0) {
             return None;
         }
-        let t = self.e2.dot(q) * inv;
+        let t = (e2.x * q.x + e2.y * q.y + e2.z * q.z) * inv;
         (t > tmin && t < tmax).then_some((t, b1, b2))
     }
 
@@ -90,6 +102,101 @@ impl TriangleGeom {
     #[inline]
     pub fn normal(&self) -> Vec3A {
         self.e1.cross(self.e2)
+    }
+}
+
+/// Four triangles stored lane by lane (structure of arrays) and tested against one ray with
+/// one SIMD Möller–Trumbore (Embree's "triangle4" layout). Unused lanes hold degenerate
+/// triangles, which nothing hits.
+#[derive(Clone, Copy, Debug)]
+pub struct Tri4 {
+    v0: [Vec4; 3],
+    e1: [Vec4; 3],
+    e2: [Vec4; 3],
+}
+
+impl Tri4 {
+    /// Packs up to four triangles (lane i = `tris[i]`).
+    pub fn new(tris: &[TriangleGeom]) -> Self {
+        assert!(tris.len() <= 4, "a Tri4 holds at most four triangles");
+        let mut t = Self {
+            v0: [Vec4::ZERO; 3],
+            e1: [Vec4::ZERO; 3],
+            e2: [Vec4::ZERO; 3],
+        };
+        for (lane, g) in tris.iter().enumerate() {
+            for axis in 0..3 {
+                t.v0[axis][lane] = g.v0[axis];
+                t.e1[axis][lane] = g.e1[axis];
+                t.e2[axis][lane] = g.e2[axis];
+            }
+        }
+        t
+    }
+
+    /// The nearest hit among the four within (tmin, tmax): (lane, t, b1, b2). Each lane
+    /// computes exactly what [`TriangleGeom::intersect`] computes; among equal distances the
+    /// lowest lane wins, as if the triangles were tested one after the other.
+    #[inline(always)]
+    pub fn intersect(
+        &self,
+        o: Vec3A,
+        d: Vec3A,
+        tmin: f32,
+        tmax: f32,
+    ) -> Option<(usize, f32, f32, f32)> {
+        let (hits, t, b1, b2) = self.test(o, d, tmin, tmax);
+        if hits == 0 {
+            return None;
+        }
+        let (t, b1, b2) = (t.to_array(), b1.to_array(), b2.to_array());
+        let mut best = hits.trailing_zeros() as usize;
+        let mut rest = hits & (hits - 1);
+        while rest != 0 {
+            let lane = rest.trailing_zeros() as usize;
+            rest &= rest - 1;
+            if t[lane] < t[best] {
+                best = lane;
+            }
+        }
+        Some((best, t[best], b1[best], b2[best]))
+    }
+
+    /// Whether any of the four is hit within (tmin, tmax).
+    #[inline(always)]
+    pub fn any(&self, o: Vec3A, d: Vec3A, tmin: f32, tmax: f32) -> bool {
+        self.test(o, d, tmin, tmax).0 != 0
+    }
+
+    /// The lanes hit, and every lane's t, b1, b2.
+    #[inline(always)]
+    fn test(&self, o: Vec3A, d: Vec3A, tmin: f32, tmax: f32) -> (u32, Vec4, Vec4, Vec4) {
+        let [e1x, e1y, e1z] = self.e1;
+        let [e2x, e2y, e2z] = self.e2;
+        let (dx, dy, dz) = (Vec4::splat(d.x), Vec4::splat(d.y), Vec4::splat(d.z));
+        let px = dy * e2z - dz * e2y;
+        let py = dz * e2x - dx * e2z;
+        let pz = dx * e2y - dy * e2x;
+        let det = e1x * px + e1y * py + e1z * pz;
+        let inv = Vec4::ONE / det;
+        let sx = Vec4::splat(o.x) - self.v0[0];
+        let sy = Vec4::splat(o.y) - self.v0[1];
+        let sz = Vec4::splat(o.z) - self.v0[2];
+        let b1 = (sx * px + sy * py + sz * pz) * inv;
+        let qx = sy * e1z - sz * e1y;
+        let qy = sz * e1x - sx * e1z;
+        let qz = sx * e1y - sy * e1x;
+        let b2 = (dx * qx + dy * qy + dz * qz) * inv;
+        let t = (e2x * qx + e2y * qy + e2z * qz) * inv;
+        let ok = det.cmpne(Vec4::ZERO)
+            & det.abs().cmplt(Vec4::INFINITY)
+            & b1.cmpge(Vec4::ZERO)
+            & b1.cmple(Vec4::ONE)
+            & b2.cmpge(Vec4::ZERO)
+            & (b1 + b2).cmple(Vec4::ONE)
+            & t.cmpgt(Vec4::splat(tmin))
+            & t.cmplt(Vec4::splat(tmax));
+        (ok.bitmask(), t, b1, b2)
     }
 }
 
@@ -142,5 +249,44 @@ mod tests {
                 a.intersect(o, d, 0.0, 9.0).is_some() || b.intersect(o, d, 0.0, 9.0).is_some();
             assert!(hit, "crack at {x}");
         }
+    }
+
+    /// Every lane of the 4-wide test returns what the scalar test returns, to the bit, and
+    /// the nearest lane wins (the lowest among equals).
+    #[test]
+    fn tri4_matches_scalar_bit_for_bit() {
+        use crate::sampling::hash_u32;
+        let r = |i: u32| (hash_u32(i) >> 8) as f32 / (1 << 24) as f32 * 2.0 - 1.0;
+        let v = |i: u32| Vec3A::new(r(3 * i), r(3 * i + 1), r(3 * i + 2));
+        let mut hits = 0;
+        for k in 0..2000u32 {
+            let n = 1 + (k % 4) as usize;
+            let mut tris: Vec<TriangleGeom> = (0..n as u32)
+                .map(|j| TriangleGeom::new([v(k * 97 + j * 7), v(k * 97 + j * 7 + 1), v(k * 97 + j * 7 + 2)]))
+                .collect();
+            if k % 5 == 0 {
+                tris.push(tris[0]); // a duplicate: equal distances, the lower lane must win
+                tris.truncate(4);
+            }
+            let packet = Tri4::new(&tris);
+            // Aimed near the first triangle, so that many rays hit and some graze edges.
+            let o = v(900_000 + k) * 2.0;
+            let d = tris[0].point(0.3, 0.3) + v(800_000 + k) * 0.3 - o;
+            let tmax = if k % 3 == 0 { 1.5 } else { f32::INFINITY };
+            let mut want = None;
+            let mut best = tmax;
+            for (lane, t) in tris.iter().enumerate() {
+                if let Some((th, b1, b2)) = t.intersect(o, d, 0.0, best) {
+                    best = th;
+                    want = Some((lane, th, b1, b2));
+                }
+            }
+            let got = packet.intersect(o, d, 0.0, tmax);
+            assert_eq!(got.map(|g| (g.0, g.1.to_bits(), g.2.to_bits(), g.3.to_bits())),
+                want.map(|g| (g.0, g.1.to_bits(), g.2.to_bits(), g.3.to_bits())), "case {k}");
+            assert_eq!(packet.any(o, d, 0.0, tmax), want.is_some());
+            hits += usize::from(want.is_some());
+        }
+        assert!(hits > 500, "too few hits to mean anything: {hits}");
     }
 }

@@ -7,6 +7,7 @@
 //! a counter-based hash, which is just as deterministic.
 
 use glam::Vec2;
+use sobol_burley::parts;
 
 /// Largest sample index the Sobol sequence covers; later indices use the hash.
 const SOBOL_MAX_INDEX: u32 = 1 << 16;
@@ -51,6 +52,9 @@ fn to_unit(bits: u32) -> f32 {
 pub struct Sampler {
     pixel_seed: u32,
     index: u32,
+    /// The sample index after the per-pixel Owen shuffle (bit-reversed), as
+    /// `sobol_burley::sample_4d` computes it on every call: computed once per sample here.
+    shuffled_rev_index: u32,
     dimension: u32,
     set: [f32; 4],
 }
@@ -59,9 +63,14 @@ impl Sampler {
     /// The sampler for sample `index` of pixel (`x`, `y`) under `seed`.
     #[inline]
     pub fn new(x: u32, y: u32, index: u32, seed: u32) -> Self {
+        let pixel_seed = hash_words(&[x, y, seed]);
         Self {
-            pixel_seed: hash_words(&[x, y, seed]),
+            pixel_seed,
             index,
+            shuffled_rev_index: parts::owen_scramble_rev(
+                index.reverse_bits(),
+                parts::hash(pixel_seed ^ 0x79c6_8e4a),
+            ),
             dimension: 0,
             set: [0.0; 4],
         }
@@ -74,12 +83,30 @@ impl Sampler {
         self.dimension += 1;
         if d < sobol_burley::NUM_DIMENSIONS && self.index < SOBOL_MAX_INDEX {
             if d.is_multiple_of(4) {
-                self.set = sobol_burley::sample_4d(self.index, d / 4, self.pixel_seed);
+                self.set = self.sobol_4d(d / 4);
             }
             self.set[(d % 4) as usize]
         } else {
             to_unit(hash_words(&[self.pixel_seed, self.index, d]))
         }
+    }
+
+    /// `sobol_burley::sample_4d(index, set, pixel_seed)`, to the bit (a test checks), with the
+    /// index shuffle hoisted out.
+    #[inline]
+    fn sobol_4d(&self, set: u32) -> [f32; 4] {
+        let sobol = parts::sobol_int4_rev(self.shuffled_rev_index, set);
+        let seed = self.pixel_seed.wrapping_mul(0x9c8f_2d3b) ^ set;
+        let scramble: parts::Int4 = [
+            seed ^ 0x912f_69ba,
+            seed ^ 0x174f_18ab,
+            seed ^ 0x691e_72ca,
+            seed ^ 0xb40c_c1b8,
+        ]
+        .into();
+        parts::owen_scramble_int4_rev(sobol, parts::hash_int4(scramble))
+            .reverse_bits()
+            .to_f32_norm()
     }
 
     /// Skips to the start of the next group of four dimensions, so that the pairs drawn after
@@ -114,6 +141,17 @@ mod tests {
         assert!(draw(1, 2, 70_000, 0)
             .iter()
             .all(|&u| (0.0..1.0).contains(&u)));
+    }
+
+    #[test]
+    fn hoisted_shuffle_equals_sobol_burley() {
+        for (x, y, index, seed) in [(0, 0, 0, 0), (3, 9, 17, 1), (255, 1, 65_535, 42)] {
+            let s = Sampler::new(x, y, index, seed);
+            for set in 0..sobol_burley::NUM_DIMENSION_SETS_4D {
+                let want = sobol_burley::sample_4d(index, set, s.pixel_seed);
+                assert_eq!(s.sobol_4d(set).map(f32::to_bits), want.map(f32::to_bits));
+            }
+        }
     }
 
     #[test]

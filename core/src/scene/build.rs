@@ -13,7 +13,7 @@ use super::desc::{
 use super::SceneError;
 use crate::accel::Bvh;
 use crate::camera::Camera;
-use crate::geometry::triangle::{Mesh, TriangleGeom};
+use crate::geometry::triangle::{Mesh, Tri4, TriangleGeom};
 use crate::geometry::{aabox, plane, polygon, quadric, sphere, Aabb, Analytic, Ray};
 use crate::light::{luminance, Environment, Light, LightSet};
 use crate::material::{self, Bsdf};
@@ -168,6 +168,9 @@ pub struct Scene {
     blas: Vec<Option<MeshBlas>>,
     prims: Vec<Prim>,
     bvh: Bvh,
+    /// By BVH leaf: its triangles packed for the 4-wide test, when the leaf holds only opaque
+    /// triangles (else its primitives are tested one by one).
+    packets: Vec<Option<Tri4>>,
     unbounded: Vec<u32>,
     pub(crate) materials: Vec<Material>,
     pub(crate) textures: Vec<Texture>,
@@ -374,6 +377,7 @@ impl Scene {
             .iter()
             .map(|&i| prims_unordered[i as usize].1)
             .collect();
+        let packets = leaf_packets(&bvh, &prims);
 
         // Camera.
         let camera_desc = if desc.cameras.is_empty() && settings.camera.is_none() {
@@ -464,6 +468,7 @@ impl Scene {
             blas,
             prims,
             bvh,
+            packets,
             unbounded,
             materials,
             textures,
@@ -501,61 +506,73 @@ impl Scene {
                 });
             }
         }
-        let mut cand = Hit {
-            t: f32::INFINITY,
-            object: 0,
-            prim: 0,
-            b1: 0.0,
-            b2: 0.0,
-        };
-        let found = self
-            .bvh
-            .closest(ray, tmax, |slot, tmax| match self.prims[slot] {
-                Prim::Tri {
-                    geom,
+        let mut cand = None;
+        let found = self.bvh.closest_leaves(ray, tmax, |leaf, start, count, tmax| {
+            if let Some(p) = &self.packets[leaf as usize] {
+                let (lane, t, b1, b2) = p.intersect(ray.o, ray.d, 0.0, tmax)?;
+                let slot = start as usize + lane;
+                let Prim::Tri { object, tri, .. } = self.prims[slot] else {
+                    unreachable!("packets hold triangles only");
+                };
+                cand = Some(Hit {
+                    t,
                     object,
-                    tri,
-                    alpha,
-                } => match geom.intersect(ray.o, ray.d, 0.0, tmax) {
-                    Some((t, b1, b2)) if !alpha || self.alpha_passes(object, tri, b1, b2, t) => {
-                        cand = Hit {
-                            t,
-                            object,
-                            prim: tri,
-                            b1,
-                            b2,
-                        };
-                        t
-                    }
-                    _ => f32::INFINITY,
-                },
-                Prim::Analytic { object } => match self.intersect_analytic(object, ray, tmax) {
-                    Some(t) => {
-                        cand = Hit {
-                            t,
-                            object,
-                            prim: 0,
-                            b1: 0.0,
-                            b2: 0.0,
-                        };
-                        t
-                    }
-                    None => f32::INFINITY,
-                },
-                Prim::Instance { object } => match self.intersect_instance(object, ray, tmax) {
-                    Some(h) => {
-                        cand = h;
-                        h.t
-                    }
-                    None => f32::INFINITY,
-                },
-            });
-        // The closure records the latest accepted candidate, which is the nearest: each
-        // accepted hit shrinks tmax, so later candidates are always closer.
+                    prim: tri,
+                    b1,
+                    b2,
+                });
+                return Some((slot, t));
+            }
+            let mut tmax = tmax;
+            let mut best = None;
+            for slot in start as usize..(start + count) as usize {
+                if let Some(h) = self.intersect_prim(slot, ray, tmax) {
+                    tmax = h.t;
+                    cand = Some(h);
+                    best = Some((slot, h.t));
+                }
+            }
+            best
+        });
+        // `cand` holds the latest accepted hit, which is the nearest: each accepted hit
+        // shrinks tmax, so later candidates are always closer.
         if found.is_some() {
-            best = Some(cand);
+            best = cand;
         }
         best
+    }
+
+    /// The hit of primitive `slot` within (0, tmax), if any.
+    #[inline(always)]
+    fn intersect_prim(&self, slot: usize, ray: &Ray, tmax: f32) -> Option<Hit> {
+        match self.prims[slot] {
+            Prim::Tri {
+                geom,
+                object,
+                tri,
+                alpha,
+            } => {
+                let (t, b1, b2) = geom.intersect(ray.o, ray.d, 0.0, tmax)?;
+                (!alpha || self.alpha_passes(object, tri, b1, b2, t)).then_some(Hit {
+                    t,
+                    object,
+                    prim: tri,
+                    b1,
+                    b2,
+                })
+            }
+            Prim::Analytic { object } => {
+                let t = self.intersect_analytic(object, ray, tmax)?;
+                Some(Hit {
+                    t,
+                    object,
+                    prim: 0,
+                    b1: 0.0,
+                    b2: 0.0,
+                })
+            }
+            Prim::Instance { object } => self.intersect_instance(object, ray, tmax),
+        }
     }
 
     /// Whether anything blocks `ray` before `tmax`.
@@ -566,19 +583,27 @@ impl Scene {
                 return true;
             }
         }
-        self.bvh.any(ray, tmax, |slot| match self.prims[slot] {
-            Prim::Tri {
-                geom,
-                object,
-                tri,
-                alpha,
-            } => match geom.intersect(ray.o, ray.d, 0.0, tmax) {
-                Some((t, b1, b2)) => !alpha || self.alpha_passes(object, tri, b1, b2, t),
-                None => false,
-            },
-            Prim::Analytic { object } => self.intersect_analytic(object, ray, tmax).is_some(),
-            Prim::Instance { object } => self.intersect_instance(object, ray, tmax).is_some(),
-        })
+        self.bvh
+            .any_leaves(ray, tmax, |leaf, start, count| match &self.packets[leaf as usize] {
+                Some(p) => p.any(ray.o, ray.d, 0.0, tmax),
+                None => (start as usize..(start + count) as usize).any(|slot| match self.prims[slot] {
+                    Prim::Tri {
+                        geom,
+                        object,
+                        tri,
+                        alpha,
+                    } => match geom.intersect(ray.o, ray.d, 0.0, tmax) {
+                        Some((t, b1, b2)) => !alpha || self.alpha_passes(object, tri, b1, b2, t),
+                        None => false,
+                    },
+                    Prim::Analytic { object } => {
+                        self.intersect_analytic(object, ray, tmax).is_some()
+                    }
+                    Prim::Instance { object } => {
+                        self.intersect_instance(object, ray, tmax).is_some()
+                    }
+                }),
+            })
     }
 
     /// Brute-force nearest hit, testing every primitive: the reference the BVH is checked
@@ -1048,6 +1073,26 @@ impl Scene {
     pub(crate) fn absorption(&self, object: u32) -> Vec3A {
         self.material_of(object).absorption
     }
+}
+
+/// For each BVH leaf, its triangles packed four-wide when the leaf holds only opaque triangles.
+fn leaf_packets(bvh: &Bvh, prims: &[Prim]) -> Vec<Option<Tri4>> {
+    bvh.leaves()
+        .iter()
+        .map(|&(start, count)| {
+            let range = &prims[start as usize..(start + count) as usize];
+            let geoms: Option<Vec<TriangleGeom>> = range
+                .iter()
+                .map(|p| match *p {
+                    Prim::Tri {
+                        geom, alpha: false, ..
+                    } => Some(geom),
+                    _ => None,
+                })
+                .collect();
+            geoms.filter(|g| g.len() <= 4).map(|g| Tri4::new(&g))
+        })
+        .collect()
 }
 
 fn build_blas(m: &Mesh) -> MeshBlas {
