@@ -11,7 +11,7 @@ use clap::Args;
 use glam::{Vec2, Vec3A};
 use rayon::prelude::*;
 use raytile_core::accel::{Bvh, PRESETS};
-use raytile_core::geometry::triangle::TriangleGeom;
+use raytile_core::geometry::triangle::{Tri4, TriangleGeom};
 use raytile_core::geometry::{Aabb, Ray};
 use raytile_core::sampling::hash_u32;
 use raytile_core::{load_scene, render, RenderSettings, Scene};
@@ -193,6 +193,12 @@ pub fn run(args: BenchArgs) -> Result<()> {
         let (bvh, order) = Bvh::build_with(&bounds, params);
         let build = t.elapsed().as_secs_f64();
         let ordered: Vec<TriangleGeom> = order.iter().map(|&i| tris[i as usize]).collect();
+        // As the renderer does: each leaf's triangles packed for the 4-wide test.
+        let packets: Vec<Tri4> = bvh
+            .leaves()
+            .iter()
+            .map(|&(start, count)| Tri4::new(&ordered[start as usize..(start + count) as usize]))
+            .collect();
         let mut figures = Vec::new();
         for rays in [&coherent, &incoherent] {
             let t = Instant::now();
@@ -201,10 +207,10 @@ pub fn run(args: BenchArgs) -> Result<()> {
                 .map(|c| {
                     c.iter()
                         .filter(|r| {
-                            bvh.closest(r, f32::INFINITY, |slot, tmax| {
-                                ordered[slot]
+                            bvh.closest_leaves(r, f32::INFINITY, |leaf, start, _, tmax| {
+                                packets[leaf as usize]
                                     .intersect(r.o, r.d, 0.0, tmax)
-                                    .map_or(f32::INFINITY, |h| h.0)
+                                    .map(|(lane, t, _, _)| (start as usize + lane, t))
                             })
                             .is_some()
                         })

@@ -262,7 +262,13 @@ mod tests {
         for k in 0..2000u32 {
             let n = 1 + (k % 4) as usize;
             let mut tris: Vec<TriangleGeom> = (0..n as u32)
-                .map(|j| TriangleGeom::new([v(k * 97 + j * 7), v(k * 97 + j * 7 + 1), v(k * 97 + j * 7 + 2)]))
+                .map(|j| {
+                    TriangleGeom::new([
+                        v(k * 97 + j * 7),
+                        v(k * 97 + j * 7 + 1),
+                        v(k * 97 + j * 7 + 2),
+                    ])
+                })
                 .collect();
             if k % 5 == 0 {
                 tris.push(tris[0]); // a duplicate: equal distances, the lower lane must win
@@ -282,8 +288,11 @@ mod tests {
                 }
             }
             let got = packet.intersect(o, d, 0.0, tmax);
-            assert_eq!(got.map(|g| (g.0, g.1.to_bits(), g.2.to_bits(), g.3.to_bits())),
-                want.map(|g| (g.0, g.1.to_bits(), g.2.to_bits(), g.3.to_bits())), "case {k}");
+            assert_eq!(
+                got.map(|g| (g.0, g.1.to_bits(), g.2.to_bits(), g.3.to_bits())),
+                want.map(|g| (g.0, g.1.to_bits(), g.2.to_bits(), g.3.to_bits())),
+                "case {k}"
+            );
             assert_eq!(packet.any(o, d, 0.0, tmax), want.is_some());
             hits += usize::from(want.is_some());
         }

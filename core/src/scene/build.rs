@@ -507,33 +507,35 @@ impl Scene {
             }
         }
         let mut cand = None;
-        let found = self.bvh.closest_leaves(ray, tmax, |leaf, start, count, tmax| {
-            if let Some(p) = &self.packets[leaf as usize] {
-                let (lane, t, b1, b2) = p.intersect(ray.o, ray.d, 0.0, tmax)?;
-                let slot = start as usize + lane;
-                let Prim::Tri { object, tri, .. } = self.prims[slot] else {
-                    unreachable!("packets hold triangles only");
-                };
-                cand = Some(Hit {
-                    t,
-                    object,
-                    prim: tri,
-                    b1,
-                    b2,
-                });
-                return Some((slot, t));
-            }
-            let mut tmax = tmax;
-            let mut best = None;
-            for slot in start as usize..(start + count) as usize {
-                if let Some(h) = self.intersect_prim(slot, ray, tmax) {
-                    tmax = h.t;
-                    cand = Some(h);
-                    best = Some((slot, h.t));
+        let found = self
+            .bvh
+            .closest_leaves(ray, tmax, |leaf, start, count, tmax| {
+                if let Some(p) = &self.packets[leaf as usize] {
+                    let (lane, t, b1, b2) = p.intersect(ray.o, ray.d, 0.0, tmax)?;
+                    let slot = start as usize + lane;
+                    let Prim::Tri { object, tri, .. } = self.prims[slot] else {
+                        unreachable!("packets hold triangles only");
+                    };
+                    cand = Some(Hit {
+                        t,
+                        object,
+                        prim: tri,
+                        b1,
+                        b2,
+                    });
+                    return Some((slot, t));
                 }
-            }
-            best
-        });
+                let mut tmax = tmax;
+                let mut best = None;
+                for slot in start as usize..(start + count) as usize {
+                    if let Some(h) = self.intersect_prim(slot, ray, tmax) {
+                        tmax = h.t;
+                        cand = Some(h);
+                        best = Some((slot, h.t));
+                    }
+                }
+                best
+            });
         // `cand` holds the latest accepted hit, which is the nearest: each accepted hit
         // shrinks tmax, so later candidates are always closer.
         if found.is_some() {
@@ -583,27 +585,32 @@ impl Scene {
                 return true;
             }
         }
-        self.bvh
-            .any_leaves(ray, tmax, |leaf, start, count| match &self.packets[leaf as usize] {
+        self.bvh.any_leaves(ray, tmax, |leaf, start, count| {
+            match &self.packets[leaf as usize] {
                 Some(p) => p.any(ray.o, ray.d, 0.0, tmax),
-                None => (start as usize..(start + count) as usize).any(|slot| match self.prims[slot] {
-                    Prim::Tri {
-                        geom,
-                        object,
-                        tri,
-                        alpha,
-                    } => match geom.intersect(ray.o, ray.d, 0.0, tmax) {
-                        Some((t, b1, b2)) => !alpha || self.alpha_passes(object, tri, b1, b2, t),
-                        None => false,
-                    },
-                    Prim::Analytic { object } => {
-                        self.intersect_analytic(object, ray, tmax).is_some()
-                    }
-                    Prim::Instance { object } => {
-                        self.intersect_instance(object, ray, tmax).is_some()
-                    }
-                }),
-            })
+                None => {
+                    (start as usize..(start + count) as usize).any(|slot| match self.prims[slot] {
+                        Prim::Tri {
+                            geom,
+                            object,
+                            tri,
+                            alpha,
+                        } => match geom.intersect(ray.o, ray.d, 0.0, tmax) {
+                            Some((t, b1, b2)) => {
+                                !alpha || self.alpha_passes(object, tri, b1, b2, t)
+                            }
+                            None => false,
+                        },
+                        Prim::Analytic { object } => {
+                            self.intersect_analytic(object, ray, tmax).is_some()
+                        }
+                        Prim::Instance { object } => {
+                            self.intersect_instance(object, ray, tmax).is_some()
+                        }
+                    })
+                }
+            }
+        })
     }
 
     /// Brute-force nearest hit, testing every primitive: the reference the BVH is checked
