@@ -73,6 +73,8 @@ enum Prim {
 struct MeshBlas {
     bvh: Bvh,
     tris: Vec<(TriangleGeom, u32)>,
+    /// By leaf: its triangles packed for the 4-wide test (used for opaque instances).
+    packets: Vec<Tri4>,
 }
 
 /// A material with texture references resolved to slots.
@@ -681,6 +683,26 @@ impl Scene {
             o.to_object.transform_vector3a(ray.d),
         );
         let mut cand = None;
+        if self.material_of(object).alpha_mode == AlphaMode::Opaque {
+            let (slot, t) = blas
+                .bvh
+                .closest_leaves(&local, tmax, |leaf, start, _, tmax| {
+                    let (lane, t, b1, b2) =
+                        blas.packets[leaf as usize].intersect(local.o, local.d, 0.0, tmax)?;
+                    let slot = start as usize + lane;
+                    cand = Some((b1, b2));
+                    Some((slot, t))
+                })?;
+            let (b1, b2) = cand?;
+            return Some(Hit {
+                t,
+                object,
+                prim: blas.tris[slot].1,
+                b1,
+                b2,
+            });
+        }
+        let mut cand = None;
         blas.bvh.closest(&local, tmax, |slot, tmax| {
             let (geom, tri) = blas.tris[slot];
             match geom.intersect(local.o, local.d, 0.0, tmax) {
@@ -1110,10 +1132,19 @@ fn build_blas(m: &Mesh) -> MeshBlas {
         .map(|i| Aabb::from_points(&m.corners(i)))
         .collect();
     let (bvh, order) = Bvh::build(&bounds);
-    MeshBlas {
-        bvh,
-        tris: order.iter().map(|&i| geoms[i as usize]).collect(),
-    }
+    let tris: Vec<(TriangleGeom, u32)> = order.iter().map(|&i| geoms[i as usize]).collect();
+    let packets = bvh
+        .leaves()
+        .iter()
+        .map(|&(start, count)| {
+            let leaf: Vec<TriangleGeom> = tris[start as usize..(start + count) as usize]
+                .iter()
+                .map(|t| t.0)
+                .collect();
+            Tri4::new(&leaf)
+        })
+        .collect();
+    MeshBlas { bvh, tris, packets }
 }
 
 fn transform_aabb(m: &Affine3A, b: &Aabb) -> Aabb {
