@@ -6,10 +6,14 @@
 //! (Embree's and pbrt's way of making wide BVHs from binary ones). This is the only module that
 //! talks to obvhs.
 //!
-//! Why our own traversal: the closure that intersects a primitive is inlined into the loop, the
-//! slab test needs no decompression and the ray's reciprocal direction and octant are computed
-//! once. Measured (2026-11-30, 2 threads, `raytile bench`), see ARCHITECTURE.md for the figures
-//! against obvhs's compressed 8-wide BVH (CWBVH), which this replaced.
+//! Why our own traversal: the closure that intersects a leaf is inlined into the loop, the slab
+//! test needs no decompression, the ray's reciprocal direction and octant are computed once,
+//! and the stack lives uninitialised on the call stack. Measured against obvhs's compressed
+//! 8-wide BVH (CWBVH) with its own traversal, which this replaced (2026-11-30, 2-core Xeon,
+//! 2 threads, `raytile bench`, old and new binaries run alternately): on the glTF Cornell box
+//! 21.1 -> 32.2 Mrays/s coherent and 14.8 -> 19.9 incoherent (closest hit, with the scene's
+//! 4-wide triangle packets); on a 1 M-triangle mesh (fast_build) 5.1 -> 11.9 coherent and
+//! 1.57 -> 1.75 incoherent, build 0.55 -> 0.35 s.
 //!
 //! Robustness: the slab test is conservative (pbrt's `1 + 2γ₃` scaling of the far distance; a
 //! slab whose distance is NaN, a ray lying in a bounding plane, does not cull), so every
