@@ -116,6 +116,17 @@ impl Sampler {
         self.dimension = self.dimension.next_multiple_of(4);
     }
 
+    /// Three numbers in [0, 1) from a hash of (pixel, sample index, current dimension), not from
+    /// the Sobol sequence: for choices that gain little from stratification (light selection,
+    /// BSDF lobe, Russian roulette). Does not advance the dimension.
+    #[inline]
+    pub fn hashed_3(&self) -> [f32; 3] {
+        let h1 = hash_words(&[self.pixel_seed, self.index, self.dimension | 0x8000_0000]);
+        let h2 = hash_u32(h1 ^ 0x6a09_e667);
+        let h3 = hash_u32(h2 ^ 0xbb67_ae85);
+        [to_unit(h1), to_unit(h2), to_unit(h3)]
+    }
+
     /// The next two numbers in [0, 1)².
     #[inline]
     pub fn next_2d(&mut self) -> Vec2 {
@@ -141,6 +152,29 @@ mod tests {
         assert!(draw(1, 2, 70_000, 0)
             .iter()
             .all(|&u| (0.0..1.0).contains(&u)));
+    }
+
+    #[test]
+    fn hashed_numbers_are_deterministic_uniform_and_leave_the_dimension() {
+        let mut s = Sampler::new(5, 7, 3, 11);
+        s.next_2d();
+        let a = s.hashed_3();
+        assert_eq!(a, s.hashed_3(), "same inputs, same numbers");
+        let next = s.next_1d();
+        let mut t = Sampler::new(5, 7, 3, 11);
+        t.next_2d();
+        assert_eq!(t.next_1d(), next, "hashed_3 must not advance the dimension");
+        let (mut sum, n) = ([0.0f64; 3], 20_000u32);
+        for i in 0..n {
+            let h = Sampler::new(i % 97, i / 97, i, 1).hashed_3();
+            for k in 0..3 {
+                assert!((0.0..1.0).contains(&h[k]));
+                sum[k] += h[k] as f64;
+            }
+        }
+        for m in sum {
+            assert!((m / n as f64 - 0.5).abs() < 0.01, "mean {}", m / n as f64);
+        }
     }
 
     #[test]
