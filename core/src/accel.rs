@@ -83,18 +83,18 @@ impl Node4 {
 }
 
 /// A ray prepared for slab tests: origin and reciprocal direction splatted across lanes, and
-/// for each axis the index of its near bound in [`Node4::bounds`].
+/// for each axis whether the direction is negative (the near bound is then the maximum).
 struct SlabRay {
     o: [Vec4; 3],
     inv: [Vec4; 3],
-    near: [usize; 3],
+    neg: [bool; 3],
 }
 
 impl SlabRay {
     #[inline(always)]
     fn new(ray: &Ray) -> Self {
         let inv = ray.d.recip();
-        let near = |i: f32| usize::from(i < 0.0);
+
         Self {
             o: [
                 Vec4::splat(ray.o.x),
@@ -102,7 +102,7 @@ impl SlabRay {
                 Vec4::splat(ray.o.z),
             ],
             inv: [Vec4::splat(inv.x), Vec4::splat(inv.y), Vec4::splat(inv.z)],
-            near: [near(inv.x), 2 + near(inv.y), 4 + near(inv.z)],
+            neg: [inv.x < 0.0, inv.y < 0.0, inv.z < 0.0],
         }
     }
 
@@ -111,13 +111,15 @@ impl SlabRay {
     #[inline(always)]
     fn test(&self, node: &Node4, tmax: f32) -> (Vec4, u32) {
         let b = &node.bounds;
-        // The far bound of an axis is the other bound of its pair: index ^ 1.
-        let tn_x = (b[self.near[0]] - self.o[0]) * self.inv[0];
-        let tf_x = (b[self.near[0] ^ 1] - self.o[0]) * self.inv[0];
-        let tn_y = (b[self.near[1]] - self.o[1]) * self.inv[1];
-        let tf_y = (b[self.near[1] ^ 1] - self.o[1]) * self.inv[1];
-        let tn_z = (b[self.near[2]] - self.o[2]) * self.inv[2];
-        let tf_z = (b[self.near[2] ^ 1] - self.o[2]) * self.inv[2];
+        // Indices built from bools so that the compiler sees them in bounds (no checks).
+        let [nx, ny, nz] = self.neg.map(usize::from);
+        let [fx, fy, fz] = self.neg.map(|n| usize::from(!n));
+        let tn_x = (b[nx] - self.o[0]) * self.inv[0];
+        let tf_x = (b[fx] - self.o[0]) * self.inv[0];
+        let tn_y = (b[2 + ny] - self.o[1]) * self.inv[1];
+        let tf_y = (b[2 + fy] - self.o[1]) * self.inv[1];
+        let tn_z = (b[4 + nz] - self.o[2]) * self.inv[2];
+        let tf_z = (b[4 + fz] - self.o[2]) * self.inv[2];
         // max/min return their second operand when the first is NaN (0·∞: the ray lies in a
         // bounding plane), so a NaN slab never culls: candidates come first, accumulators second.
         let tnear = tn_x.max(tn_y.max(tn_z.max(Vec4::ZERO)));
