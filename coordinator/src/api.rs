@@ -376,6 +376,18 @@ async fn register(
     if req.name.len() > 256 {
         return Err(AppError::invalid("name", "must be at most 256 bytes"));
     }
+    if req.render_version != proto::RENDER_VERSION {
+        // Tiles from another renderer version would not match the rest of the frame bit for
+        // bit: such a worker must be upgraded (or the coordinator), not mixed in.
+        tracing::warn!(name = %req.name, version = req.render_version, "worker refused: renderer version");
+        return Err(AppError::Conflict(format!(
+            "worker '{}' renders with renderer version {}, this coordinator's jobs need version {}: \
+             run the same raytile release on every worker and the coordinator",
+            req.name,
+            req.render_version,
+            proto::RENDER_VERSION
+        )));
+    }
     let id = state.sched().register(&req.name, req.threads)?;
     tracing::info!(worker = %id, name = %req.name, threads = req.threads, "worker registered");
     Ok(Json(proto::Registered {

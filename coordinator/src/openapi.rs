@@ -46,7 +46,7 @@ pub fn document() -> Value {
                     "created_ms": {"type": "integer"}, "started_ms": {"type": "integer", "nullable": true}, "finished_ms": {"type": "integer", "nullable": true},
                     "error": {"type": "string", "nullable": true}}},
                 "JobList": {"type": "object", "properties": {"jobs": {"type": "array", "items": {"$ref": "#/components/schemas/JobStatus"}}}},
-                "RegisterRequest": {"type": "object", "properties": {"name": {"type": "string"}, "threads": {"type": "integer"}}},
+                "RegisterRequest": {"type": "object", "properties": {"name": {"type": "string"}, "threads": {"type": "integer"}, "render_version": {"type": "integer", "description": "the worker's renderer version; a mismatch with the coordinator's is refused with 409"}}},
                 "Registered": {"type": "object", "properties": {"worker_id": {"type": "string"}, "lease_timeout_ms": {"type": "integer"}, "heartbeat_ms": {"type": "integer"}}},
                 "WorkerList": {"type": "object", "properties": {"workers": {"type": "array", "items": {"type": "object"}}}},
                 "Lease": {"type": "object", "properties": {

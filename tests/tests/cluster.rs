@@ -284,6 +284,7 @@ mod support {
                 .json(&proto::RegisterRequest {
                     name: name.into(),
                     threads: 1,
+                    render_version: proto::RENDER_VERSION,
                 })
                 .send()
                 .await
@@ -845,6 +846,41 @@ mod api {
                 .status(),
             200
         );
+        c.stop().await;
+    }
+
+    /// A worker of another renderer version is refused with 409 (its tiles would not match
+    /// the frame bit for bit), and no worker is registered.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn worker_of_another_render_version_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let c = Coord::start(test_config(dir.path()), 0).await;
+        let http = reqwest::Client::new();
+        for version in [None, Some(proto::RENDER_VERSION + 1)] {
+            let mut body = serde_json::json!({"name": "stale", "threads": 1});
+            if let Some(v) = version {
+                body["render_version"] = v.into();
+            }
+            let r = http
+                .post(format!("{}/v1/workers", c.base))
+                .json(&body)
+                .send()
+                .await
+                .unwrap();
+            assert_eq!(r.status(), 409, "{version:?}");
+            let text = r.text().await.unwrap();
+            assert!(text.contains("renderer version"), "{text}");
+        }
+        let workers: proto::WorkerList = http
+            .get(format!("{}/v1/workers", c.base))
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        assert!(workers.workers.is_empty());
+        Fake::register(&c.base, "current").await;
         c.stop().await;
     }
 }
