@@ -144,10 +144,10 @@ impl Ggx {
             return Vec3A::Z;
         }
         // Visible normals of a hemisphere: uniform directions on the cap z ≥ -wh.z, plus wh.
-        let phi = 2.0 * PI * u.x;
+        let (sin_phi, cos_phi) = crate::sampling::warp::sincos_2pi(u.x);
         let z = (1.0 - u.y) * (1.0 + wh.z) - wh.z;
         let sin_t = (1.0 - z * z).clamp(0.0, 1.0).sqrt();
-        let c = Vec3A::new(sin_t * phi.cos(), sin_t * phi.sin(), z);
+        let c = Vec3A::new(sin_t * cos_phi, sin_t * sin_phi, z);
         let h = c + wh;
         // Unstretch; keep the normal strictly in the upper hemisphere.
         let wm = Vec3A::new(self.alpha * h.x, self.alpha * h.y, h.z.max(1e-6)).normalize_or_zero();

@@ -1,7 +1,35 @@
 //! Warps from uniform numbers in [0,1)ⁿ to directions and points, with their densities.
 
 use glam::{Vec2, Vec3A};
-use std::f32::consts::{FRAC_1_PI, FRAC_PI_2, FRAC_PI_4, PI};
+use std::f32::consts::{FRAC_1_PI, FRAC_PI_4, PI};
+
+/// sin and cos of `a`, |a| ≤ π/4, from minimax polynomials (Cephes' `sinf`/`cosf` kernels;
+/// error about 1 ulp there). Plain arithmetic, unlike the C library's `sinf`, which glibc picks
+/// per CPU at load time (an FMA variant or not) and which may round differently between the
+/// machines of one farm: sampling must not depend on the machine.
+#[inline]
+fn sincos_quarter(a: f32) -> (f32, f32) {
+    let z = a * a;
+    let s = ((-1.951_529_6e-4 * z + 8.332_161e-3) * z - 1.666_665_5e-1) * z * a + a;
+    let c = ((2.443_315_7e-5 * z - 1.388_731_6e-3) * z + 4.166_664_6e-2) * z * z - 0.5 * z + 1.0;
+    (s, c)
+}
+
+/// sin and cos of 2π`u` for `u` in [0, 1] (any finite `u`, in fact), deterministic across
+/// machines (see [`sincos_quarter`]): the turn is split into the nearest quarter, exactly, and
+/// a remainder of at most an eighth of a turn.
+#[inline]
+pub fn sincos_2pi(u: f32) -> (f32, f32) {
+    let q = (4.0 * u).round();
+    let a = (u - 0.25 * q) * (2.0 * PI);
+    let (s, c) = sincos_quarter(a);
+    match (q as i32) & 3 {
+        0 => (s, c),
+        1 => (c, -s),
+        2 => (-s, -c),
+        _ => (-c, s),
+    }
+}
 
 /// Uniform point on the unit disk (Shirley–Chiu concentric map: low distortion, so
 /// stratification survives).
@@ -11,12 +39,15 @@ pub fn concentric_disk(u: Vec2) -> Vec2 {
     if o.x == 0.0 && o.y == 0.0 {
         return Vec2::ZERO;
     }
-    let (r, theta) = if o.x.abs() > o.y.abs() {
-        (o.x, FRAC_PI_4 * (o.y / o.x))
+    if o.x.abs() > o.y.abs() {
+        // θ = π/4 · y/x
+        let (s, c) = sincos_quarter(FRAC_PI_4 * (o.y / o.x));
+        Vec2::new(c, s) * o.x
     } else {
-        (o.y, FRAC_PI_2 - FRAC_PI_4 * (o.x / o.y))
-    };
-    Vec2::new(theta.cos(), theta.sin()) * r
+        // θ = π/2 − a with a = π/4 · x/y: cos θ = sin a, sin θ = cos a
+        let (s, c) = sincos_quarter(FRAC_PI_4 * (o.x / o.y));
+        Vec2::new(s, c) * o.y
+    }
 }
 
 /// Cosine-weighted direction about +Z.
@@ -38,8 +69,8 @@ pub fn cosine_hemisphere_pdf(cos_theta: f32) -> f32 {
 pub fn uniform_sphere(u: Vec2) -> Vec3A {
     let z = 1.0 - 2.0 * u.x;
     let r = (1.0 - z * z).max(0.0).sqrt();
-    let phi = 2.0 * PI * u.y;
-    Vec3A::new(r * phi.cos(), r * phi.sin(), z)
+    let (sin_phi, cos_phi) = sincos_2pi(u.y);
+    Vec3A::new(r * cos_phi, r * sin_phi, z)
 }
 
 /// Density of [`uniform_sphere`].
@@ -50,8 +81,8 @@ pub const UNIFORM_SPHERE_PDF: f32 = 1.0 / (4.0 * PI);
 pub fn uniform_cone(u: Vec2, cos_max: f32) -> Vec3A {
     let cos_t = (1.0 - u.x) + u.x * cos_max;
     let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
-    let phi = 2.0 * PI * u.y;
-    Vec3A::new(sin_t * phi.cos(), sin_t * phi.sin(), cos_t)
+    let (sin_phi, cos_phi) = sincos_2pi(u.y);
+    Vec3A::new(sin_t * cos_phi, sin_t * sin_phi, cos_t)
 }
 
 /// Uniform barycentric coordinates (b0, b1) on a triangle (Heitz's low-distortion map).
@@ -124,6 +155,48 @@ impl Frame {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sincos_2pi_is_accurate_everywhere() {
+        let mut worst = 0.0f64;
+        for i in 0..=100_000 {
+            let u = i as f32 / 100_000.0;
+            let (s, c) = sincos_2pi(u);
+            let phi = 2.0 * std::f64::consts::PI * u as f64;
+            worst = worst
+                .max((s as f64 - phi.sin()).abs())
+                .max((c as f64 - phi.cos()).abs());
+        }
+        assert!(worst < 3e-7, "worst error {worst}");
+        // Exact at the quarter turns.
+        assert_eq!(sincos_2pi(0.0), (0.0, 1.0));
+        assert_eq!(sincos_2pi(0.25), (1.0, 0.0));
+        assert_eq!(sincos_2pi(0.5), (-0.0, -1.0));
+        assert_eq!(sincos_2pi(0.75), (-1.0, 0.0));
+    }
+
+    #[test]
+    fn concentric_disk_matches_the_trigonometric_map() {
+        for i in 0..200 {
+            for j in 0..200 {
+                let u = Vec2::new((i as f32 + 0.5) / 200.0, (j as f32 + 0.5) / 200.0);
+                let o = 2.0 * u - Vec2::ONE;
+                let (r, theta) = if o.x.abs() > o.y.abs() {
+                    (o.x as f64, std::f64::consts::FRAC_PI_4 * (o.y / o.x) as f64)
+                } else {
+                    (
+                        o.y as f64,
+                        std::f64::consts::FRAC_PI_2
+                            - std::f64::consts::FRAC_PI_4 * (o.x / o.y) as f64,
+                    )
+                };
+                let d = concentric_disk(u);
+                assert!((d.x as f64 - r * theta.cos()).abs() < 3e-7, "{u}");
+                assert!((d.y as f64 - r * theta.sin()).abs() < 3e-7, "{u}");
+                assert!(d.length_squared() <= 1.0);
+            }
+        }
+    }
 
     #[test]
     fn frames_are_orthonormal() {
