@@ -97,16 +97,18 @@ impl Sampler {
     fn sobol_4d(&self, set: u32) -> [f32; 4] {
         let sobol = parts::sobol_int4_rev(self.shuffled_rev_index, set);
         let seed = self.pixel_seed.wrapping_mul(0x9c8f_2d3b) ^ set;
-        let scramble: parts::Int4 = [
+        let scramble = [
             seed ^ 0x912f_69ba,
             seed ^ 0x174f_18ab,
             seed ^ 0x691e_72ca,
             seed ^ 0xb40c_c1b8,
-        ]
-        .into();
-        parts::owen_scramble_int4_rev(sobol, parts::hash_int4(scramble))
-            .reverse_bits()
-            .to_f32_norm()
+        ];
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("sse4.1") {
+            // SAFETY: the CPU has SSE4.1 (checked just above).
+            return unsafe { sse41::scramble_to_unit(sobol.into(), scramble) };
+        }
+        scramble_to_unit(sobol, scramble)
     }
 
     /// Skips to the start of the next group of four dimensions, so that the pairs drawn after
@@ -133,6 +135,71 @@ impl Sampler {
         let x = self.next_1d();
         let y = self.next_1d();
         Vec2::new(x, y)
+    }
+}
+
+/// The end of `sobol_burley::sample_4d`: Owen-scramble the (bit-reversed) Sobol points with
+/// hashed per-dimension seeds, un-reverse, map to [0, 1).
+#[inline]
+fn scramble_to_unit(sobol: parts::Int4, scramble: [u32; 4]) -> [f32; 4] {
+    parts::owen_scramble_int4_rev(sobol, parts::hash_int4(scramble.into()))
+        .reverse_bits()
+        .to_f32_norm()
+}
+
+/// [`scramble_to_unit`] with SSE4.1's 32-bit multiply, chosen at run time: `sobol_burley` picks
+/// its multiply when it is compiled, and for the baseline x86-64 target that is a five-instruction
+/// SSE2 emulation. Integer arithmetic: the same bits on every CPU (a test checks).
+#[cfg(target_arch = "x86_64")]
+mod sse41 {
+    use std::arch::x86_64::*;
+
+    #[inline(always)]
+    unsafe fn splat(x: u32) -> __m128i {
+        _mm_set1_epi32(x as i32)
+    }
+
+    /// Swaps the bit groups selected by `mask` with those `shift` places above them.
+    #[inline(always)]
+    unsafe fn swap_bits<const SHIFT: i32>(n: __m128i, mask: u32) -> __m128i {
+        let m = splat(mask);
+        _mm_or_si128(
+            _mm_and_si128(_mm_srli_epi32::<SHIFT>(n), m),
+            _mm_slli_epi32::<SHIFT>(_mm_and_si128(n, m)),
+        )
+    }
+
+    #[target_feature(enable = "sse4.1")]
+    pub(super) unsafe fn scramble_to_unit(sobol: [u32; 4], scramble: [u32; 4]) -> [f32; 4] {
+        // hash_int4
+        let mut h = _mm_xor_si128(
+            _mm_loadu_si128(scramble.as_ptr().cast()),
+            splat(0xe6fe_3beb),
+        );
+        h = _mm_xor_si128(h, _mm_srli_epi32::<16>(h));
+        h = _mm_mullo_epi32(h, splat(0x7feb_352d));
+        h = _mm_xor_si128(h, _mm_srli_epi32::<15>(h));
+        h = _mm_mullo_epi32(h, splat(0x846c_a68b));
+        h = _mm_xor_si128(h, _mm_srli_epi32::<16>(h));
+        // owen_scramble_int4_rev
+        let mut n = _mm_loadu_si128(sobol.as_ptr().cast());
+        n = _mm_xor_si128(n, _mm_mullo_epi32(n, splat(0x3d20_adea)));
+        n = _mm_add_epi32(n, h);
+        n = _mm_mullo_epi32(n, _mm_or_si128(_mm_srli_epi32::<16>(h), splat(1)));
+        n = _mm_xor_si128(n, _mm_mullo_epi32(n, splat(0x0552_6c56)));
+        n = _mm_xor_si128(n, _mm_mullo_epi32(n, splat(0x53a2_2864)));
+        // reverse_bits
+        n = swap_bits::<1>(n, 0x5555_5555);
+        n = swap_bits::<2>(n, 0x3333_3333);
+        n = swap_bits::<4>(n, 0x0f0f_0f0f);
+        n = swap_bits::<8>(n, 0x00ff_00ff);
+        n = _mm_or_si128(_mm_srli_epi32::<16>(n), _mm_slli_epi32::<16>(n));
+        // to_f32_norm
+        let f = _mm_or_si128(_mm_srli_epi32::<9>(n), splat(0x3f80_0000));
+        let f = _mm_sub_ps(_mm_castsi128_ps(f), _mm_set1_ps(1.0));
+        let mut out = [0.0f32; 4];
+        _mm_storeu_ps(out.as_mut_ptr(), f);
+        out
     }
 }
 
@@ -185,6 +252,24 @@ mod tests {
                 let want = sobol_burley::sample_4d(index, set, s.pixel_seed);
                 assert_eq!(s.sobol_4d(set).map(f32::to_bits), want.map(f32::to_bits));
             }
+        }
+    }
+
+    #[test]
+    #[cfg(target_arch = "x86_64")]
+    fn sse41_scramble_equals_the_portable_one() {
+        if !std::arch::is_x86_feature_detected!("sse4.1") {
+            eprintln!("skipped: this CPU has no SSE4.1");
+            return;
+        }
+        for i in 0..100_000u32 {
+            let w = |k: u32| hash_u32(i.wrapping_mul(8).wrapping_add(k));
+            let sobol = [w(0), w(1), w(2), w(3)];
+            let scramble = [w(4), w(5), w(6), w(7)];
+            // SAFETY: SSE4.1 checked above.
+            let fast = unsafe { sse41::scramble_to_unit(sobol, scramble) };
+            let portable = scramble_to_unit(sobol.into(), scramble);
+            assert_eq!(fast.map(f32::to_bits), portable.map(f32::to_bits));
         }
     }
 
