@@ -40,6 +40,9 @@ pub const PRESETS: [(&str, BvhBuildParams); 6] = [
     ("very_slow_build", BvhBuildParams::very_slow_build()),
 ];
 
+/// Largest primitive count [`Bvh::build`] builds with the thorough preset.
+pub const SMALL_BUILD: usize = 1 << 16;
+
 /// Most primitives in one leaf.
 const MAX_LEAF: u32 = 4;
 
@@ -184,10 +187,21 @@ pub struct Bvh {
 }
 
 impl Bvh {
-    /// Builds over `bounds` with the default preset; returns the BVH and the slot order
+    /// Builds over `bounds` with a preset chosen by size; returns the BVH and the slot order
     /// (`order[slot]` = index into `bounds`).
+    ///
+    /// Up to [`SMALL_BUILD`] primitives, obvhs's most thorough preset (`very_slow_build`: a wide
+    /// PLOC search and full reinsertion): it costs milliseconds there, and a small scene of big
+    /// primitives (a room, a Cornell box) is where tree quality shows most; measured on the
+    /// glTF Cornell box, 6 % fewer instructions per path sample than `fast_build`. Above,
+    /// `fast_build`, whose build time stays well under a second per million triangles.
     pub fn build(bounds: &[Aabb]) -> (Self, Vec<u32>) {
-        Self::build_with(bounds, BvhBuildParams::fast_build())
+        let params = if bounds.len() <= SMALL_BUILD {
+            BvhBuildParams::very_slow_build()
+        } else {
+            BvhBuildParams::fast_build()
+        };
+        Self::build_with(bounds, params)
     }
 
     /// Builds with explicit obvhs parameters (leaves hold at most 8 primitives).
