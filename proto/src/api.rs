@@ -197,7 +197,9 @@ pub struct JobList {
 /// coordinator refuses workers whose version differs from its own, so that every tile of a
 /// frame comes from the same arithmetic and the frame stays bit-identical to a local render.
 /// 2: one 4D Sobol set per bounce (2026-11-30).
-pub const RENDER_VERSION: u32 = 2;
+/// 3: shading frame about the normal alone, sin/cos by our own polynomials, flat triangles
+/// shaded from world-space data, small scenes' BVH built with the thorough preset (2026-11-30).
+pub const RENDER_VERSION: u32 = 3;
 
 /// Body of `POST /v1/workers`.
 #[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]

@@ -149,7 +149,7 @@ pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, max_depth: u32) ->
             break;
         }
         let bsdf = scene.bsdf(&it);
-        let frame = Frame::from_zx(it.ns, it.dpdu);
+        let frame = it.shading_frame();
         let wo = frame.to_local(wo_world);
 
         // Fixed dimension layout per bounce, one 4D Sobol set: [light point (2), BSDF direction

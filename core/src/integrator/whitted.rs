@@ -10,7 +10,6 @@ use super::path::light_contribution;
 use super::spawn_ray;
 use crate::geometry::Ray;
 use crate::material::{fresnel_dielectric, Bsdf};
-use crate::sampling::warp::Frame;
 use crate::sampling::Sampler;
 use crate::Scene;
 use glam::Vec3A;
@@ -48,7 +47,7 @@ fn trace(
     }
     let mut l = scene.emitted(&it, wo_world);
     let bsdf = scene.bsdf(&it);
-    let frame = Frame::from_zx(it.ns, it.dpdu);
+    let frame = it.shading_frame();
     let wo = frame.to_local(wo_world);
 
     // Local illumination: a shadow ray to every light.

@@ -99,6 +99,18 @@ pub(crate) struct MaterialSlots {
     pub normal: Option<(TexSlot, f32)>,
 }
 
+impl MaterialSlots {
+    /// Whether any texture is looked up (else shading never reads texture coordinates).
+    #[inline]
+    pub fn any(&self) -> bool {
+        self.base.is_some()
+            || self.metallic_roughness.is_some()
+            || self.transmission.is_some()
+            || self.emission.is_some()
+            || self.normal.is_some()
+    }
+}
+
 /// The nearest intersection found by [`Scene::intersect`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Hit {
@@ -112,7 +124,12 @@ pub struct Hit {
     pub b1: f32,
     /// Barycentric coordinate of the triangle's third vertex.
     pub b2: f32,
+    /// BVH slot of a flattened (world-space) triangle, [`NO_SLOT`] for other primitives.
+    pub(crate) slot: u32,
 }
+
+/// [`Hit::slot`] of a hit that is not a flattened triangle.
+pub(crate) const NO_SLOT: u32 = u32::MAX;
 
 /// Everything about a surface point that shading needs, in world space.
 #[derive(Clone, Copy, Debug)]
@@ -125,7 +142,7 @@ pub struct Interaction {
     pub ns: Vec3A,
     /// Tangent for the shading frame (may be zero).
     pub dpdu: Vec3A,
-    /// Texture coordinate sets 0 and 1.
+    /// Texture coordinate sets 0 and 1 (zero on meshes whose material has no texture).
     pub uv: [Vec2; 2],
     /// Ray parameter of the hit.
     pub t: f32,
@@ -133,6 +150,16 @@ pub struct Interaction {
     pub object: u32,
     /// Triangle index within the mesh (0 for analytic shapes).
     pub prim: u32,
+}
+
+impl Interaction {
+    /// The frame BSDFs are evaluated in: Z along the shading normal. Every BSDF here is
+    /// isotropic, so the frame's rotation about the normal does not matter and the cheap
+    /// branchless one serves (an anisotropic BSDF would need `Frame::from_zx(ns, dpdu)`).
+    #[inline]
+    pub fn shading_frame(&self) -> Frame {
+        Frame::from_z(self.ns)
+    }
 }
 
 /// Counts describing a built scene.
@@ -173,6 +200,10 @@ pub struct Scene {
     /// By BVH leaf: its triangles packed for the 4-wide test, when the leaf holds only opaque
     /// triangles (else its primitives are tested one by one).
     packets: Vec<Option<Tri4>>,
+    /// By BVH slot, for flattened triangles: the unit world-space front normal (xyz), and in w
+    /// 1 when the shading normal is that normal (no vertex normals, or all three equal to it),
+    /// else 0. What a hit record needs without going back to the mesh and its transform.
+    tri_shading: Vec<Vec4>,
     unbounded: Vec<u32>,
     pub(crate) materials: Vec<Material>,
     pub(crate) textures: Vec<Texture>,
@@ -380,6 +411,19 @@ impl Scene {
             .map(|&i| prims_unordered[i as usize].1)
             .collect();
         let packets = leaf_packets(&bvh, &prims);
+        let tri_shading = prims
+            .iter()
+            .map(|p| match *p {
+                Prim::Tri { object, tri, .. } => {
+                    let o = &objects[object as usize];
+                    let ObjectKind::Mesh { mesh } = o.kind else {
+                        unreachable!("triangles belong to meshes");
+                    };
+                    tri_shading(o, &meshes[mesh as usize], tri)
+                }
+                _ => Vec4::ZERO,
+            })
+            .collect();
 
         // Camera.
         let camera_desc = if desc.cameras.is_empty() && settings.camera.is_none() {
@@ -471,6 +515,7 @@ impl Scene {
             prims,
             bvh,
             packets,
+            tri_shading,
             unbounded,
             materials,
             textures,
@@ -505,6 +550,7 @@ impl Scene {
                     prim: 0,
                     b1: 0.0,
                     b2: 0.0,
+                    slot: NO_SLOT,
                 });
             }
         }
@@ -524,6 +570,7 @@ impl Scene {
                         prim: tri,
                         b1,
                         b2,
+                        slot: slot as u32,
                     });
                     return Some((slot, t));
                 }
@@ -563,6 +610,7 @@ impl Scene {
                     prim: tri,
                     b1,
                     b2,
+                    slot: slot as u32,
                 })
             }
             Prim::Analytic { object } => {
@@ -573,6 +621,7 @@ impl Scene {
                     prim: 0,
                     b1: 0.0,
                     b2: 0.0,
+                    slot: NO_SLOT,
                 })
             }
             Prim::Instance { object } => self.intersect_instance(object, ray, tmax),
@@ -632,6 +681,7 @@ impl Scene {
                             prim: 0,
                             b1: 0.0,
                             b2: 0.0,
+                            slot: NO_SLOT,
                         });
                     }
                 }
@@ -650,6 +700,7 @@ impl Scene {
                                     prim: ti as u32,
                                     b1,
                                     b2,
+                                    slot: NO_SLOT,
                                 });
                             }
                         }
@@ -701,6 +752,7 @@ impl Scene {
                 prim: blas.tris[slot].1,
                 b1,
                 b2,
+                slot: NO_SLOT,
             });
         }
         let mut cand = None;
@@ -714,6 +766,7 @@ impl Scene {
                         prim: tri,
                         b1,
                         b2,
+                        slot: NO_SLOT,
                     });
                     t
                 }
@@ -803,8 +856,34 @@ impl Scene {
     }
 
     fn mesh_interaction(&self, o: &Object, m: &Mesh, hit: &Hit) -> Interaction {
-        let [ia, ib, ic] = m.indices[hit.prim as usize];
+        let mat = &self.materials[o.material as usize];
         let (b1, b2) = (hit.b1, hit.b2);
+        // Texture coordinates only for materials that look textures up (nothing else reads them).
+        let uv = if mat.slots.any() {
+            self.mesh_uvs(m, hit.prim, b1, b2)
+        } else {
+            [Vec2::ZERO; 2]
+        };
+        // A flattened triangle: its world-space corners and normal are at hand (the BVH slot).
+        if let Some(Prim::Tri { geom, .. }) = self.prims.get(hit.slot as usize) {
+            let shading = self.tri_shading[hit.slot as usize];
+            if shading.w != 0.0 && mat.slots.normal.is_none() {
+                let ng = Vec3A::from_vec4(shading);
+                return Interaction {
+                    p: geom.point(b1, b2),
+                    ng,
+                    ns: ng,
+                    // Shading frames need no tangent (every BSDF is isotropic); only normal
+                    // mapping does, and it takes the path below.
+                    dpdu: geom.e1,
+                    uv,
+                    t: hit.t,
+                    object: hit.object,
+                    prim: hit.prim,
+                };
+            }
+        }
+        let [ia, ib, ic] = m.indices[hit.prim as usize];
         let b0 = 1.0 - b1 - b2;
         let [p0, p1, p2] = m.corners(hit.prim as usize);
         let geom = TriangleGeom::new([p0, p1, p2]);
@@ -813,7 +892,6 @@ impl Scene {
         // The inverse transpose maps the object-space front normal to the world front side even
         // when the transform mirrors (a mirrored winding flips e1×e2 in world space, not this).
         let ng = (o.normal_matrix * geom.normal()).normalize_or(Vec3A::Y);
-        let uv = self.mesh_uvs(m, hit.prim, b1, b2);
         let mut ns = if m.normals.is_empty() {
             ng
         } else {
@@ -854,7 +932,6 @@ impl Scene {
             geom.e1
         };
         let dpdu = o.to_world.transform_vector3a(dpdu_obj);
-        let mat = &self.materials[o.material as usize];
         if let Some((slot, scale)) = mat.slots.normal {
             let tex = slot.lookup(&self.textures, &uv);
             let tn = Vec3A::new(
@@ -1103,6 +1180,25 @@ impl Scene {
     pub(crate) fn absorption(&self, object: u32) -> Vec3A {
         self.material_of(object).absorption
     }
+}
+
+/// [`Scene::tri_shading`] of triangle `tri` of `m` placed by `o`: the unit world front normal,
+/// and whether the shading normal is that normal (w = 1).
+fn tri_shading(o: &Object, m: &Mesh, tri: u32) -> Vec4 {
+    let geom = TriangleGeom::new(m.corners(tri as usize));
+    // As in `mesh_interaction`: the inverse transpose keeps the object's front side.
+    let ng = (o.normal_matrix * geom.normal()).normalize_or(Vec3A::Y);
+    let flat = m.normals.is_empty() || {
+        // Vertex normals all along the face normal (all on one side: a mirrored winding flips
+        // them all, and shading brings them back): interpolating them gives the face normal.
+        let dots = m.indices[tri as usize].map(|i| {
+            (o.normal_matrix * m.normals[i as usize])
+                .normalize_or_zero()
+                .dot(ng)
+        });
+        dots.iter().all(|&d| d >= 1.0 - 1e-6) || dots.iter().all(|&d| d <= -(1.0 - 1e-6))
+    };
+    ng.extend(if flat { 1.0 } else { 0.0 })
 }
 
 /// For each BVH leaf, its triangles packed four-wide when the leaf holds only opaque triangles.
