@@ -1,6 +1,8 @@
 //! The bounding-volume hierarchy: a 4-wide BVH with uncompressed single-precision child bounds,
 //! traversed with one SIMD slab test per node (four children at once, SSE through glam's
-//! `Vec4`) and children visited nearest first. obvhs builds it: a PLOC binary BVH, reinsertion
+//! `Vec4`): the leaves a ray enters are intersected at once, and traversal descends into the
+//! nearest inner child, pushing the others (no sorting: on random rays its branches were the
+//! most mispredicted of the renderer). obvhs builds it: a PLOC binary BVH, reinsertion
 //! optimisation and SAH leaf collapsing ([`obvhs::bvh2::builder::build_bvh2`]); we then collapse
 //! the binary tree into 4-wide nodes, always opening the child with the largest surface area
 //! (Embree's and pbrt's way of making wide BVHs from binary ones). This is the only module that
@@ -46,9 +48,6 @@ pub const SMALL_BUILD: usize = 1 << 16;
 /// Most primitives in one leaf.
 const MAX_LEAF: u32 = 4;
 
-/// `count` of an internal child.
-const INTERNAL: u32 = 0;
-
 /// `child` of an empty lane.
 const EMPTY: u32 = u32::MAX;
 
@@ -66,8 +65,11 @@ struct Node4 {
     /// Internal child: its node index. Leaf: its index in [`Bvh::leaves`]. Empty lane:
     /// [`EMPTY`].
     child: [u32; 4],
-    /// Leaf: its primitive count; internal child: [`INTERNAL`].
-    count: [u32; 4],
+    /// Bit `lane` set: that child is a leaf.
+    leaf_mask: u32,
+    /// Bit `lane` set: that child is an internal node. (Empty lanes are in neither mask, so
+    /// whatever the slab test says about them, traversal never follows one.)
+    inner_mask: u32,
 }
 
 impl Node4 {
@@ -81,7 +83,8 @@ impl Node4 {
             Vec4::NEG_INFINITY,
         ],
         child: [EMPTY; 4],
-        count: [INTERNAL; 4],
+        leaf_mask: 0,
+        inner_mask: 0,
     };
 }
 
@@ -258,41 +261,47 @@ impl Bvh {
         let mut node = 0u32;
         loop {
             let n = &self.nodes[node as usize];
-            let (tnear, mut mask) = sr.test(n, tmax);
-            // Hit children sorted far to near (at most four: insertion sort).
-            let mut hits = [(0u32, 0u32, 0.0f32); 4];
-            let mut k = 0;
+            let (tnear, mask) = sr.test(n, tmax);
             let tn = tnear.to_array();
-            while mask != 0 {
-                let lane = mask.trailing_zeros() as usize;
-                mask &= mask - 1;
-                if n.child[lane] == EMPTY {
-                    continue;
-                }
-                let e = (n.child[lane], n.count[lane], tn[lane]);
-                let mut j = k;
-                while j > 0 && hits[j - 1].2 < e.2 {
-                    hits[j] = hits[j - 1];
-                    j -= 1;
-                }
-                hits[j] = e;
-                k += 1;
-            }
-            // Leaves are intersected at once, nearest first; inner children are pushed so the
-            // nearest is popped first.
-            for &(child, count, t) in hits[..k].iter().rev() {
-                if count != INTERNAL && t <= tmax {
-                    let (start, count) = self.leaves[child as usize];
-                    if let Some((slot, th)) = leaf(child, start, count, tmax) {
+            // Leaves the ray enters are intersected at once (in lane order: each hit shrinks
+            // tmax, and a leaf entered beyond it is skipped).
+            let mut leaves = mask & n.leaf_mask;
+            while leaves != 0 {
+                let lane = leaves.trailing_zeros() as usize;
+                leaves &= leaves - 1;
+                if tn[lane] <= tmax {
+                    let id = n.child[lane];
+                    let (start, count) = self.leaves[id as usize];
+                    if let Some((slot, th)) = leaf(id, start, count, tmax) {
                         tmax = th;
                         best = Some(slot);
                     }
                 }
             }
-            for &(child, count, t) in &hits[..k] {
-                if count == INTERNAL && t <= tmax {
-                    stack.push((child, t));
+            // Inner children: descend into the nearest at once, push the others. No sorting
+            // and no push/pop for the common single child: fewer unpredictable branches.
+            let mut inner = mask & n.inner_mask;
+            let (mut near, mut near_t) = (EMPTY, f32::INFINITY);
+            while inner != 0 {
+                let lane = inner.trailing_zeros() as usize;
+                inner &= inner - 1;
+                let t = tn[lane];
+                if t > tmax {
+                    continue;
                 }
+                let c = n.child[lane];
+                if near == EMPTY {
+                    (near, near_t) = (c, t);
+                } else if t < near_t {
+                    stack.push((near, near_t));
+                    (near, near_t) = (c, t);
+                } else {
+                    stack.push((c, t));
+                }
+            }
+            if near != EMPTY {
+                node = near;
+                continue;
             }
             loop {
                 match stack.pop() {
@@ -332,22 +341,28 @@ impl Bvh {
         let mut node = 0u32;
         loop {
             let n = &self.nodes[node as usize];
-            let (_, mut mask) = sr.test(n, tmax);
-            while mask != 0 {
-                let lane = mask.trailing_zeros() as usize;
-                mask &= mask - 1;
-                let (child, count) = (n.child[lane], n.count[lane]);
-                if child == EMPTY {
-                    continue;
+            let (_, mask) = sr.test(n, tmax);
+            let mut leaves = mask & n.leaf_mask;
+            while leaves != 0 {
+                let lane = leaves.trailing_zeros() as usize;
+                leaves &= leaves - 1;
+                let id = n.child[lane];
+                let (start, count) = self.leaves[id as usize];
+                if leaf(id, start, count) {
+                    return true;
                 }
-                if count == INTERNAL {
-                    stack.push((child, 0.0));
-                } else {
-                    let (start, count) = self.leaves[child as usize];
-                    if leaf(child, start, count) {
-                        return true;
-                    }
+            }
+            // Descend into the first inner child entered, push the others.
+            let mut inner = mask & n.inner_mask;
+            if inner != 0 {
+                let first = n.child[inner.trailing_zeros() as usize];
+                inner &= inner - 1;
+                while inner != 0 {
+                    stack.push((n.child[inner.trailing_zeros() as usize], 0.0));
+                    inner &= inner - 1;
                 }
+                node = first;
+                continue;
             }
             match stack.pop() {
                 None => return false,
@@ -409,14 +424,14 @@ fn collapse_to_4(bvh2: &Bvh2) -> (Vec<Node4>, Vec<(u32, u32)>) {
             }
             if b2[k].is_leaf() {
                 node.child[lane] = leaves.len() as u32;
-                node.count[lane] = b2[k].prim_count;
+                node.leaf_mask |= 1 << lane;
                 leaves.push((b2[k].first_index, b2[k].prim_count));
             } else {
                 let idx = nodes.len();
                 nodes.push(Node4::EMPTY);
                 work.push((k, idx));
                 node.child[lane] = idx as u32;
-                node.count[lane] = INTERNAL;
+                node.inner_mask |= 1 << lane;
             }
         }
         nodes[n4] = node;
