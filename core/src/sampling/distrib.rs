@@ -9,6 +9,8 @@ pub struct Distribution1D {
     func: Vec<f32>,
     cdf: Vec<f32>,
     integral: f32,
+    /// Whether some bin has probability zero (then a search must step over it).
+    zero_bins: bool,
 }
 
 impl Distribution1D {
@@ -40,10 +42,12 @@ impl Distribution1D {
             cdf.iter_mut().for_each(|c| *c /= integral);
         }
         *cdf.last_mut().unwrap() = 1.0;
+        let zero_bins = cdf.windows(2).any(|w| w[1] <= w[0]);
         Self {
             func,
             cdf,
             integral,
+            zero_bins,
         }
     }
 
@@ -103,8 +107,18 @@ impl Distribution1D {
     fn find(&self, u: f32) -> usize {
         // Largest i with cdf[i] <= u, within [0, n-1]; skips zero-probability bins.
         let n = self.func.len();
-        let idx = self.cdf.partition_point(|&c| c <= u);
+        // The cdf is sorted, so the count of entries <= u is the partition point. Counting
+        // is branch-free, which pays for the few lights of most scenes (a binary search
+        // mispredicts about half its branches on random u); long tables are searched.
+        let idx = if self.cdf.len() <= 16 {
+            self.cdf.iter().map(|&c| usize::from(c <= u)).sum()
+        } else {
+            self.cdf.partition_point(|&c| c <= u)
+        };
         let mut i = idx.saturating_sub(1).min(n - 1);
+        if !self.zero_bins {
+            return i;
+        }
         while i + 1 < n && self.cdf[i + 1] <= self.cdf[i] {
             i += 1;
         }
@@ -168,6 +182,32 @@ mod tests {
             let (bin, p, rem) = d.sample_discrete(i as f32 / 100.0);
             assert_ne!(bin, 1, "zero-weight bin must never be chosen");
             assert!(p > 0.0 && (0.0..1.0).contains(&rem));
+        }
+    }
+
+    #[test]
+    fn counting_search_equals_binary_search() {
+        // Short tables count, long ones search: both must pick the same bins, zero bins and
+        // all, including u exactly on a cdf step.
+        let weights = [
+            0.0, 2.0, 0.0, 0.0, 1.0, 3.0, 0.0, 0.5, 1.0, 0.0, 4.0, 2.0, 0.0, 1.0,
+        ];
+        for n in 1..=weights.len() {
+            let d = Distribution1D::new(&weights[..n]);
+            let mut steps: Vec<f32> = d.cdf.clone();
+            steps.extend((0..1000).map(|i| i as f32 / 1000.0));
+            for u in steps.into_iter().filter(|u| (0.0..1.0).contains(u)) {
+                let i = d.find(u);
+                let idx = d.cdf.partition_point(|&c| c <= u);
+                let mut j = idx.saturating_sub(1).min(d.len() - 1);
+                while j + 1 < d.len() && d.cdf[j + 1] <= d.cdf[j] {
+                    j += 1;
+                }
+                while j > 0 && d.cdf[j + 1] <= d.cdf[j] {
+                    j -= 1;
+                }
+                assert_eq!(i, j, "n {n}, u {u}");
+            }
         }
     }
 

@@ -95,7 +95,7 @@ impl Sampler {
     /// index shuffle hoisted out.
     #[inline]
     fn sobol_4d(&self, set: u32) -> [f32; 4] {
-        let sobol = parts::sobol_int4_rev(self.shuffled_rev_index, set);
+        let sobol = sobol_int4_rev(self.shuffled_rev_index, set);
         let seed = self.pixel_seed.wrapping_mul(0x9c8f_2d3b) ^ set;
         let scramble = [
             seed ^ 0x912f_69ba,
@@ -136,6 +136,39 @@ impl Sampler {
         let y = self.next_1d();
         Vec2::new(x, y)
     }
+}
+
+/// Nibble tables of the Sobol direction vectors: entry `[set][k][v]` is the (bit-reversed)
+/// Sobol point of set `set` for an index whose only set bits are nibble value `v` at nibble `k`
+/// of the 16 index bits used (k = 0 most significant). Sobol points are linear (XOR) in the
+/// index bits, so four lookups give any point. 64 KiB, built once from `sobol_burley` itself.
+type NibbleTables = [[[[u32; 4]; 16]; 4]; sobol_burley::NUM_DIMENSION_SETS_4D as usize];
+
+static SOBOL_NIBBLES: std::sync::LazyLock<Box<NibbleTables>> = std::sync::LazyLock::new(|| {
+    let sets = sobol_burley::NUM_DIMENSION_SETS_4D as usize;
+    let mut t: Box<NibbleTables> = vec![[[[0u32; 4]; 16]; 4]; sets]
+        .into_boxed_slice()
+        .try_into()
+        .expect("one table per dimension set");
+    for (set, tables) in t.iter_mut().enumerate() {
+        for (k, table) in tables.iter_mut().enumerate() {
+            for (v, entry) in table.iter_mut().enumerate() {
+                let index_rev = (v as u32) << (28 - 4 * k);
+                *entry = parts::sobol_int4_rev(index_rev, set as u32).into();
+            }
+        }
+    }
+    t
+});
+
+/// `parts::sobol_int4_rev` (the same bits, a test checks) by four table lookups instead of a
+/// loop over the index's set bits, whose count is random after the Owen shuffle: the loop
+/// mispredicted its exit on most calls.
+#[inline]
+fn sobol_int4_rev(index_rev: u32, set: u32) -> parts::Int4 {
+    let t = &SOBOL_NIBBLES[set as usize];
+    let n = |k: usize| parts::Int4::from(t[k][((index_rev >> (28 - 4 * k)) & 15) as usize]);
+    n(0) ^ n(1) ^ n(2) ^ n(3)
 }
 
 /// The end of `sobol_burley::sample_4d`: Owen-scramble the (bit-reversed) Sobol points with
@@ -251,6 +284,18 @@ mod tests {
             for set in 0..sobol_burley::NUM_DIMENSION_SETS_4D {
                 let want = sobol_burley::sample_4d(index, set, s.pixel_seed);
                 assert_eq!(s.sobol_4d(set).map(f32::to_bits), want.map(f32::to_bits));
+            }
+        }
+    }
+
+    #[test]
+    fn table_sobol_equals_sobol_burley() {
+        for i in 0..20_000u32 {
+            let index_rev = hash_u32(i);
+            for set in 0..sobol_burley::NUM_DIMENSION_SETS_4D {
+                let want: [u32; 4] = parts::sobol_int4_rev(index_rev, set).into();
+                let got: [u32; 4] = sobol_int4_rev(index_rev, set).into();
+                assert_eq!(got, want, "index_rev {index_rev:#x}, set {set}");
             }
         }
     }

@@ -39,15 +39,14 @@ pub fn concentric_disk(u: Vec2) -> Vec2 {
     if o.x == 0.0 && o.y == 0.0 {
         return Vec2::ZERO;
     }
-    if o.x.abs() > o.y.abs() {
-        // θ = π/4 · y/x
-        let (s, c) = sincos_quarter(FRAC_PI_4 * (o.y / o.x));
-        Vec2::new(c, s) * o.x
-    } else {
-        // θ = π/2 − a with a = π/4 · x/y: cos θ = sin a, sin θ = cos a
-        let (s, c) = sincos_quarter(FRAC_PI_4 * (o.x / o.y));
-        Vec2::new(s, c) * o.y
-    }
+    // |x| > |y|: θ = a = π/4 · y/x, r = x. Else θ = π/2 − a with a = π/4 · x/y, r = y, and
+    // cos θ = sin a, sin θ = cos a. Written as selects, not branches: which case holds is a
+    // coin flip per sample, and a mispredicted branch costs more than the selects.
+    let x_major = o.x.abs() > o.y.abs();
+    let (num, r) = if x_major { (o.y, o.x) } else { (o.x, o.y) };
+    let (s, c) = sincos_quarter(FRAC_PI_4 * (num / r));
+    let (cos_t, sin_t) = if x_major { (c, s) } else { (s, c) };
+    Vec2::new(cos_t, sin_t) * r
 }
 
 /// Cosine-weighted direction about +Z.
@@ -88,15 +87,17 @@ pub fn uniform_cone(u: Vec2, cos_max: f32) -> Vec3A {
 /// Uniform barycentric coordinates (b0, b1) on a triangle (Heitz's low-distortion map).
 #[inline]
 pub fn uniform_triangle(u: Vec2) -> (f32, f32) {
-    let (b0, b1);
-    if u.x < u.y {
-        b0 = u.x / 2.0;
-        b1 = u.y - b0;
+    // u.x < u.y: b0 = u.x / 2, b1 = u.y − b0; else b1 = u.y / 2, b0 = u.x − b1. As selects
+    // (the case is a coin flip per sample).
+    let x_first = u.x < u.y;
+    let (halved, other) = if x_first { (u.x, u.y) } else { (u.y, u.x) };
+    let h = halved / 2.0;
+    let rest = other - h;
+    if x_first {
+        (h, rest)
     } else {
-        b1 = u.y / 2.0;
-        b0 = u.x - b1;
+        (rest, h)
     }
-    (b0, b1)
 }
 
 /// An orthonormal basis whose Z axis is `n` (Duff et al. 2017, branchless and continuous).
