@@ -1,6 +1,6 @@
 //! Warps from uniform numbers in [0,1)ⁿ to directions and points, with their densities.
 
-use glam::{Vec2, Vec3A};
+use glam::{Vec2, Vec3A, Vec4};
 use std::f32::consts::{FRAC_1_PI, FRAC_PI_4, PI};
 
 /// sin and cos of `a`, |a| ≤ π/4, from minimax polynomials (Cephes' `sinf`/`cosf` kernels;
@@ -40,13 +40,21 @@ pub fn concentric_disk(u: Vec2) -> Vec2 {
         return Vec2::ZERO;
     }
     // |x| > |y|: θ = a = π/4 · y/x, r = x. Else θ = π/2 − a with a = π/4 · x/y, r = y, and
-    // cos θ = sin a, sin θ = cos a. Written as selects, not branches: which case holds is a
-    // coin flip per sample, and a mispredicted branch costs more than the selects.
-    let x_major = o.x.abs() > o.y.abs();
-    let (num, r) = if x_major { (o.y, o.x) } else { (o.x, o.y) };
-    let (s, c) = sincos_quarter(FRAC_PI_4 * (num / r));
-    let (cos_t, sin_t) = if x_major { (c, s) } else { (s, c) };
-    Vec2::new(cos_t, sin_t) * r
+    // cos θ = sin a, sin θ = cos a. The case is a coin flip per sample: chosen with SIMD
+    // masks (compiled without a branch; scalar selects became mispredicted branches).
+    let x_major = Vec4::splat(o.x.abs()).cmpgt(Vec4::splat(o.y.abs()));
+    let nr = Vec4::select(
+        x_major,
+        Vec4::new(o.y, o.x, 0.0, 0.0),
+        Vec4::new(o.x, o.y, 0.0, 0.0),
+    );
+    let (s, c) = sincos_quarter(FRAC_PI_4 * (nr.x / nr.y));
+    let cs = Vec4::select(
+        x_major,
+        Vec4::new(c, s, 0.0, 0.0),
+        Vec4::new(s, c, 0.0, 0.0),
+    );
+    Vec2::new(cs.x, cs.y) * nr.y
 }
 
 /// Cosine-weighted direction about +Z.
@@ -87,17 +95,22 @@ pub fn uniform_cone(u: Vec2, cos_max: f32) -> Vec3A {
 /// Uniform barycentric coordinates (b0, b1) on a triangle (Heitz's low-distortion map).
 #[inline]
 pub fn uniform_triangle(u: Vec2) -> (f32, f32) {
-    // u.x < u.y: b0 = u.x / 2, b1 = u.y − b0; else b1 = u.y / 2, b0 = u.x − b1. As selects
-    // (the case is a coin flip per sample).
-    let x_first = u.x < u.y;
-    let (halved, other) = if x_first { (u.x, u.y) } else { (u.y, u.x) };
-    let h = halved / 2.0;
-    let rest = other - h;
-    if x_first {
-        (h, rest)
-    } else {
-        (rest, h)
-    }
+    // u.x < u.y: b0 = u.x / 2, b1 = u.y − b0; else b1 = u.y / 2, b0 = u.x − b1. The case is
+    // a coin flip per sample: chosen with SIMD masks, without a branch.
+    let x_first = Vec4::splat(u.x).cmplt(Vec4::splat(u.y));
+    let v = Vec4::select(
+        x_first,
+        Vec4::new(u.x, u.y, 0.0, 0.0),
+        Vec4::new(u.y, u.x, 0.0, 0.0),
+    );
+    let h = v.x / 2.0;
+    let rest = v.y - h;
+    let b = Vec4::select(
+        x_first,
+        Vec4::new(h, rest, 0.0, 0.0),
+        Vec4::new(rest, h, 0.0, 0.0),
+    );
+    (b.x, b.y)
 }
 
 /// An orthonormal basis whose Z axis is `n` (Duff et al. 2017, branchless and continuous).
