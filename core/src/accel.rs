@@ -191,15 +191,22 @@ pub struct Bvh {
 
 impl Bvh {
     /// Builds over `bounds` with a preset chosen by size; returns the BVH and the slot order
-    /// (`order[slot]` = index into `bounds`).
-    ///
-    /// Up to [`SMALL_BUILD`] primitives, obvhs's most thorough preset (`very_slow_build`: a wide
-    /// PLOC search and full reinsertion): it costs milliseconds there, and a small scene of big
-    /// primitives (a room, a Cornell box) is where tree quality shows most; measured on the
-    /// glTF Cornell box, 6 % fewer instructions per path sample than `fast_build`. Above,
-    /// `fast_build`, whose build time stays well under a second per million triangles.
+    /// (`order[slot]` = index into `bounds`). [`Bvh::build_in_scene`] with the tree alone.
     pub fn build(bounds: &[Aabb]) -> (Self, Vec<u32>) {
-        let params = if bounds.len() <= SMALL_BUILD {
+        Self::build_in_scene(bounds, bounds.len())
+    }
+
+    /// Builds one of the BVHs of a scene of `scene_prims` primitives (all its trees together).
+    ///
+    /// Up to [`SMALL_BUILD`] scene primitives, obvhs's most thorough preset (`very_slow_build`:
+    /// a wide PLOC search and full reinsertion): it costs milliseconds there, and a small scene
+    /// of big primitives (a room, a Cornell box) is where tree quality shows most; measured on
+    /// the glTF Cornell box, 6 % fewer instructions per path sample than `fast_build`. Above,
+    /// `fast_build`, whose build time stays under a second per million triangles. The scene's
+    /// size decides, not the tree's, so that many instanced meshes do not each pay for the
+    /// thorough build.
+    pub fn build_in_scene(bounds: &[Aabb], scene_prims: usize) -> (Self, Vec<u32>) {
+        let params = if scene_prims <= SMALL_BUILD {
             BvhBuildParams::very_slow_build()
         } else {
             BvhBuildParams::fast_build()

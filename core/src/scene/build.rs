@@ -308,6 +308,16 @@ impl Scene {
             }
         }
 
+        // Primitives of all the scene's BVHs together (each used mesh's triangles once, in the
+        // top level or in its own tree, and at most one top-level primitive per object): picks
+        // the build preset.
+        let scene_prims = desc.objects.len()
+            + meshes
+                .iter()
+                .zip(&uses)
+                .filter(|(_, &u)| u > 0)
+                .map(|(m, _)| m.indices.len())
+                .sum::<usize>();
         let mut objects = Vec::with_capacity(desc.objects.len());
         let mut prims_unordered: Vec<(Aabb, Prim)> = Vec::new();
         let mut unbounded = Vec::new();
@@ -360,7 +370,7 @@ impl Scene {
                         stats.flattened_triangles += m.indices.len();
                     } else {
                         if blas[mesh_i].is_none() {
-                            blas[mesh_i] = Some(build_blas(m));
+                            blas[mesh_i] = Some(build_blas(m, scene_prims));
                             stats.instanced_triangles += m.indices.len();
                         }
                         let mut b = Aabb::empty();
@@ -405,7 +415,7 @@ impl Scene {
         for b in &bounds_list {
             bounds = bounds.union(b);
         }
-        let (bvh, order) = Bvh::build(&bounds_list);
+        let (bvh, order) = Bvh::build_in_scene(&bounds_list, scene_prims);
         let prims: Vec<Prim> = order
             .iter()
             .map(|&i| prims_unordered[i as usize].1)
@@ -1221,14 +1231,14 @@ fn leaf_packets(bvh: &Bvh, prims: &[Prim]) -> Vec<Option<Tri4>> {
         .collect()
 }
 
-fn build_blas(m: &Mesh) -> MeshBlas {
+fn build_blas(m: &Mesh, scene_prims: usize) -> MeshBlas {
     let geoms: Vec<(TriangleGeom, u32)> = (0..m.indices.len())
         .map(|i| (TriangleGeom::new(m.corners(i)), i as u32))
         .collect();
     let bounds: Vec<Aabb> = (0..m.indices.len())
         .map(|i| Aabb::from_points(&m.corners(i)))
         .collect();
-    let (bvh, order) = Bvh::build(&bounds);
+    let (bvh, order) = Bvh::build_in_scene(&bounds, scene_prims);
     let tris: Vec<(TriangleGeom, u32)> = order.iter().map(|&i| geoms[i as usize]).collect();
     let packets = bvh
         .leaves()
