@@ -43,6 +43,10 @@ CREATE TABLE IF NOT EXISTS workers (
     threads INTEGER NOT NULL,
     registered_ms INTEGER NOT NULL
 );
+CREATE TABLE IF NOT EXISTS meta (
+    key TEXT PRIMARY KEY,
+    value TEXT NOT NULL
+);
 CREATE TABLE IF NOT EXISTS blocked (
     job_id TEXT NOT NULL,
     worker TEXT NOT NULL,
@@ -104,7 +108,57 @@ impl Store {
         let conn = Connection::open(&path)?;
         conn.busy_timeout(std::time::Duration::from_secs(10))?;
         conn.execute_batch(SCHEMA)?;
-        Ok(Store { conn, path })
+        let mut store = Store { conn, path };
+        store.discard_other_renderer_tiles()?;
+        Ok(store)
+    }
+
+    /// Tiles of unfinished jobs stored by a coordinator of another renderer version
+    /// ([`raytile_proto::RENDER_VERSION`]; a database without one predates the check) would mix
+    /// two renderers' arithmetic in one frame: they are deleted and their tasks queued again.
+    /// Finished jobs keep their frames (each came from one renderer). Returns how many tiles
+    /// were discarded.
+    fn discard_other_renderer_tiles(&mut self) -> rusqlite::Result<usize> {
+        let current = raytile_proto::RENDER_VERSION.to_string();
+        let stored: Option<String> = self
+            .conn
+            .query_row(
+                "SELECT value FROM meta WHERE key = 'render_version'",
+                [],
+                |r| r.get(0),
+            )
+            .optional()?;
+        if stored.as_deref() == Some(current.as_str()) {
+            return Ok(0);
+        }
+        let tx = self.conn.transaction()?;
+        const UNFINISHED: &str = "SELECT id FROM jobs WHERE state IN ('queued', 'running')";
+        let discarded = tx.execute(
+            &format!("DELETE FROM results WHERE job_id IN ({UNFINISHED})"),
+            [],
+        )?;
+        tx.execute(
+            &format!(
+                "UPDATE tasks SET state = 'queued', worker = NULL, lease = NULL
+                 WHERE job_id IN ({UNFINISHED}) AND state IN ('done', 'leased')"
+            ),
+            [],
+        )?;
+        tx.execute(
+            "INSERT OR REPLACE INTO meta (key, value) VALUES ('render_version', ?1)",
+            params![current],
+        )?;
+        tx.commit()?;
+        if discarded > 0 {
+            tracing::warn!(
+                discarded,
+                stored = stored.as_deref().unwrap_or("none"),
+                current = %current,
+                "the database holds tiles of unfinished jobs from another renderer version: \
+                 discarded, they will be rendered again"
+            );
+        }
+        Ok(discarded)
     }
 
     /// A second connection for long reads (image composition) that must not hold the

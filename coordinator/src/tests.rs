@@ -576,3 +576,59 @@ async fn oversize_and_unknown_uploads_are_refused() {
     // Still serving.
     assert_eq!(call(&st, get("/healthz")).await.0, StatusCode::OK);
 }
+
+#[test]
+fn restart_under_another_renderer_version_renders_unfinished_jobs_again() {
+    let dir = tempfile::tempdir().unwrap();
+    let t0 = Instant::now();
+    let (finished_job, open_job) = {
+        let mut s = open(dir.path(), t0);
+        let w = s.register("w", 1).unwrap();
+        let finished_job = s.create_job("s".into(), small(1), 0).unwrap().id;
+        while finish(&mut s, &w, t0).is_some() {}
+        let open_job = s.create_job("s".into(), small(2), 0).unwrap().id;
+        for _ in 0..3 {
+            finish(&mut s, &w, t0).unwrap();
+        }
+        s.lease(&w, t0).unwrap().unwrap();
+        (finished_job, open_job)
+    };
+    let db = dir.path().join("raytile.sqlite3");
+    let results = |job: &str| -> i64 {
+        let c = rusqlite::Connection::open(&db).unwrap();
+        c.query_row(
+            "SELECT COUNT(*) FROM results WHERE job_id = ?1",
+            [job],
+            |r| r.get(0),
+        )
+        .unwrap()
+    };
+    let (kept, before) = (results(&finished_job), results(&open_job));
+    assert!(kept > 0 && before == 3);
+    // Same version: a restart keeps everything.
+    drop(open(dir.path(), t0));
+    assert_eq!(results(&open_job), 3);
+    // As if these tiles came from another renderer version.
+    rusqlite::Connection::open(&db)
+        .unwrap()
+        .execute(
+            "UPDATE meta SET value = 'older' WHERE key = 'render_version'",
+            [],
+        )
+        .unwrap();
+    let t1 = t0 + Duration::from_secs(100);
+    let mut s = open(dir.path(), t1);
+    assert_eq!(results(&open_job), 0, "the other renderer's tiles are gone");
+    assert_eq!(results(&finished_job), kept, "finished frames are kept");
+    let st = s.jobs[&open_job].status();
+    assert_eq!((st.tasks_done, st.tasks_leased), (0, 0));
+    assert_eq!(s.jobs[&finished_job].state, JobState::Done);
+    // Every task is rendered again, and the job finishes.
+    let w = s.register("w2", 1).unwrap();
+    let mut n = 0;
+    while finish(&mut s, &w, t1).is_some() {
+        n += 1;
+    }
+    assert_eq!(n, s.jobs[&open_job].tasks.len());
+    assert_eq!(s.jobs[&open_job].state, JobState::Done);
+}
