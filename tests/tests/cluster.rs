@@ -3,6 +3,7 @@
 //! tests use synthetic workers and a fake scene loader and run without it.
 
 use raytile_coordinator::{Config, LoadedScene};
+use raytile_core::film::ImageFormat;
 use raytile_core::RenderSettings;
 use raytile_proto::{self as proto, JobRequest, JobState, JobStatus};
 use std::path::PathBuf;
@@ -239,8 +240,7 @@ mod support {
         let desc = raytile_core::load_scene(scene).unwrap();
         let built = raytile_core::Scene::build(&desc, s).unwrap();
         let film = raytile_core::render(&built, s, &());
-        raytile_coordinator::compose::encode(&film, raytile_coordinator::compose::Format::Exr)
-            .unwrap()
+        raytile_coordinator::compose::encode(&film, ImageFormat::Exr).unwrap()
     }
 
     /// Renders the cornell box with `workers` workers and `tile_size`, checks the EXR

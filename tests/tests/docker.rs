@@ -10,6 +10,7 @@
 //! Every test renders `../shared/scenes/cornell-box.gltf` over HTTP and compares the EXR with
 //! a render of the same job on this machine, byte for byte.
 
+use raytile_core::film::ImageFormat;
 use raytile_core::RenderSettings;
 use raytile_proto::{self as proto, JobRequest, JobState, JobStatus};
 use raytile_tests::free_port;
@@ -360,9 +361,7 @@ fn local_exr(scene: &Path, s: &RenderSettings) -> Vec<u8> {
     let desc = raytile_core::load_scene(scene).unwrap();
     let built = raytile_core::Scene::build(&desc, s).unwrap();
     let film = raytile_core::render(&built, s, &());
-    let exr =
-        raytile_coordinator::compose::encode(&film, raytile_coordinator::compose::Format::Exr)
-            .unwrap();
+    let exr = raytile_coordinator::compose::encode(&film, ImageFormat::Exr).unwrap();
     cache.push((key, exr.clone()));
     exr
 }
