@@ -2,10 +2,10 @@
 //! lock in the app state. Its state is private; handlers call the methods of [`Sched`] and get
 //! back plain values (`JobStatus`, [`Grant`], [`Metrics`]...).
 //!
-//! - [`state`](self::state): the task and job state machines. Every task state change goes
-//!   through one function, every job state change through another.
-//! - [`order`](self::order): which task comes next, and the [`TaskLayout`] that maps a task
-//!   index to its tile and pass.
+//! - `state`: the task and job state machines. Every task state change goes through one
+//!   function, every job state change through another.
+//! - `order`: which task comes next, and the [`TaskLayout`] that maps a task index to its tile
+//!   and pass.
 //! - `jobs`: a job in memory and its store rows; `workers`: registered workers and liveness;
 //!   `ids`: id generation; `metrics`: counters and throughput.
 //! - `view`: projections of the state to the API's types.
@@ -255,7 +255,7 @@ impl Sched {
         Ok(id)
     }
 
-    /// Gives `worker` the next task (see [`order`](self::order)), leased until `now` plus the
+    /// Gives `worker` the next task (see the `order` module), leased until `now` plus the
     /// lease timeout; `None` when there is nothing for it.
     pub fn lease(&mut self, worker: &str, now: Now) -> Result<Option<Grant>, SchedError> {
         if self.workers.touch(worker, now.wall_ms).is_none() {
