@@ -8,3 +8,19 @@ pub fn free_port() -> u16 {
         .expect("local address")
         .port()
 }
+
+/// The repository's Cornell box (`scenes/cornell-box.json`): part of the repository, so the
+/// tests that render it never depend on files outside it. Panics, never skips, when it is
+/// missing or does not load.
+pub fn cornell_box() -> std::path::PathBuf {
+    let p = std::path::PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../scenes/cornell-box.json"
+    ));
+    assert!(
+        p.is_file(),
+        "{} is missing from the repository",
+        p.display()
+    );
+    p
+}

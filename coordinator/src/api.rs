@@ -1,10 +1,10 @@
 //! HTTP handlers and the router. Every route is listed in [`ROUTES`], which the OpenAPI
 //! document and its test check against.
 
-use crate::compose::{self, Format, Layout};
+use crate::compose;
 use crate::error::{AppError, Json};
 use crate::scenes::{self, UploadQuery};
-use crate::sched::ResultOutcome;
+use crate::sched::{Delivery, Heartbeat, ResultOutcome};
 use crate::AppState;
 use axum::body::Body;
 use axum::extract::{DefaultBodyLimit, Path, Query, Request, State};
@@ -14,8 +14,9 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post, put};
 use axum::Router;
 use futures_util::StreamExt;
+use raytile_core::film::ImageFormat;
 use raytile_core::RenderSettings;
-use raytile_proto::{self as proto, JobRequest, JobState};
+use raytile_proto::{self as proto, JobRequest};
 use serde::Deserialize;
 use std::fmt::Write as _;
 use std::time::Duration;
@@ -98,22 +99,15 @@ async fn openapi() -> Response {
 }
 
 async fn metrics(State(state): State<AppState>) -> Response {
-    let mut s = state.sched();
-    let sps = s.samples_per_second(Instant::now());
-    let mut by_state = std::collections::HashMap::new();
-    for j in s.jobs.values() {
-        *by_state.entry(j.state).or_insert(0u64) += 1;
-    }
-    let c = s.counters.clone();
-    let workers = s.workers.len();
-    drop(s);
+    let now = state.now();
+    let m = state.sched().metrics(now);
+    let (c, workers, sps) = (m.counters, m.workers, m.samples_per_second);
     let mut out = String::new();
     let _ = writeln!(
         out,
         "# HELP raytile_jobs Jobs by state.\n# TYPE raytile_jobs gauge"
     );
-    for st in JobState::ALL {
-        let n = by_state.get(&st).copied().unwrap_or(0);
+    for (st, n) in m.jobs {
         let _ = writeln!(out, "raytile_jobs{{state=\"{}\"}} {n}", st.name());
     }
     for (name, help, v) in [
@@ -276,7 +270,12 @@ async fn create_job(
                 lim.max_queued_jobs
             )));
         }
-        s.create_job(req.scene.clone(), settings, req.priority.unwrap_or(0))?
+        s.create_job(
+            req.scene.clone(),
+            settings,
+            req.priority.unwrap_or(0),
+            state.now(),
+        )?
     };
     state.notify.notify_waiters();
     tracing::info!(job = %status.id, "job created");
@@ -284,11 +283,8 @@ async fn create_job(
 }
 
 async fn list_jobs(State(state): State<AppState>) -> Json<proto::JobList> {
-    let s = state.sched();
-    let mut jobs: Vec<_> = s.jobs.values().collect();
-    jobs.sort_by_key(|j| j.seq);
     Json(proto::JobList {
-        jobs: jobs.into_iter().map(|j| j.status()).collect(),
+        jobs: state.sched().job_list(),
     })
 }
 
@@ -300,11 +296,8 @@ async fn get_job(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Json<proto::JobStatus>, AppError> {
-    let s = state.sched();
-    s.jobs
-        .get(&id)
-        .map(|j| Json(j.status()))
-        .ok_or_else(|| no_job(&id))
+    let status = state.sched().job_status(&id);
+    status.map(Json).ok_or_else(|| no_job(&id))
 }
 
 #[derive(Deserialize)]
@@ -318,10 +311,11 @@ async fn cancel_job(
     Path(id): Path<String>,
     Query(q): Query<DeleteQuery>,
 ) -> Result<Json<proto::JobStatus>, AppError> {
+    let now = state.now();
     let st = if q.purge.unwrap_or(false) {
-        state.sched().purge(&id)?
+        state.sched().purge(&id, now)?
     } else {
-        state.sched().cancel(&id)?
+        state.sched().cancel(&id, now)?
     };
     st.map(Json).ok_or_else(|| no_job(&id))
 }
@@ -337,7 +331,7 @@ async fn job_image(
     Query(q): Query<ImageQuery>,
 ) -> Result<Response, AppError> {
     let name = q.format.unwrap_or_else(|| "png".into());
-    let format = Format::from_name(&name).ok_or_else(|| {
+    let format = ImageFormat::from_extension(&name).ok_or_else(|| {
         AppError::invalid(
             "format",
             format!("unknown image format '{name}' (expected png, exr or hdr)"),
@@ -345,11 +339,8 @@ async fn job_image(
     })?;
     let (layout, conn) = {
         let s = state.sched();
-        let job = s.jobs.get(&id).ok_or_else(|| no_job(&id))?;
-        (
-            Layout::of(job),
-            s.store().reader().map_err(AppError::internal)?,
-        )
+        let layout = s.layout(&id).ok_or_else(|| no_job(&id))?;
+        (layout, s.reader().map_err(AppError::internal)?)
     };
     let job_id = id.clone();
     let bytes = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, AppError> {
@@ -366,7 +357,11 @@ async fn job_image(
     })
     .await
     .map_err(AppError::internal)??;
-    Ok(([(header::CONTENT_TYPE, format.content_type())], bytes).into_response())
+    Ok((
+        [(header::CONTENT_TYPE, compose::content_type(format))],
+        bytes,
+    )
+        .into_response())
 }
 
 async fn register(
@@ -388,7 +383,8 @@ async fn register(
             proto::RENDER_VERSION
         )));
     }
-    let id = state.sched().register(&req.name, req.threads)?;
+    let now = state.now();
+    let id = state.sched().register(&req.name, req.threads, now)?;
     tracing::info!(worker = %id, name = %req.name, threads = req.threads, "worker registered");
     Ok(Json(proto::Registered {
         worker_id: id,
@@ -398,24 +394,9 @@ async fn register(
 }
 
 async fn list_workers(State(state): State<AppState>) -> Json<proto::WorkerList> {
-    let s = state.sched();
-    let leased = s.leased_by_worker();
-    let mut workers: Vec<_> = s
-        .workers
-        .iter()
-        .map(|(id, w)| proto::WorkerInfo {
-            id: id.clone(),
-            name: w.name.clone(),
-            threads: w.threads,
-            registered_ms: w.registered_ms,
-            last_seen_ms: w.last_seen_ms,
-            leased: leased.get(id).copied().unwrap_or(0),
-            tasks_done: w.tasks_done,
-            failures: w.failures,
-        })
-        .collect();
-    workers.sort_by(|a, b| a.registered_ms.cmp(&b.registered_ms).then(a.id.cmp(&b.id)));
-    Json(proto::WorkerList { workers })
+    Json(proto::WorkerList {
+        workers: state.sched().worker_list(),
+    })
 }
 
 #[derive(Deserialize)]
@@ -425,30 +406,26 @@ struct LeaseQuery {
 }
 
 fn try_lease(state: &AppState, worker: &str) -> Result<Option<proto::Lease>, AppError> {
-    let mut s = state.sched();
-    let Some((job_id, idx, lease_id)) = s.lease(worker, Instant::now())? else {
+    let now = state.now();
+    let Some(g) = state.sched().lease(worker, now)? else {
         return Ok(None);
     };
-    let job = s.jobs.get(&job_id).ok_or_else(|| no_job(&job_id))?;
-    let (tile, pass, range) = job.task_work(idx);
-    let settings = job.settings.clone();
-    let scene = job.scene.clone();
-    drop(s);
-    let m = scenes::meta(state, &scene)
-        .ok_or_else(|| AppError::internal(format!("scene {scene} of job {job_id} is missing")))?;
+    let m = scenes::meta(state, &g.scene).ok_or_else(|| {
+        AppError::internal(format!("scene {} of job {} is missing", g.scene, g.job))
+    })?;
     Ok(Some(proto::Lease {
-        lease_id,
-        job: job_id,
-        task: idx as u32,
-        scene,
+        lease_id: g.lease,
+        job: g.job,
+        task: g.task,
+        scene: g.scene,
         scene_sha256: m.sha256.clone(),
         scene_format: m.format.clone(),
         scene_entry: m.entry.clone(),
-        settings,
-        tile,
-        pass,
-        sample_start: range.start,
-        sample_end: range.end,
+        settings: g.settings,
+        tile: g.work.tile,
+        pass: g.work.pass,
+        sample_start: g.work.samples.start,
+        sample_end: g.work.samples.end,
         lease_timeout_ms: state.cfg.lease_timeout.as_millis() as u64,
     }))
 }
@@ -483,13 +460,14 @@ async fn heartbeat(
     State(state): State<AppState>,
     Path(lease): Path<String>,
 ) -> Result<Json<proto::HeartbeatReply>, AppError> {
-    let r = state.sched().heartbeat(&lease, Instant::now())?;
+    let now = state.now();
+    let r = state.sched().heartbeat(&lease, now);
     Ok(Json(match r {
-        Ok(()) => proto::HeartbeatReply {
+        Heartbeat::Renewed => proto::HeartbeatReply {
             cancelled: false,
             reason: None,
         },
-        Err(reason) => proto::HeartbeatReply {
+        Heartbeat::Stop { reason } => proto::HeartbeatReply {
             cancelled: true,
             reason: Some(reason),
         },
@@ -503,7 +481,8 @@ async fn failure(
 ) -> Result<StatusCode, AppError> {
     let error: String = report.error.chars().take(4000).collect();
     tracing::warn!(%lease, %error, "worker reports failure");
-    let changed = state.sched().fail(&lease, &error)?;
+    let now = state.now();
+    let changed = state.sched().fail(&lease, &error, now)?;
     if changed {
         state.notify.notify_waiters();
     }
@@ -556,9 +535,14 @@ async fn upload_result(
     let (acc, pass) =
         proto::tile::decode(&buf).map_err(|e| AppError::invalid("body", e.to_string()))?;
     let worker = q.worker.unwrap_or_else(|| "unknown".into());
-    let outcome = state
-        .sched()
-        .complete(&job, task, &worker, &acc, pass, &buf, Instant::now())?;
+    let delivery = Delivery {
+        worker: &worker,
+        tile: acc.tile,
+        pass,
+        bytes: &buf,
+    };
+    let now = state.now();
+    let outcome = state.sched().complete(&job, task, delivery, now)?;
     Ok(Json(match outcome {
         ResultOutcome::Accepted => proto::ResultReply {
             accepted: true,

@@ -4,12 +4,14 @@
 //! router is [`app`], so tests can start the real server in-process on `127.0.0.1:0` or call
 //! the router with `tower::ServiceExt::oneshot`.
 //!
-//! - [`sched`]: jobs, tasks, leases and the one task state machine.
+//! - [`sched`]: jobs, tasks, leases, workers and the state machines; it reads no clock:
+//!   handlers pass it a reading of [`clock`].
 //! - [`store`]: SQLite persistence under the data directory.
 //! - [`api`]: the HTTP handlers; [`scenes`]: scene uploads; [`compose`]: frames from results.
 //! - [`openapi`]: the OpenAPI description served at `/v1/openapi.json`.
 
 pub mod api;
+pub mod clock;
 pub mod compose;
 pub mod error;
 pub mod openapi;
@@ -23,6 +25,7 @@ pub use api::app;
 pub use scenes::{core_scene_loader, LoadError, LoadedScene, SceneLoader};
 
 use anyhow::Context;
+use clock::{Clock, Now};
 use sched::{Sched, SchedConfig};
 use std::collections::HashMap;
 use std::future::Future;
@@ -31,7 +34,6 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::sync::{watch, Notify};
-use tokio::time::Instant;
 
 /// Limits on what clients may ask for.
 #[derive(Clone, Debug)]
@@ -85,6 +87,8 @@ pub struct Config {
     pub limits: Limits,
     /// Parses uploaded scenes (the core's loader; tests inject fakes).
     pub scene_loader: SceneLoader,
+    /// The time source of every scheduler call (the system clock; tests inject their own).
+    pub clock: Clock,
 }
 
 impl Config {
@@ -102,6 +106,7 @@ impl Config {
             block_worker_after: 3,
             limits: Limits::default(),
             scene_loader: core_scene_loader(),
+            clock: clock::system_clock(),
         }
     }
 }
@@ -129,7 +134,7 @@ pub struct Inner {
     /// Woken when tasks become available, for long-polling lease requests.
     pub notify: Notify,
     /// Start time, for the start-up grace period.
-    pub started: Instant,
+    pub started: Now,
     /// Scene metadata cache.
     pub scene_meta: Mutex<HashMap<String, Arc<scenes::SceneMeta>>>,
     shutdown_tx: watch::Sender<bool>,
@@ -150,7 +155,7 @@ impl AppState {
                 .with_context(|| format!("creating {}", cfg.data_dir.join(d).display()))?;
         }
         let store = store::Store::open(&cfg.data_dir).context("opening the database")?;
-        let now = Instant::now();
+        let now = (cfg.clock)();
         let grace = cfg.startup_grace.max(cfg.lease_timeout);
         let sched = Sched::restore(
             SchedConfig {
@@ -176,6 +181,11 @@ impl AppState {
             scene_meta: Mutex::new(HashMap::new()),
             shutdown_tx,
         })))
+    }
+
+    /// Reads the clock, once per request or tick: the scheduler takes the reading.
+    pub fn now(&self) -> Now {
+        (self.cfg.clock)()
     }
 
     /// Locks the scheduler (a poisoned lock is still usable: every change is persisted first).
@@ -210,8 +220,8 @@ pub async fn timeout_checker(state: AppState) {
     let tick = (state.cfg.lease_timeout / 4).max(Duration::from_millis(20));
     loop {
         tokio::time::sleep(tick).await;
-        let now = Instant::now();
-        if now < state.started + state.cfg.startup_grace {
+        let now = state.now();
+        if now.instant < state.started.instant + state.cfg.startup_grace {
             continue;
         }
         let res = state.sched().expire(now);

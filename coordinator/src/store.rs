@@ -2,7 +2,12 @@
 //!
 //! The scheduler writes through this module on every state change, so a restarted coordinator
 //! finds every job, every finished tile and every lease that was out.
+//!
+//! States are typed values everywhere else; this module is the one place that names them in
+//! the database ([`job_state_name`], [`StoredTask`]). The names are part of the file format:
+//! changing one needs a migration.
 
+use raytile_proto::JobState;
 use rusqlite::{params, Connection, OptionalExtension};
 use std::path::{Path, PathBuf};
 
@@ -68,8 +73,8 @@ pub struct JobRow {
     pub settings: String,
     /// Priority.
     pub priority: i32,
-    /// State name.
-    pub state: String,
+    /// State.
+    pub state: JobState,
     /// Failure message.
     pub error: Option<String>,
     /// Submission time.
@@ -80,19 +85,88 @@ pub struct JobRow {
     pub finished_ms: Option<u64>,
 }
 
+/// A task's state as stored: the scheduler's state less the lease deadline, which lives in
+/// memory only (after a restart every lease gets the grace period).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum StoredTask {
+    /// Waiting for a worker.
+    Queued,
+    /// Out with `worker` under `lease`.
+    Leased {
+        /// Worker id.
+        worker: String,
+        /// Lease id.
+        lease: String,
+    },
+    /// Result stored, delivered by `worker`.
+    Done {
+        /// Worker id.
+        worker: String,
+    },
+    /// Failed too often.
+    Failed,
+}
+
+/// Task state names in the `tasks` table.
+const TASK_QUEUED: &str = "queued";
+const TASK_LEASED: &str = "leased";
+const TASK_DONE: &str = "done";
+const TASK_FAILED: &str = "failed";
+
+impl StoredTask {
+    /// The `state`, `worker` and `lease` columns.
+    fn columns(&self) -> (&'static str, Option<&str>, Option<&str>) {
+        match self {
+            StoredTask::Queued => (TASK_QUEUED, None, None),
+            StoredTask::Leased { worker, lease } => (TASK_LEASED, Some(worker), Some(lease)),
+            StoredTask::Done { worker } => (TASK_DONE, Some(worker), None),
+            StoredTask::Failed => (TASK_FAILED, None, None),
+        }
+    }
+
+    /// From the `state`, `worker` and `lease` columns. What cannot be resumed (an unknown
+    /// state, a lease without its worker or id) is queued again: rendering a task twice costs
+    /// time, never bits.
+    fn from_columns(state: &str, worker: Option<String>, lease: Option<String>) -> StoredTask {
+        match (state, worker, lease) {
+            (TASK_DONE, worker, _) => StoredTask::Done {
+                worker: worker.unwrap_or_default(),
+            },
+            (TASK_FAILED, ..) => StoredTask::Failed,
+            (TASK_LEASED, Some(worker), Some(lease)) => StoredTask::Leased { worker, lease },
+            _ => StoredTask::Queued,
+        }
+    }
+}
+
+/// A job state's name in the `jobs` table.
+pub fn job_state_name(s: JobState) -> &'static str {
+    match s {
+        JobState::Queued => "queued",
+        JobState::Running => "running",
+        JobState::Done => "done",
+        JobState::Failed => "failed",
+        JobState::Cancelled => "cancelled",
+    }
+}
+
+/// Parses [`job_state_name`]; an unknown name reads as queued, so the job runs (again).
+fn parse_job_state(name: &str) -> JobState {
+    JobState::ALL
+        .into_iter()
+        .find(|&s| job_state_name(s) == name)
+        .unwrap_or(JobState::Queued)
+}
+
 /// A row of the `tasks` table.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub struct TaskRow {
     /// Task index.
     pub idx: u32,
-    /// `queued`, `leased`, `done` or `failed`.
-    pub state: String,
+    /// State, with the worker and lease it names.
+    pub state: StoredTask,
     /// Failures so far.
     pub failures: u32,
-    /// Worker holding or having delivered the task.
-    pub worker: Option<String>,
-    /// Lease id while leased.
-    pub lease: Option<String>,
 }
 
 /// The open database.
@@ -132,15 +206,19 @@ impl Store {
             return Ok(0);
         }
         let tx = self.conn.transaction()?;
-        const UNFINISHED: &str = "SELECT id FROM jobs WHERE state IN ('queued', 'running')";
+        let unfinished = format!(
+            "SELECT id FROM jobs WHERE state IN ('{}', '{}')",
+            job_state_name(JobState::Queued),
+            job_state_name(JobState::Running)
+        );
         let discarded = tx.execute(
-            &format!("DELETE FROM results WHERE job_id IN ({UNFINISHED})"),
+            &format!("DELETE FROM results WHERE job_id IN ({unfinished})"),
             [],
         )?;
         tx.execute(
             &format!(
-                "UPDATE tasks SET state = 'queued', worker = NULL, lease = NULL
-                 WHERE job_id IN ({UNFINISHED}) AND state IN ('done', 'leased')"
+                "UPDATE tasks SET state = '{TASK_QUEUED}', worker = NULL, lease = NULL
+                 WHERE job_id IN ({unfinished}) AND state IN ('{TASK_DONE}', '{TASK_LEASED}')"
             ),
             [],
         )?;
@@ -161,6 +239,25 @@ impl Store {
         Ok(discarded)
     }
 
+    /// The epoch of this start's ids: `at_least` (the wall-clock start time), raised above the
+    /// previous start's epoch if need be, and remembered for the next start.
+    pub fn next_epoch(&mut self, at_least: u64) -> rusqlite::Result<u64> {
+        let tx = self.conn.transaction()?;
+        let last: Option<String> = tx
+            .query_row("SELECT value FROM meta WHERE key = 'id_epoch'", [], |r| {
+                r.get(0)
+            })
+            .optional()?;
+        let last = last.and_then(|v| v.parse::<u64>().ok());
+        let epoch = last.map_or(at_least, |l| at_least.max(l + 1));
+        tx.execute(
+            "INSERT OR REPLACE INTO meta (key, value) VALUES ('id_epoch', ?1)",
+            params![epoch.to_string()],
+        )?;
+        tx.commit()?;
+        Ok(epoch)
+    }
+
     /// A second connection for long reads (image composition) that must not hold the
     /// scheduler's lock.
     pub fn reader(&self) -> rusqlite::Result<Connection> {
@@ -175,13 +272,13 @@ impl Store {
         tx.execute(
             "INSERT INTO jobs (id, seq, scene, settings, priority, state, error, created_ms, started_ms, finished_ms)
              VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
-            params![j.id, j.seq as i64, j.scene, j.settings, j.priority, j.state, j.error,
+            params![j.id, j.seq as i64, j.scene, j.settings, j.priority, job_state_name(j.state), j.error,
                     j.created_ms as i64, j.started_ms.map(|v| v as i64), j.finished_ms.map(|v| v as i64)],
         )?;
         {
-            let mut st = tx.prepare(
-                "INSERT INTO tasks (job_id, idx, state, failures) VALUES (?1, ?2, 'queued', 0)",
-            )?;
+            let mut st = tx.prepare(&format!(
+                "INSERT INTO tasks (job_id, idx, state, failures) VALUES (?1, ?2, '{TASK_QUEUED}', 0)"
+            ))?;
             for i in 0..tasks {
                 st.execute(params![j.id, i])?;
             }
@@ -193,25 +290,21 @@ impl Store {
     pub fn update_job(
         &self,
         id: &str,
-        state: &str,
+        state: JobState,
         error: Option<&str>,
         started_ms: Option<u64>,
         finished_ms: Option<u64>,
     ) -> rusqlite::Result<()> {
         self.conn.execute(
             "UPDATE jobs SET state = ?2, error = ?3, started_ms = ?4, finished_ms = ?5 WHERE id = ?1",
-            params![id, state, error, started_ms.map(|v| v as i64), finished_ms.map(|v| v as i64)],
+            params![id, job_state_name(state), error, started_ms.map(|v| v as i64), finished_ms.map(|v| v as i64)],
         )?;
         Ok(())
     }
 
     /// Writes one task's state.
     pub fn update_task(&self, job: &str, t: &TaskRow) -> rusqlite::Result<()> {
-        self.conn.execute(
-            "UPDATE tasks SET state = ?3, failures = ?4, worker = ?5, lease = ?6 WHERE job_id = ?1 AND idx = ?2",
-            params![job, t.idx, t.state, t.failures, t.worker, t.lease],
-        )?;
-        Ok(())
+        write_task(&self.conn, job, t)
     }
 
     /// Stores a finished task's result and marks the task done, atomically.
@@ -221,10 +314,7 @@ impl Store {
             "INSERT OR IGNORE INTO results (job_id, idx, data) VALUES (?1, ?2, ?3)",
             params![job, t.idx, data],
         )?;
-        tx.execute(
-            "UPDATE tasks SET state = ?3, failures = ?4, worker = ?5, lease = ?6 WHERE job_id = ?1 AND idx = ?2",
-            params![job, t.idx, t.state, t.failures, t.worker, t.lease],
-        )?;
+        write_task(&tx, job, t)?;
         tx.commit()
     }
 
@@ -279,7 +369,7 @@ impl Store {
                 scene: r.get(2)?,
                 settings: r.get(3)?,
                 priority: r.get(4)?,
-                state: r.get(5)?,
+                state: parse_job_state(&r.get::<_, String>(5)?),
                 error: r.get(6)?,
                 created_ms: r.get::<_, i64>(7)? as u64,
                 started_ms: r.get::<_, Option<i64>>(8)?.map(|v| v as u64),
@@ -297,10 +387,8 @@ impl Store {
         let rows = st.query_map([job], |r| {
             Ok(TaskRow {
                 idx: r.get(0)?,
-                state: r.get(1)?,
+                state: StoredTask::from_columns(&r.get::<_, String>(1)?, r.get(3)?, r.get(4)?),
                 failures: r.get(2)?,
-                worker: r.get(3)?,
-                lease: r.get(4)?,
             })
         })?;
         rows.collect()
@@ -325,14 +413,16 @@ impl Store {
         })?;
         rows.collect()
     }
+}
 
-    /// Whether a worker id is known.
-    pub fn has_worker(&self, id: &str) -> rusqlite::Result<bool> {
-        self.conn
-            .query_row("SELECT 1 FROM workers WHERE id = ?1", [id], |_| Ok(()))
-            .optional()
-            .map(|o| o.is_some())
-    }
+/// Writes one task's state through `conn` (the store's connection or a transaction on it).
+fn write_task(conn: &Connection, job: &str, t: &TaskRow) -> rusqlite::Result<()> {
+    let (state, worker, lease) = t.state.columns();
+    conn.execute(
+        "UPDATE tasks SET state = ?3, failures = ?4, worker = ?5, lease = ?6 WHERE job_id = ?1 AND idx = ?2",
+        params![job, t.idx, state, t.failures, worker, lease],
+    )?;
+    Ok(())
 }
 
 /// Reads every stored result of a job as (task index, bytes), through `conn`, calling `f` for
@@ -350,4 +440,83 @@ pub fn for_each_result(
         f(idx, data);
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn states_read_back_as_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut store = Store::open(dir.path()).unwrap();
+        for (i, state) in JobState::ALL.into_iter().enumerate() {
+            let row = JobRow {
+                id: format!("j{i}"),
+                seq: i as u64,
+                scene: "s".into(),
+                settings: "{}".into(),
+                priority: 0,
+                state,
+                error: None,
+                created_ms: 1,
+                started_ms: None,
+                finished_ms: None,
+            };
+            store.insert_job(&row, 4).unwrap();
+        }
+        let states: Vec<JobState> = store.jobs().unwrap().iter().map(|r| r.state).collect();
+        assert_eq!(states, JobState::ALL);
+        let tasks = [
+            StoredTask::Queued,
+            StoredTask::Leased {
+                worker: "w".into(),
+                lease: "l".into(),
+            },
+            StoredTask::Done { worker: "w".into() },
+            StoredTask::Failed,
+        ];
+        for (idx, state) in tasks.iter().enumerate() {
+            let row = TaskRow {
+                idx: idx as u32,
+                state: state.clone(),
+                failures: idx as u32,
+            };
+            store.update_task("j0", &row).unwrap();
+        }
+        let back: Vec<(StoredTask, u32)> = store
+            .tasks("j0")
+            .unwrap()
+            .into_iter()
+            .map(|t| (t.state, t.failures))
+            .collect();
+        let want: Vec<(StoredTask, u32)> = tasks.into_iter().zip(0..).collect();
+        assert_eq!(back, want);
+    }
+
+    #[test]
+    fn a_lease_missing_its_worker_is_queued_again() {
+        assert_eq!(
+            StoredTask::from_columns(TASK_LEASED, None, Some("l".into())),
+            StoredTask::Queued
+        );
+        assert_eq!(
+            StoredTask::from_columns("paused", None, None),
+            StoredTask::Queued
+        );
+        assert_eq!(parse_job_state("paused"), JobState::Queued);
+    }
+
+    #[test]
+    fn every_start_gets_a_later_epoch() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut store = Store::open(dir.path()).unwrap();
+        assert_eq!(store.next_epoch(1000).unwrap(), 1000);
+        // The same millisecond, and a clock set back: still a new epoch.
+        assert_eq!(store.next_epoch(1000).unwrap(), 1001);
+        drop(store);
+        let mut store = Store::open(dir.path()).unwrap();
+        assert_eq!(store.next_epoch(5).unwrap(), 1002);
+        assert_eq!(store.next_epoch(9000).unwrap(), 9000);
+    }
 }

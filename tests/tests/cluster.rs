@@ -3,6 +3,7 @@
 //! tests use synthetic workers and a fake scene loader and run without it.
 
 use raytile_coordinator::{Config, LoadedScene};
+use raytile_core::film::ImageFormat;
 use raytile_core::RenderSettings;
 use raytile_proto::{self as proto, JobRequest, JobState, JobStatus};
 use std::path::PathBuf;
@@ -16,26 +17,14 @@ use tokio::task::JoinHandle;
 mod support {
     use super::*;
 
-    /// The shared test scene (`shared/scenes/cornell-box.gltf`); while the core cannot load
-    /// glTF yet, the repository's own `scenes/cornell-box.json`. `None` (tests then skip with
-    /// a message) when neither loads.
-    pub fn cornell() -> Option<PathBuf> {
-        let gltf = PathBuf::from(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../../shared/scenes/cornell-box.gltf"
-        ));
-        let json = PathBuf::from(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../scenes/cornell-box.json"
-        ));
-        for p in [gltf, json] {
-            match raytile_core::load_scene(&p) {
-                Ok(_) => return Some(p),
-                Err(e) => eprintln!("not using {}: {e}", p.display()),
-            }
+    /// The test scene: the repository's own Cornell box, which every checkout has. A scene
+    /// that does not load fails the test; nothing here skips for want of a file.
+    pub fn cornell() -> PathBuf {
+        let p = raytile_tests::cornell_box();
+        if let Err(e) = raytile_core::load_scene(&p) {
+            panic!("{}: {e}", p.display());
         }
-        eprintln!("skipping: no loadable Cornell box scene");
-        None
+        p
     }
 
     /// A coordinator running in this process.
@@ -239,14 +228,13 @@ mod support {
         let desc = raytile_core::load_scene(scene).unwrap();
         let built = raytile_core::Scene::build(&desc, s).unwrap();
         let film = raytile_core::render(&built, s, &());
-        raytile_coordinator::compose::encode(&film, raytile_coordinator::compose::Format::Exr)
-            .unwrap()
+        raytile_coordinator::compose::encode(&film, ImageFormat::Exr).unwrap()
     }
 
     /// Renders the cornell box with `workers` workers and `tile_size`, checks the EXR
     /// against the local render.
     pub async fn check_cluster_matches_local(workers: usize, tile_size: u32) {
-        let Some(scene) = cornell() else { return };
+        let scene = cornell();
         let dir = tempfile::tempdir().unwrap();
         let c = Coord::start(test_config(&dir.path().join("data")), 0).await;
         let ws: Vec<Worker> = (0..workers)
@@ -350,6 +338,29 @@ mod support {
         }
     }
 
+    /// Sends `request` (a request head, perhaps with the start of a body) on a new connection
+    /// to `base` and reads until the server closes it; returns (status code, rest of the
+    /// answer). Plain TCP rather than an HTTP client, because the tests that use it stop
+    /// sending in the middle of a request on purpose, and a client would wait to finish it.
+    pub async fn raw_exchange(base: &str, request: &[u8]) -> (u16, String) {
+        use tokio::io::{AsyncReadExt, AsyncWriteExt};
+        let addr = base.trim_start_matches("http://");
+        let mut conn = tokio::net::TcpStream::connect(addr).await.unwrap();
+        conn.write_all(request).await.unwrap();
+        let mut answer = Vec::new();
+        tokio::time::timeout(Duration::from_secs(10), conn.read_to_end(&mut answer))
+            .await
+            .expect("the server neither answered nor closed the connection within 10 s")
+            .expect("the connection was reset before the answer was read");
+        let text = String::from_utf8_lossy(&answer).into_owned();
+        let status = text
+            .strip_prefix("HTTP/1.1 ")
+            .and_then(|t| t.get(..3))
+            .and_then(|c| c.parse().ok())
+            .unwrap_or_else(|| panic!("not an HTTP answer: {text:?}"));
+        (status, text)
+    }
+
     /// A small job on a fake scene.
     pub async fn fake_job(base: &str) -> JobStatus {
         let scene = upload(base, br#"{"objects": []}"#.to_vec()).await;
@@ -396,7 +407,7 @@ mod faults {
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn killed_worker_lease_expires_and_others_finish() {
-        let Some(scene) = cornell() else { return };
+        let scene = cornell();
         let dir = tempfile::tempdir().unwrap();
         let c = Coord::start(test_config(&dir.path().join("data")), 0).await;
         let victim = Worker::start(&c.base, 1, dir.path(), "victim");
@@ -420,7 +431,7 @@ mod faults {
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn restarted_coordinator_resumes_without_rerendering() {
-        let Some(scene) = cornell() else { return };
+        let scene = cornell();
         let dir = tempfile::tempdir().unwrap();
         let data = dir.path().join("data");
         let mut cfg = test_config(&data);
@@ -468,7 +479,7 @@ mod faults {
             eprintln!("skipping: set RAYTILE_SLOW_TESTS=1");
             return;
         }
-        let Some(scene) = cornell() else { return };
+        let scene = cornell();
         let worker_bin = built_binary("raytile-worker");
         let dir = tempfile::tempdir().unwrap();
         let c = Coord::start(test_config(&dir.path().join("data")), 0).await;
@@ -514,7 +525,7 @@ mod faults {
             eprintln!("skipping: set RAYTILE_SLOW_TESTS=1");
             return;
         }
-        let Some(scene) = cornell() else { return };
+        let scene = cornell();
         let bin = built_binary("raytile-coordinator");
         let dir = tempfile::tempdir().unwrap();
         let port = raytile_tests::free_port();
@@ -740,14 +751,32 @@ mod api {
             .await
             .unwrap();
         assert_eq!(r.status(), 404);
-        // Oversize upload.
-        let r = ok(http.post(url("/v1/scenes")))
-            .body(vec![b' '; 1 << 20])
-            .send()
-            .await;
-        if let Ok(r) = r {
-            assert_eq!(r.status(), 413);
-        }
+        // Oversize uploads, over a plain connection so that the answer is always read: an
+        // HTTP client sending the whole body may see the connection closed under it (the
+        // server stops reading at the limit) and report that instead of the answer.
+        // Declared too long: refused before any body byte is read.
+        let (code, answer) = raw_exchange(
+            &c.base,
+            b"POST /v1/scenes HTTP/1.1\r\nHost: t\r\nAuthorization: Bearer sesame\r\n\
+              Content-Length: 1048576\r\nConnection: close\r\n\r\n",
+        )
+        .await;
+        assert_eq!(code, 413, "{answer}");
+        assert!(answer.contains(r#""code":"too_large""#), "{answer}");
+        // No declared length: cut off by counting. The client sends one byte more than the
+        // limit and stops (no end of the chunk): the server has read all it was sent when it
+        // answers, so it closes the connection cleanly rather than resetting it.
+        let limit = 64 << 10;
+        let mut req = format!(
+            "POST /v1/scenes HTTP/1.1\r\nHost: t\r\nAuthorization: Bearer sesame\r\n\
+             Transfer-Encoding: chunked\r\nConnection: close\r\n\r\n{:x}\r\n",
+            limit + 1
+        )
+        .into_bytes();
+        req.extend(std::iter::repeat_n(b' ', limit + 1));
+        let (code, answer) = raw_exchange(&c.base, &req).await;
+        assert_eq!(code, 413, "{answer}");
+        assert!(answer.contains(r#""code":"too_large""#), "{answer}");
         // Malformed scenes: not a scene at all, and broken glTF.
         let r = ok(http.post(url("/v1/scenes")))
             .body("garbage")

@@ -7,13 +7,14 @@
 //! included, when it ends, also when it fails. They run one at a time (they share two cores
 //! and, for the Swarm test, the daemon's swarm membership).
 //!
-//! Every test renders `../shared/scenes/cornell-box.gltf` over HTTP and compares the EXR with
-//! a render of the same job on this machine, byte for byte.
+//! Every test renders the repository's `scenes/cornell-box.json` over HTTP and compares the
+//! EXR with a render of the same job on this machine, byte for byte.
 
+use raytile_core::film::ImageFormat;
 use raytile_core::RenderSettings;
 use raytile_proto::{self as proto, JobRequest, JobState, JobStatus};
-use raytile_tests::free_port;
-use std::path::{Path, PathBuf};
+use raytile_tests::{cornell_box, free_port};
+use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::sync::{Mutex, OnceLock};
 use std::time::{Duration, Instant};
@@ -46,17 +47,6 @@ fn ready() -> bool {
         assert!(out.success(), "scripts/build-images.sh failed");
         true
     })
-}
-
-/// The shared Cornell box, or `None` with a message.
-fn scene() -> Option<PathBuf> {
-    let p = PathBuf::from(format!("{ROOT}/../shared/scenes/cornell-box.gltf"));
-    if p.is_file() {
-        Some(p)
-    } else {
-        eprintln!("skipping: {} is missing", p.display());
-        None
-    }
 }
 
 fn run_ok(c: &mut Command) -> bool {
@@ -360,9 +350,7 @@ fn local_exr(scene: &Path, s: &RenderSettings) -> Vec<u8> {
     let desc = raytile_core::load_scene(scene).unwrap();
     let built = raytile_core::Scene::build(&desc, s).unwrap();
     let film = raytile_core::render(&built, s, &());
-    let exr =
-        raytile_coordinator::compose::encode(&film, raytile_coordinator::compose::Format::Exr)
-            .unwrap();
+    let exr = raytile_coordinator::compose::encode(&film, ImageFormat::Exr).unwrap();
     cache.push((key, exr.clone()));
     exr
 }
@@ -386,7 +374,7 @@ macro_rules! setup {
         if !ready() {
             return;
         }
-        let Some(scene) = scene() else { return };
+        let scene = cornell_box();
         (guard, scene)
     }};
 }

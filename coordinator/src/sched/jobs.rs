@@ -1,0 +1,205 @@
+//! A job in memory: its settings, its task layout, its tasks and its life, and how it maps to
+//! and from a store row.
+
+use super::order::{TaskLayout, TaskWork};
+use super::state::{transition, JobEvent, JobLife, Outcome, Task, TaskEvent, TaskState};
+use crate::store::{JobRow, StoredTask, TaskRow};
+use raytile_core::RenderSettings;
+use std::collections::HashMap;
+use std::sync::Arc;
+use tokio::time::Instant;
+
+/// A job in memory.
+#[derive(Clone, Debug)]
+pub(super) struct Job {
+    /// Id.
+    pub id: String,
+    /// Submission order (FIFO among equal priorities).
+    pub seq: u64,
+    /// Scene id.
+    pub scene: String,
+    /// Settings.
+    pub settings: RenderSettings,
+    /// Priority: higher first.
+    pub priority: i32,
+    /// State, error and times; changed only through [`Job::apply`].
+    life: JobLife,
+    /// Task index → tile and pass (shared with image composition, outside the lock).
+    pub layout: Arc<TaskLayout>,
+    /// Tasks in layout order; changed only through [`Job::transition`].
+    tasks: Vec<Task>,
+    /// Lowest task index that may be queued: everything before it is leased or finished.
+    cursor: usize,
+    /// Failures per worker (a worker with enough is blocked from the job).
+    pub worker_failures: HashMap<String, u32>,
+}
+
+impl Job {
+    /// A job just submitted, every task queued.
+    pub fn new(
+        id: String,
+        seq: u64,
+        scene: String,
+        settings: RenderSettings,
+        priority: i32,
+        now_ms: u64,
+    ) -> Job {
+        let layout = TaskLayout::new(&settings);
+        let tasks = vec![Task::queued(); layout.task_count()];
+        Job {
+            id,
+            seq,
+            scene,
+            settings,
+            priority,
+            life: JobLife::queued(now_ms),
+            layout: Arc::new(layout),
+            tasks,
+            cursor: 0,
+            worker_failures: HashMap::new(),
+        }
+    }
+
+    /// A job as stored. Task rows beyond the layout are ignored; leases that were out get
+    /// `deadline`, their lease ids are returned with the task index.
+    pub fn restore(
+        row: JobRow,
+        settings: RenderSettings,
+        task_rows: Vec<TaskRow>,
+        worker_failures: HashMap<String, u32>,
+        deadline: Instant,
+    ) -> (Job, Vec<(String, usize)>) {
+        let mut job = Job::new(row.id, row.seq, row.scene, settings, row.priority, 0);
+        job.life = JobLife {
+            state: row.state,
+            error: row.error,
+            created_ms: row.created_ms,
+            started_ms: row.started_ms,
+            finished_ms: row.finished_ms,
+        };
+        job.worker_failures = worker_failures;
+        let mut leases = Vec::new();
+        for tr in task_rows {
+            let Some(t) = job.tasks.get_mut(tr.idx as usize) else {
+                continue;
+            };
+            t.failures = tr.failures;
+            t.state = match tr.state {
+                StoredTask::Queued => TaskState::Queued,
+                StoredTask::Failed => TaskState::Failed,
+                StoredTask::Done { worker } => TaskState::Done { worker },
+                StoredTask::Leased { worker, lease } => {
+                    leases.push((lease.clone(), tr.idx as usize));
+                    TaskState::Leased {
+                        worker,
+                        lease,
+                        deadline,
+                    }
+                }
+            };
+        }
+        (job, leases)
+    }
+
+    /// The job's row in the store.
+    pub fn row(&self) -> JobRow {
+        JobRow {
+            id: self.id.clone(),
+            seq: self.seq,
+            scene: self.scene.clone(),
+            settings: serde_json::to_string(&self.settings).unwrap_or_default(),
+            priority: self.priority,
+            state: self.life.state,
+            error: self.life.error.clone(),
+            created_ms: self.life.created_ms,
+            started_ms: self.life.started_ms,
+            finished_ms: self.life.finished_ms,
+        }
+    }
+
+    /// Task `idx`'s row in the store (the lease deadline is not stored).
+    pub fn task_row(&self, idx: usize) -> TaskRow {
+        let t = &self.tasks[idx];
+        let state = match &t.state {
+            TaskState::Queued => StoredTask::Queued,
+            TaskState::Leased { worker, lease, .. } => StoredTask::Leased {
+                worker: worker.clone(),
+                lease: lease.clone(),
+            },
+            TaskState::Done { worker } => StoredTask::Done {
+                worker: worker.clone(),
+            },
+            TaskState::Failed => StoredTask::Failed,
+        };
+        TaskRow {
+            idx: idx as u32,
+            state,
+            failures: t.failures,
+        }
+    }
+
+    /// State, error and times.
+    pub fn life(&self) -> &JobLife {
+        &self.life
+    }
+
+    /// Whether the job will not change any more.
+    pub fn is_final(&self) -> bool {
+        self.life.state.is_final()
+    }
+
+    /// Sends `ev` to the job state machine; whether it changed.
+    pub fn apply(&mut self, ev: JobEvent, now_ms: u64) -> bool {
+        self.life.apply(ev, now_ms)
+    }
+
+    /// The tasks, in layout order.
+    pub fn tasks(&self) -> &[Task] {
+        &self.tasks
+    }
+
+    /// What task `idx` renders, or `None` if the job has no such task.
+    pub fn work(&self, idx: usize) -> Option<TaskWork> {
+        self.layout.task(idx)
+    }
+
+    /// Sends `ev` to task `idx`'s state machine. A task queued again moves the cursor back so
+    /// the next lease finds it first.
+    pub fn transition(&mut self, idx: usize, ev: TaskEvent) -> Outcome {
+        let out = transition(&mut self.tasks[idx], ev);
+        if out == Outcome::Changed && self.tasks[idx].state == TaskState::Queued {
+            self.cursor = self.cursor.min(idx);
+        }
+        out
+    }
+
+    /// The first queued task in layout order, if any.
+    pub fn next_queued(&mut self) -> Option<usize> {
+        let found = self.tasks[self.cursor..]
+            .iter()
+            .position(|t| t.state == TaskState::Queued)
+            .map(|i| self.cursor + i);
+        self.cursor = found.unwrap_or(self.tasks.len());
+        found
+    }
+
+    /// Whether every task is done.
+    pub fn all_done(&self) -> bool {
+        self.tasks
+            .iter()
+            .all(|t| matches!(t.state, TaskState::Done { .. }))
+    }
+
+    /// The worker holding task `idx` and its lease id, while the task is leased.
+    pub fn lease_of(&self, idx: usize) -> Option<(&str, &str)> {
+        match &self.tasks[idx].state {
+            TaskState::Leased { worker, lease, .. } => Some((worker, lease)),
+            _ => None,
+        }
+    }
+
+    /// Failures of `worker` on this job.
+    pub fn failures_of(&self, worker: &str) -> u32 {
+        self.worker_failures.get(worker).copied().unwrap_or(0)
+    }
+}

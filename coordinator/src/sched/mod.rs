@@ -1,0 +1,552 @@
+//! The scheduler: jobs, their tasks (one per tile and pass), leases and workers, behind one
+//! lock in the app state. Its state is private; handlers call the methods of [`Sched`] and get
+//! back plain values (`JobStatus`, [`Grant`], [`Metrics`]...).
+//!
+//! - `state`: the task and job state machines. Every task state change goes through one
+//!   function, every job state change through another.
+//! - `order`: which task comes next, and the [`TaskLayout`] that maps a task index to its tile
+//!   and pass.
+//! - `jobs`: a job in memory and its store rows; `workers`: registered workers and liveness;
+//!   `ids`: id generation; `metrics`: counters and throughput.
+//! - `view`: projections of the state to the API's types.
+//!
+//! The scheduler reads no clock: every method that needs the time takes a [`Now`] read by its
+//! caller (lease deadlines from `Now::instant`, times shown to users and worker liveness from
+//! `Now::wall_ms`), so tests drive time. Its only IO is the store, written before a method
+//! returns, so a restarted coordinator finds every change that was answered.
+
+mod ids;
+mod jobs;
+mod metrics;
+mod order;
+mod state;
+#[cfg(test)]
+mod tests;
+mod view;
+mod workers;
+
+pub use metrics::{Counters, Metrics};
+pub use order::{TaskLayout, TaskWork};
+
+use crate::clock::Now;
+use crate::store::Store;
+use ids::Ids;
+use jobs::Job;
+use metrics::Throughput;
+use raytile_core::{RenderSettings, Tile};
+use raytile_proto::{JobState, JobStatus};
+use state::{JobEvent, Outcome, TaskEvent};
+use std::collections::HashMap;
+use std::time::Duration;
+use workers::{WorkerRec, Workers};
+
+/// Scheduling knobs.
+#[derive(Clone, Debug)]
+pub struct SchedConfig {
+    /// Lease lifetime without a heartbeat.
+    pub lease_timeout: Duration,
+    /// Failures of one task that fail the job.
+    pub max_task_failures: u32,
+    /// Failures of one worker on one job after which it gets no more of the job's tasks.
+    pub block_worker_after: u32,
+}
+
+/// A task given to a worker.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Grant {
+    /// The new lease's id.
+    pub lease: String,
+    /// Job id.
+    pub job: String,
+    /// Task index within the job.
+    pub task: u32,
+    /// Scene id.
+    pub scene: String,
+    /// The job's settings.
+    pub settings: RenderSettings,
+    /// The tile, pass and samples to render.
+    pub work: TaskWork,
+}
+
+/// A result a worker uploads for a task.
+#[derive(Clone, Copy, Debug)]
+pub struct Delivery<'a> {
+    /// Worker id (for the per-worker share).
+    pub worker: &'a str,
+    /// The pixels the decoded result covers.
+    pub tile: Tile,
+    /// The pass the decoded result says it is.
+    pub pass: u32,
+    /// The encoded result, stored as is.
+    pub bytes: &'a [u8],
+}
+
+/// What a heartbeat tells the worker.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Heartbeat {
+    /// The lease lives on until the new deadline.
+    Renewed,
+    /// Stop rendering: the lease or the job is over.
+    Stop {
+        /// Why, for the worker's log.
+        reason: String,
+    },
+}
+
+/// What a result upload did.
+#[derive(Debug, PartialEq, Eq)]
+pub enum ResultOutcome {
+    /// Stored.
+    Accepted,
+    /// The task was already done.
+    Duplicate,
+    /// The job is over (cancelled or failed).
+    JobFinished,
+}
+
+/// Errors of scheduler operations that the API turns into 4xx/5xx.
+#[derive(Debug, thiserror::Error)]
+pub enum SchedError {
+    /// No such job.
+    #[error("no job '{0}'")]
+    NoJob(String),
+    /// No such task.
+    #[error("job '{0}' has no task {1}")]
+    NoTask(String, u32),
+    /// No such worker.
+    #[error("no worker '{0}'")]
+    NoWorker(String),
+    /// The result is for other pixels or another pass than the task.
+    #[error("{0}")]
+    Mismatch(String),
+    /// The store failed.
+    #[error("store: {0}")]
+    Store(#[from] rusqlite::Error),
+}
+
+/// Everything the scheduler knows.
+pub struct Sched {
+    cfg: SchedConfig,
+    store: Store,
+    /// Jobs by id.
+    jobs: HashMap<String, Job>,
+    workers: Workers,
+    /// Lease id → (job id, task index), for the leases out.
+    leases: HashMap<String, (String, usize)>,
+    next_seq: u64,
+    ids: Ids,
+    counters: Counters,
+    throughput: Throughput,
+}
+
+fn save_job(store: &Store, job: &Job) -> Result<(), SchedError> {
+    let life = job.life();
+    store.update_job(
+        &job.id,
+        life.state,
+        life.error.as_deref(),
+        life.started_ms,
+        life.finished_ms,
+    )?;
+    Ok(())
+}
+
+fn save_task(store: &Store, job: &Job, idx: usize) -> Result<(), SchedError> {
+    store.update_task(&job.id, &job.task_row(idx))?;
+    Ok(())
+}
+
+impl Sched {
+    /// Opens the scheduler over `store` at `now` (the coordinator's start), restoring every
+    /// job. Leases that were out get `grace` from `now` for their workers to report back.
+    pub fn restore(
+        cfg: SchedConfig,
+        mut store: Store,
+        now: Now,
+        grace: Duration,
+    ) -> Result<Sched, SchedError> {
+        let epoch = store.next_epoch(now.wall_ms)?;
+        let mut s = Sched {
+            workers: Workers::new(now.wall_ms, cfg.lease_timeout),
+            cfg,
+            store,
+            jobs: HashMap::new(),
+            leases: HashMap::new(),
+            next_seq: 1,
+            ids: Ids::new(epoch),
+            counters: Counters::default(),
+            throughput: Throughput::default(),
+        };
+        for (id, name, threads, registered_ms) in s.store.workers()? {
+            s.workers.insert(
+                id,
+                WorkerRec {
+                    name,
+                    threads,
+                    registered_ms,
+                    last_seen_ms: registered_ms,
+                    tasks_done: 0,
+                    failures: 0,
+                },
+            );
+        }
+        for row in s.store.jobs()? {
+            s.next_seq = s.next_seq.max(row.seq + 1);
+            let Ok(settings) = serde_json::from_str::<RenderSettings>(&row.settings) else {
+                tracing::error!(job = %row.id, "stored settings unreadable; skipping job");
+                continue;
+            };
+            let tasks = s.store.tasks(&row.id)?;
+            let failures = s.store.blocked(&row.id)?.into_iter().collect();
+            let (job, leases) = Job::restore(row, settings, tasks, failures, now.instant + grace);
+            for (lease, idx) in leases {
+                s.leases.insert(lease, (job.id.clone(), idx));
+            }
+            s.jobs.insert(job.id.clone(), job);
+        }
+        Ok(s)
+    }
+
+    /// A second connection to the store for long reads (image composition) that must not
+    /// hold the scheduler's lock.
+    pub fn reader(&self) -> rusqlite::Result<rusqlite::Connection> {
+        self.store.reader()
+    }
+
+    /// Jobs not yet final.
+    pub fn unfinished_jobs(&self) -> usize {
+        self.jobs.values().filter(|j| !j.is_final()).count()
+    }
+
+    /// Creates a job submitted at `now`; `settings` must be valid.
+    pub fn create_job(
+        &mut self,
+        scene: String,
+        settings: RenderSettings,
+        priority: i32,
+        now: Now,
+    ) -> Result<JobStatus, SchedError> {
+        let seq = self.next_seq;
+        self.next_seq += 1;
+        let id = self.ids.job(seq);
+        let job = Job::new(id.clone(), seq, scene, settings, priority, now.wall_ms);
+        self.store
+            .insert_job(&job.row(), job.tasks().len() as u32)?;
+        let status = job.status();
+        self.jobs.insert(id, job);
+        Ok(status)
+    }
+
+    /// Registers a worker at `now` and returns its id.
+    pub fn register(&mut self, name: &str, threads: u32, now: Now) -> Result<String, SchedError> {
+        let id = self.ids.next("w-");
+        self.store.insert_worker(&id, name, threads, now.wall_ms)?;
+        self.workers.insert(
+            id.clone(),
+            WorkerRec {
+                name: name.into(),
+                threads,
+                registered_ms: now.wall_ms,
+                last_seen_ms: now.wall_ms,
+                tasks_done: 0,
+                failures: 0,
+            },
+        );
+        Ok(id)
+    }
+
+    /// Gives `worker` the next task (see the `order` module), leased until `now` plus the
+    /// lease timeout; `None` when there is nothing for it.
+    pub fn lease(&mut self, worker: &str, now: Now) -> Result<Option<Grant>, SchedError> {
+        if self.workers.touch(worker, now.wall_ms).is_none() {
+            return Err(SchedError::NoWorker(worker.into()));
+        }
+        let block = self.cfg.block_worker_after;
+        let queue = order::job_queue(&self.jobs, |j| {
+            !j.is_final() && j.failures_of(worker) < block
+        });
+        for id in queue {
+            let job = self.jobs.get_mut(&id).expect("listed above");
+            let Some(idx) = job.next_queued() else {
+                continue;
+            };
+            let lease = self.ids.next("l-");
+            let ev = TaskEvent::Lease {
+                worker: worker.into(),
+                lease: lease.clone(),
+                deadline: now.instant + self.cfg.lease_timeout,
+            };
+            if job.transition(idx, ev) != Outcome::Changed {
+                continue;
+            }
+            let started = job.apply(JobEvent::Start, now.wall_ms);
+            save_task(&self.store, job, idx)?;
+            if started {
+                save_job(&self.store, job)?;
+            }
+            self.leases.insert(lease.clone(), (id.clone(), idx));
+            self.counters.leased += 1;
+            return Ok(Some(Grant {
+                lease,
+                job: id,
+                task: idx as u32,
+                scene: job.scene.clone(),
+                settings: job.settings.clone(),
+                work: job.work(idx).expect("a queued task is in the layout"),
+            }));
+        }
+        Ok(None)
+    }
+
+    /// Renews a lease until `now` plus the lease timeout, or tells its worker to stop.
+    pub fn heartbeat(&mut self, lease: &str, now: Now) -> Heartbeat {
+        let stop = |reason: String| Heartbeat::Stop { reason };
+        let Some((job_id, idx)) = self.leases.get(lease).cloned() else {
+            return stop("unknown or expired lease".into());
+        };
+        let Some(job) = self.jobs.get_mut(&job_id) else {
+            return stop("job gone".into());
+        };
+        if job.is_final() {
+            return stop(format!("job {}", job.life().state.name()));
+        }
+        let worker = job.lease_of(idx).map(|(w, _)| w.to_string());
+        let ev = TaskEvent::Renew {
+            lease: lease.into(),
+            deadline: now.instant + self.cfg.lease_timeout,
+        };
+        if job.transition(idx, ev) == Outcome::Changed {
+            // The deadline lives in memory only: after a restart every lease gets the grace.
+            if let Some(w) = worker {
+                self.workers.touch(&w, now.wall_ms);
+            }
+            Heartbeat::Renewed
+        } else {
+            self.leases.remove(lease);
+            stop("lease expired".into())
+        }
+    }
+
+    /// Looks up a task for an upload: its tile and pass, to check the result against.
+    pub fn task_for_upload(&self, job: &str, idx: u32) -> Result<(Tile, u32), SchedError> {
+        let j = self
+            .jobs
+            .get(job)
+            .ok_or_else(|| SchedError::NoJob(job.into()))?;
+        let work = j
+            .work(idx as usize)
+            .ok_or_else(|| SchedError::NoTask(job.into(), idx))?;
+        Ok((work.tile, work.pass))
+    }
+
+    /// Stores a result for task `idx` of `job_id`, delivered at `now`.
+    pub fn complete(
+        &mut self,
+        job_id: &str,
+        idx: u32,
+        d: Delivery<'_>,
+        now: Now,
+    ) -> Result<ResultOutcome, SchedError> {
+        let job = self
+            .jobs
+            .get_mut(job_id)
+            .ok_or_else(|| SchedError::NoJob(job_id.into()))?;
+        let i = idx as usize;
+        let work = job
+            .work(i)
+            .ok_or_else(|| SchedError::NoTask(job_id.into(), idx))?;
+        if d.tile != work.tile || d.pass != work.pass {
+            return Err(SchedError::Mismatch(format!(
+                "result is for tile {:?} pass {}, task {idx} is tile {:?} pass {}",
+                d.tile, d.pass, work.tile, work.pass
+            )));
+        }
+        if job.is_final() {
+            self.counters.duplicates += 1;
+            return Ok(if job.life().state == JobState::Done {
+                ResultOutcome::Duplicate
+            } else {
+                ResultOutcome::JobFinished
+            });
+        }
+        if let Some((_, lease)) = job.lease_of(i) {
+            self.leases.remove(lease);
+        }
+        let ev = TaskEvent::Complete {
+            worker: d.worker.into(),
+        };
+        match job.transition(i, ev) {
+            Outcome::Changed => {}
+            Outcome::AlreadyDone => {
+                self.counters.duplicates += 1;
+                return Ok(ResultOutcome::Duplicate);
+            }
+            Outcome::Ignored => return Ok(ResultOutcome::JobFinished),
+        }
+        let finished = job.all_done() && job.apply(JobEvent::Finish, now.wall_ms);
+        self.store.finish_task(job_id, &job.task_row(i), d.bytes)?;
+        if finished {
+            save_job(&self.store, job)?;
+        }
+        let samples = work.sample_count();
+        self.counters.done += 1;
+        self.counters.samples += samples;
+        self.throughput.record(now.instant, samples);
+        if let Some(w) = self.workers.touch(d.worker, now.wall_ms) {
+            w.tasks_done += 1;
+        }
+        Ok(ResultOutcome::Accepted)
+    }
+
+    /// A worker reports at `now` that it could not render its leased task. Returns whether
+    /// the report applied (a stale lease changes nothing).
+    pub fn fail(&mut self, lease: &str, error: &str, now: Now) -> Result<bool, SchedError> {
+        let Some((job_id, idx)) = self.leases.remove(lease) else {
+            return Ok(false);
+        };
+        let Some(job) = self.jobs.get_mut(&job_id) else {
+            return Ok(false);
+        };
+        let Some(worker) = job.lease_of(idx).map(|(w, _)| w.to_string()) else {
+            return Ok(false);
+        };
+        if job.is_final() {
+            return Ok(false);
+        }
+        let fatal = job.tasks()[idx].failures + 1 >= self.cfg.max_task_failures;
+        let ev = TaskEvent::Fail {
+            lease: lease.into(),
+            fatal,
+        };
+        if job.transition(idx, ev) != Outcome::Changed {
+            return Ok(false);
+        }
+        self.counters.failed += 1;
+        let wf = job.worker_failures.entry(worker.clone()).or_insert(0);
+        *wf += 1;
+        let wf = *wf;
+        if let Some(w) = self.workers.touch(&worker, now.wall_ms) {
+            w.failures += 1;
+        }
+        let work = job.work(idx).expect("a leased task is in the layout");
+        let (t, pass) = (work.tile, work.pass);
+        // A job every live worker is blocked from would wait for ever: fail it instead.
+        // Workers that vanished long ago do not keep it alive (see `Workers::all_live_blocked`;
+        // the expiry tick checks again as workers come and go).
+        let block = self.cfg.block_worker_after;
+        let all_blocked = !fatal
+            && wf >= block
+            && self
+                .workers
+                .all_live_blocked(&job.worker_failures, block, now.wall_ms);
+        let error = if all_blocked {
+            Some(format!(
+                "every worker failed this job {block} times, so none may take it any more; last error, from worker {worker} on tile [{}, {}) × [{}, {}) pass {pass}: {error}",
+                t.x0, t.x1, t.y0, t.y1
+            ))
+        } else if fatal {
+            Some(format!(
+                "tile [{}, {}) × [{}, {}) pass {pass} failed {} times; last error from worker {worker}: {error}",
+                t.x0, t.x1, t.y0, t.y1, job.tasks()[idx].failures
+            ))
+        } else {
+            None
+        };
+        let failed = error.is_some_and(|error| job.apply(JobEvent::Fail { error }, now.wall_ms));
+        save_task(&self.store, job, idx)?;
+        self.store.set_blocked(&job_id, &worker, wf)?;
+        if failed {
+            save_job(&self.store, job)?;
+        }
+        Ok(true)
+    }
+
+    /// The lease holder hands its task back (shutting down): re-queued, no failure counted.
+    pub fn release(&mut self, lease: &str) -> Result<bool, SchedError> {
+        let Some((job_id, idx)) = self.leases.remove(lease) else {
+            return Ok(false);
+        };
+        let Some(job) = self.jobs.get_mut(&job_id) else {
+            return Ok(false);
+        };
+        let ev = TaskEvent::Release {
+            lease: lease.into(),
+        };
+        let ok = job.transition(idx, ev) == Outcome::Changed;
+        if ok {
+            save_task(&self.store, job, idx)?;
+        }
+        Ok(ok)
+    }
+
+    /// Re-queues every lease whose deadline has passed at `now`, and fails the jobs every live
+    /// worker is blocked from; returns how many leases expired.
+    pub fn expire(&mut self, now: Now) -> Result<usize, SchedError> {
+        let mut expired = Vec::new();
+        for job in self.jobs.values_mut().filter(|j| !j.is_final()) {
+            for i in 0..job.tasks().len() {
+                let Some((_, lease)) = job.lease_of(i) else {
+                    continue;
+                };
+                let lease = lease.to_string();
+                let ev = TaskEvent::Expire { now: now.instant };
+                if job.transition(i, ev) == Outcome::Changed {
+                    expired.push((job.id.clone(), i, lease));
+                }
+            }
+        }
+        for (job_id, i, lease) in &expired {
+            self.leases.remove(lease);
+            save_task(&self.store, &self.jobs[job_id], *i)?;
+            tracing::info!(job = %job_id, task = i, "lease expired; task re-queued");
+        }
+        self.counters.expired += expired.len() as u64;
+        // Jobs every live worker is blocked from (the last one blocked may have gone since).
+        let block = self.cfg.block_worker_after;
+        let stuck: Vec<String> = self
+            .jobs
+            .values()
+            .filter(|j| !j.is_final() && !j.worker_failures.is_empty())
+            .filter(|j| {
+                self.workers
+                    .all_live_blocked(&j.worker_failures, block, now.wall_ms)
+            })
+            .map(|j| j.id.clone())
+            .collect();
+        for id in stuck {
+            let job = self.jobs.get_mut(&id).expect("listed above");
+            let error = format!(
+                "every live worker failed this job {block} times, so none may take it any more"
+            );
+            if job.apply(JobEvent::Fail { error }, now.wall_ms) {
+                tracing::warn!(job = %id, "failed: every live worker is blocked from it");
+                save_job(&self.store, job)?;
+            }
+        }
+        Ok(expired.len())
+    }
+
+    /// Cancels a job at `now` if it is not finished. Returns its status, or `None` if unknown.
+    pub fn cancel(&mut self, job_id: &str, now: Now) -> Result<Option<JobStatus>, SchedError> {
+        let Some(job) = self.jobs.get_mut(job_id) else {
+            return Ok(None);
+        };
+        if job.apply(JobEvent::Cancel, now.wall_ms) {
+            save_job(&self.store, job)?;
+        }
+        Ok(Some(job.status()))
+    }
+
+    /// Cancels a job if it is not finished, then deletes it with its tiles from memory and the
+    /// store. Returns its last status, or `None` if unknown. Workers still holding one of its
+    /// leases learn it is gone at their next heartbeat; their results are refused (404).
+    pub fn purge(&mut self, job_id: &str, now: Now) -> Result<Option<JobStatus>, SchedError> {
+        let Some(status) = self.cancel(job_id, now)? else {
+            return Ok(None);
+        };
+        self.store.delete_job(job_id)?;
+        self.jobs.remove(job_id);
+        self.leases.retain(|_, (j, _)| j != job_id);
+        Ok(Some(status))
+    }
+}

@@ -1,0 +1,469 @@
+//! Scheduler tests over a real store, with synthetic results (made-up tile sums, so nothing
+//! here needs the renderer) and a clock the tests drive.
+
+use super::*;
+use raytile_core::TileAccum;
+use tokio::time::Instant;
+
+fn cfg() -> SchedConfig {
+    SchedConfig {
+        lease_timeout: Duration::from_secs(10),
+        max_task_failures: 3,
+        block_worker_after: 2,
+    }
+}
+
+fn small(passes: u32) -> RenderSettings {
+    RenderSettings {
+        width: 32,
+        height: 32,
+        tile_size: 16,
+        spp: 4,
+        passes,
+        ..Default::default()
+    }
+}
+
+/// A start time far from the system clock's, so a value read from the system clock would show.
+fn t0() -> Now {
+    Now {
+        instant: Instant::now(),
+        wall_ms: 1_000_000_000,
+    }
+}
+
+fn secs(n: u64) -> Duration {
+    Duration::from_secs(n)
+}
+
+fn open_with(dir: &std::path::Path, cfg: SchedConfig, now: Now, grace: Duration) -> Sched {
+    Sched::restore(cfg, Store::open(dir).unwrap(), now, grace).unwrap()
+}
+
+fn open(dir: &std::path::Path, now: Now) -> Sched {
+    open_with(dir, cfg(), now, secs(5))
+}
+
+/// Uploads made-up sums for task `idx` of `job` as `worker`.
+fn deliver(s: &mut Sched, job: &str, idx: u32, worker: &str, now: Now) -> ResultOutcome {
+    let (tile, pass) = s.task_for_upload(job, idx).unwrap();
+    let acc = TileAccum {
+        tile,
+        pixels: vec![[pass as f32 + 0.5, 1.0, 2.0, 1.0]; tile.pixel_count()],
+        bad_samples: 0,
+    };
+    let bytes = raytile_proto::tile::encode(&acc, pass);
+    let d = Delivery {
+        worker,
+        tile,
+        pass,
+        bytes: &bytes,
+    };
+    s.complete(job, idx, d, now).unwrap()
+}
+
+/// Leases the next task to `w` and delivers it; `None` when there is none.
+fn finish(s: &mut Sched, w: &str, now: Now) -> Option<Grant> {
+    let g = s.lease(w, now).unwrap()?;
+    assert_eq!(deliver(s, &g.job, g.task, w, now), ResultOutcome::Accepted);
+    Some(g)
+}
+
+fn state_of(s: &Sched, job: &str) -> JobState {
+    s.job_status(job).unwrap().state
+}
+
+#[test]
+fn priority_then_fifo_then_pass_order() {
+    let dir = tempfile::tempdir().unwrap();
+    let now = t0();
+    let mut s = open(dir.path(), now);
+    let w = s.register("w", 1, now).unwrap();
+    let a = s.create_job("s".into(), small(2), 0, now).unwrap().id;
+    let b = s.create_job("s".into(), small(2), 5, now).unwrap().id;
+    let c = s.create_job("s".into(), small(2), 0, now).unwrap().id;
+    let mut grants = Vec::new();
+    while let Some(g) = finish(&mut s, &w, now) {
+        grants.push(g);
+    }
+    let n = s.job_status(&a).unwrap().tasks_total as usize;
+    assert_eq!(grants.len(), 3 * n);
+    assert!(
+        grants[..n].iter().all(|g| g.job == b),
+        "high priority first"
+    );
+    assert!(grants[n..2 * n].iter().all(|g| g.job == a), "then FIFO");
+    assert!(grants[2 * n..].iter().all(|g| g.job == c));
+    // Within a job: every tile of pass 0 before any of pass 1, the centre tile first.
+    let passes: Vec<u32> = grants[n..2 * n].iter().map(|g| g.work.pass).collect();
+    assert!(passes.windows(2).all(|w| w[0] <= w[1]), "{passes:?}");
+    assert_eq!(passes.iter().filter(|&&p| p == 0).count(), n / 2);
+    assert!(s.job_list().iter().all(|j| j.state == JobState::Done));
+}
+
+#[test]
+fn timestamps_come_from_the_callers_clock() {
+    let dir = tempfile::tempdir().unwrap();
+    let start = t0();
+    let mut s = open(dir.path(), start);
+    let w = s.register("w", 1, start.after(secs(1))).unwrap();
+    let job = s
+        .create_job("s".into(), small(1), 0, start.after(secs(2)))
+        .unwrap()
+        .id;
+    finish(&mut s, &w, start.after(secs(3))).unwrap();
+    while finish(&mut s, &w, start.after(secs(4))).is_some() {}
+    let st = s.job_status(&job).unwrap();
+    let ms = |n: u64| start.wall_ms + 1000 * n;
+    assert_eq!(
+        (st.created_ms, st.started_ms, st.finished_ms),
+        (ms(2), Some(ms(3)), Some(ms(4)))
+    );
+    let info = &s.worker_list()[0];
+    assert_eq!((info.registered_ms, info.last_seen_ms), (ms(1), ms(4)));
+    let cancelled = s
+        .create_job("s".into(), small(1), 0, start.after(secs(5)))
+        .unwrap()
+        .id;
+    let st = s.cancel(&cancelled, start.after(secs(6))).unwrap().unwrap();
+    assert_eq!((st.started_ms, st.finished_ms), (None, Some(ms(6))));
+    // Throughput: every sample of the first job within ten seconds of `start + 4 s`.
+    let total = s.job_status(&job).unwrap().samples_total as f64;
+    let m = s.metrics(start.after(secs(4)));
+    assert_eq!(m.samples_per_second, total / 10.0);
+    assert_eq!(s.metrics(start.after(secs(15))).samples_per_second, 0.0);
+}
+
+#[test]
+fn expired_leases_are_requeued_and_late_results_are_duplicates() {
+    let dir = tempfile::tempdir().unwrap();
+    let t0 = t0();
+    let mut s = open(dir.path(), t0);
+    let w1 = s.register("w1", 1, t0).unwrap();
+    let w2 = s.register("w2", 1, t0).unwrap();
+    let job = s.create_job("s".into(), small(1), 0, t0).unwrap().id;
+    let g = s.lease(&w1, t0).unwrap().unwrap();
+    assert_eq!(s.expire(t0.after(secs(5))).unwrap(), 0);
+    assert_eq!(s.heartbeat(&g.lease, t0.after(secs(5))), Heartbeat::Renewed);
+    // Renewed at 5 s: still alive at 14 s, gone at 15 s.
+    assert_eq!(s.expire(t0.after(secs(14))).unwrap(), 0);
+    assert_eq!(s.expire(t0.after(secs(15))).unwrap(), 1);
+    assert!(matches!(
+        s.heartbeat(&g.lease, t0.after(secs(15))),
+        Heartbeat::Stop { .. }
+    ));
+    let g2 = s.lease(&w2, t0.after(secs(15))).unwrap().unwrap();
+    assert_eq!(g.task, g2.task, "the expired task is leased again first");
+    let now = t0.after(secs(16));
+    assert_eq!(
+        deliver(&mut s, &job, g.task, &w2, now),
+        ResultOutcome::Accepted
+    );
+    // The first worker's late result, and a plain duplicate.
+    assert_eq!(
+        deliver(&mut s, &job, g.task, &w1, now),
+        ResultOutcome::Duplicate
+    );
+    let m = s.metrics(now);
+    assert_eq!((m.counters.duplicates, m.counters.expired), (1, 1));
+    // A result for the wrong pixels is refused.
+    let (other, pass) = s.task_for_upload(&job, g.task + 1).unwrap();
+    let d = Delivery {
+        worker: &w1,
+        tile: other,
+        pass,
+        bytes: &[],
+    };
+    assert!(matches!(
+        s.complete(&job, g.task, d, now),
+        Err(SchedError::Mismatch(_))
+    ));
+}
+
+#[test]
+fn repeated_failures_fail_the_job_and_block_the_worker() {
+    let dir = tempfile::tempdir().unwrap();
+    let now = t0();
+    let mut s = open(dir.path(), now);
+    let bad = s.register("bad", 1, now).unwrap();
+    let good = s.register("good", 1, now).unwrap();
+    let job = s.create_job("s".into(), small(1), 0, now).unwrap().id;
+    for _ in 0..2 {
+        let g = s.lease(&bad, now).unwrap().unwrap();
+        assert!(s.fail(&g.lease, "out of memory", now).unwrap());
+    }
+    assert!(
+        s.lease(&bad, now).unwrap().is_none(),
+        "blocked after two failures"
+    );
+    let g = s.lease(&good, now).unwrap().unwrap();
+    assert!(s.fail(&g.lease, "disk full", now).unwrap());
+    let j = s.job_status(&job).unwrap();
+    assert_eq!(j.state, JobState::Failed);
+    let err = j.error.as_deref().unwrap();
+    assert!(
+        err.contains("failed 3 times") && err.contains("disk full"),
+        "{err}"
+    );
+    assert!(s.lease(&good, now).unwrap().is_none());
+    let failures: Vec<u64> = s.worker_list().iter().map(|w| w.failures).collect();
+    assert_eq!(failures, [2, 1]);
+}
+
+#[test]
+fn a_job_every_live_worker_is_blocked_from_fails_instead_of_waiting() {
+    let dir = tempfile::tempdir().unwrap();
+    let start = t0();
+    // Tasks may fail often (10 times) but a worker is blocked after 2 failures.
+    let config = SchedConfig {
+        max_task_failures: 10,
+        ..cfg()
+    };
+    let mut s = open_with(dir.path(), config.clone(), start, Duration::ZERO);
+    // A worker last seen at the start, long before the others fail: it does not keep the
+    // job alive (live: seen within a minute, as the lease timeout is 10 s).
+    s.register("gone", 1, start).unwrap();
+    let now = start.after(secs(120));
+    let a = s.register("a", 1, now).unwrap();
+    let b = s.register("b", 1, now).unwrap();
+    let job = s.create_job("s".into(), small(2), 0, now).unwrap().id;
+    // Each worker fails twice: no task reaches 10 failures, both get blocked.
+    for w in [&a, &b] {
+        for _ in 0..2 {
+            let g = s.lease(w, now).unwrap().unwrap();
+            assert!(s.fail(&g.lease, &format!("no GPU on {w}"), now).unwrap());
+        }
+        if *w == a {
+            assert_eq!(state_of(&s, &job), JobState::Running, "b may still take it");
+        }
+    }
+    let j = s.job_status(&job).unwrap();
+    assert_eq!(j.state, JobState::Failed);
+    let err = j.error.as_deref().unwrap();
+    assert!(
+        err.contains("every worker") && err.contains("no GPU"),
+        "{err}"
+    );
+    // The expiry tick fails a job once the peers of its last blocked worker have gone.
+    let job2 = s.create_job("s".into(), small(1), 0, now).unwrap().id;
+    for _ in 0..2 {
+        let g = s.lease(&a, now).unwrap().unwrap();
+        assert!(s.fail(&g.lease, "no GPU", now).unwrap());
+    }
+    assert_eq!(state_of(&s, &job2), JobState::Running, "b is live");
+    // A minute without b: still live at the edge of the window.
+    s.expire(now.after(secs(60))).unwrap();
+    assert_eq!(state_of(&s, &job2), JobState::Running, "b is live for 60 s");
+    // a calls in (and gets nothing: it is blocked); b has not for more than a minute.
+    let later = now.after(secs(61));
+    assert!(s.lease(&a, later).unwrap().is_none());
+    s.expire(later).unwrap();
+    let j2 = s.job_status(&job2).unwrap();
+    assert_eq!(j2.state, JobState::Failed);
+    assert!(j2.error.as_deref().unwrap().contains("every live worker"));
+    // With no live worker at all, nothing is failed: workers may come back. Here a and b
+    // are blocked while c may take the job; then nobody calls in for an hour.
+    s.register("c", 1, later).unwrap();
+    let job3 = s.create_job("s".into(), small(1), 0, later).unwrap().id;
+    for w in [&a, &b] {
+        for _ in 0..2 {
+            let g = s.lease(w, later).unwrap().unwrap();
+            assert!(s.fail(&g.lease, "oops", later).unwrap());
+        }
+    }
+    assert_eq!(state_of(&s, &job3), JobState::Running, "c may take it");
+    s.expire(later.after(secs(3600))).unwrap();
+    assert_eq!(state_of(&s, &job3), JobState::Running, "nobody is live");
+    // Persisted: a restarted coordinator sees the jobs failed.
+    drop(s);
+    let s = open_with(dir.path(), config, later, Duration::ZERO);
+    assert_eq!(state_of(&s, &job), JobState::Failed);
+    assert_eq!(state_of(&s, &job2), JobState::Failed);
+}
+
+#[test]
+fn after_a_restart_workers_count_as_live_until_they_could_have_called_in() {
+    let dir = tempfile::tempdir().unwrap();
+    let start = t0();
+    let (a, job) = {
+        let mut s = open(dir.path(), start);
+        let a = s.register("a", 1, start).unwrap();
+        s.register("b", 1, start).unwrap();
+        let job = s.create_job("s".into(), small(1), 0, start).unwrap().id;
+        for _ in 0..2 {
+            let g = s.lease(&a, start).unwrap().unwrap();
+            assert!(s.fail(&g.lease, "no GPU", start).unwrap());
+        }
+        (a, job)
+    };
+    // An hour later: both workers were last seen an hour ago, but the coordinator has just
+    // started, so b may still call in; a's block is restored.
+    let restart = start.after(secs(3600));
+    let mut s = open(dir.path(), restart);
+    s.expire(restart.after(secs(1))).unwrap();
+    assert_eq!(state_of(&s, &job), JobState::Running);
+    assert!(s.lease(&a, restart.after(secs(61))).unwrap().is_none());
+    s.expire(restart.after(secs(61))).unwrap();
+    assert_eq!(state_of(&s, &job), JobState::Failed, "b never came back");
+}
+
+#[test]
+fn restart_resumes_without_redoing_finished_tasks() {
+    let dir = tempfile::tempdir().unwrap();
+    let t0 = t0();
+    let (job, out, w) = {
+        let mut s = open(dir.path(), t0);
+        let w = s.register("w", 1, t0).unwrap();
+        let job = s.create_job("s".into(), small(2), 0, t0).unwrap().id;
+        for _ in 0..3 {
+            finish(&mut s, &w, t0).unwrap();
+        }
+        let g = s.lease(&w, t0).unwrap().unwrap();
+        (job, g, w)
+    };
+    let t1 = t0.after(secs(100));
+    let mut s = open(dir.path(), t1);
+    let st = s.job_status(&job).unwrap();
+    assert_eq!((st.tasks_done, st.tasks_leased), (3, 1));
+    // The old lease survives the restart with a grace period (5 s), and can still deliver.
+    assert_eq!(s.heartbeat(&out.lease, t1), Heartbeat::Renewed);
+    assert_eq!(s.expire(t1.after(secs(9))).unwrap(), 0, "renewed at t1");
+    assert_eq!(
+        deliver(&mut s, &job, out.task, &w, t1),
+        ResultOutcome::Accepted
+    );
+    let mut leased = std::collections::HashSet::new();
+    while let Some(g) = finish(&mut s, &w, t1) {
+        assert!(leased.insert(g.task));
+        assert_ne!(g.lease, out.lease, "a new lease id after the restart");
+    }
+    assert_eq!(
+        leased.len() as u64,
+        st.tasks_total - 4,
+        "no finished task redone"
+    );
+    assert_eq!(state_of(&s, &job), JobState::Done);
+}
+
+#[test]
+fn a_lease_out_at_a_restart_expires_after_the_grace() {
+    let dir = tempfile::tempdir().unwrap();
+    let t0 = t0();
+    {
+        let mut s = open(dir.path(), t0);
+        let w = s.register("w", 1, t0).unwrap();
+        s.create_job("s".into(), small(1), 0, t0).unwrap();
+        s.lease(&w, t0).unwrap().unwrap();
+    }
+    let t1 = t0.after(secs(100));
+    let mut s = open(dir.path(), t1);
+    assert_eq!(s.expire(t1.after(Duration::from_millis(4999))).unwrap(), 0);
+    assert_eq!(s.expire(t1.after(secs(5))).unwrap(), 1);
+}
+
+#[test]
+fn purge_deletes_a_job_and_its_tiles_for_good() {
+    let dir = tempfile::tempdir().unwrap();
+    let now = t0();
+    let mut s = open(dir.path(), now);
+    let w = s.register("w", 1, now).unwrap();
+    let keep = s.create_job("s".into(), small(1), 0, now).unwrap().id;
+    let gone = s.create_job("s".into(), small(1), 1, now).unwrap().id;
+    finish(&mut s, &w, now).unwrap();
+    let g = s.lease(&w, now).unwrap().unwrap();
+    let st = s.purge(&gone, now).unwrap().unwrap();
+    assert_eq!(
+        st.state,
+        JobState::Cancelled,
+        "a running job is cancelled first"
+    );
+    assert!(s.job_status(&gone).is_none());
+    assert!(
+        s.purge(&gone, now).unwrap().is_none(),
+        "unknown after the purge"
+    );
+    assert!(
+        !s.fail(&g.lease, "late", now).unwrap(),
+        "its leases are gone too"
+    );
+    drop(s);
+    let s = open(dir.path(), now.after(secs(1)));
+    assert!(s.job_status(&gone).is_none(), "purged for good");
+    assert!(s.job_status(&keep).is_some(), "other jobs untouched");
+}
+
+#[test]
+fn restart_under_another_renderer_version_renders_unfinished_jobs_again() {
+    let dir = tempfile::tempdir().unwrap();
+    let t0 = t0();
+    let (finished_job, open_job) = {
+        let mut s = open(dir.path(), t0);
+        let w = s.register("w", 1, t0).unwrap();
+        let finished_job = s.create_job("s".into(), small(1), 0, t0).unwrap().id;
+        while finish(&mut s, &w, t0).is_some() {}
+        let open_job = s.create_job("s".into(), small(2), 0, t0).unwrap().id;
+        for _ in 0..3 {
+            finish(&mut s, &w, t0).unwrap();
+        }
+        s.lease(&w, t0).unwrap().unwrap();
+        (finished_job, open_job)
+    };
+    let db = dir.path().join("raytile.sqlite3");
+    let results = |job: &str| -> i64 {
+        let c = rusqlite::Connection::open(&db).unwrap();
+        c.query_row(
+            "SELECT COUNT(*) FROM results WHERE job_id = ?1",
+            [job],
+            |r| r.get(0),
+        )
+        .unwrap()
+    };
+    let (kept, before) = (results(&finished_job), results(&open_job));
+    assert!(kept > 0 && before == 3);
+    // Same version: a restart keeps everything.
+    drop(open(dir.path(), t0));
+    assert_eq!(results(&open_job), 3);
+    // As if these tiles came from another renderer version.
+    rusqlite::Connection::open(&db)
+        .unwrap()
+        .execute(
+            "UPDATE meta SET value = 'older' WHERE key = 'render_version'",
+            [],
+        )
+        .unwrap();
+    let t1 = t0.after(secs(100));
+    let mut s = open(dir.path(), t1);
+    assert_eq!(results(&open_job), 0, "the other renderer's tiles are gone");
+    assert_eq!(results(&finished_job), kept, "finished frames are kept");
+    let st = s.job_status(&open_job).unwrap();
+    assert_eq!((st.tasks_done, st.tasks_leased), (0, 0));
+    assert_eq!(state_of(&s, &finished_job), JobState::Done);
+    // Every task is rendered again, and the job finishes.
+    let w = s.register("w2", 1, t1).unwrap();
+    let mut n = 0;
+    while finish(&mut s, &w, t1).is_some() {
+        n += 1;
+    }
+    assert_eq!(n, st.tasks_total);
+    assert_eq!(state_of(&s, &open_job), JobState::Done);
+}
+
+#[test]
+fn ids_stay_unique_across_restarts_in_the_same_millisecond() {
+    let dir = tempfile::tempdir().unwrap();
+    let now = t0();
+    let mut seen = std::collections::HashSet::new();
+    for _ in 0..3 {
+        let mut s = open(dir.path(), now);
+        let w = s.register("w", 1, now).unwrap();
+        assert!(seen.insert(w.clone()), "worker id {w} repeated");
+        let j = s.create_job("s".into(), small(1), 0, now).unwrap().id;
+        assert!(seen.insert(j.clone()), "job id {j} repeated");
+        let g = s.lease(&w, now).unwrap().unwrap();
+        assert!(
+            seen.insert(g.lease.clone()),
+            "lease id {} repeated",
+            g.lease
+        );
+    }
+}

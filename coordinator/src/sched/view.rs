@@ -1,0 +1,133 @@
+//! Projections: the scheduler's state as the API shows it (`JobStatus`, `WorkerInfo`, the
+//! metrics). Read-only; the handlers get these values and never the state itself.
+
+use super::jobs::Job;
+use super::metrics::Metrics;
+use super::order::TaskLayout;
+use super::state::TaskState;
+use super::Sched;
+use crate::clock::Now;
+use raytile_proto::{JobState, JobStatus, WorkerInfo, WorkerShare};
+use std::collections::{BTreeMap, HashMap};
+use std::sync::Arc;
+
+impl Job {
+    /// The job as the API shows it.
+    pub(super) fn status(&self) -> JobStatus {
+        let mut workers: BTreeMap<String, WorkerShare> = BTreeMap::new();
+        let (mut done, mut leased, mut samples_done, mut samples_total) = (0u64, 0u64, 0u64, 0u64);
+        let layout = &self.layout;
+        let mut tile_passes_done = vec![0u32; layout.tile_count()];
+        for (i, t) in self.tasks().iter().enumerate() {
+            let work = layout.task(i).expect("one task per layout slot");
+            let s = work.sample_count();
+            samples_total += s;
+            match &t.state {
+                TaskState::Done { worker } => {
+                    done += 1;
+                    samples_done += s;
+                    tile_passes_done[work.tile_index as usize] += 1;
+                    let w = workers.entry(worker.clone()).or_default();
+                    w.tasks += 1;
+                    w.samples += s;
+                }
+                TaskState::Leased { .. } => leased += 1,
+                _ => {}
+            }
+        }
+        let npasses = layout.pass_count() as u32;
+        let passes_done = (0..layout.pass_count())
+            .take_while(|&p| {
+                self.tasks()[layout.pass_tasks(p)]
+                    .iter()
+                    .all(|t| matches!(t.state, TaskState::Done { .. }))
+            })
+            .count() as u32;
+        let life = self.life();
+        JobStatus {
+            id: self.id.clone(),
+            scene: self.scene.clone(),
+            state: life.state,
+            priority: self.priority,
+            settings: self.settings.clone(),
+            tiles_total: layout.tile_count() as u64,
+            tiles_done: tile_passes_done.iter().filter(|&&n| n == npasses).count() as u64,
+            passes: npasses,
+            passes_done,
+            tasks_total: self.tasks().len() as u64,
+            tasks_done: done,
+            tasks_leased: leased,
+            samples_done,
+            samples_total,
+            workers,
+            created_ms: life.created_ms,
+            started_ms: life.started_ms,
+            finished_ms: life.finished_ms,
+            error: life.error.clone(),
+        }
+    }
+}
+
+impl Sched {
+    /// The status of job `id`, or `None` if it is unknown.
+    pub fn job_status(&self, id: &str) -> Option<JobStatus> {
+        self.jobs.get(id).map(Job::status)
+    }
+
+    /// Every job's status, in submission order.
+    pub fn job_list(&self) -> Vec<JobStatus> {
+        let mut jobs: Vec<&Job> = self.jobs.values().collect();
+        jobs.sort_by_key(|j| j.seq);
+        jobs.into_iter().map(Job::status).collect()
+    }
+
+    /// The task layout of job `id` (to compose its frame outside the lock), or `None`.
+    pub fn layout(&self, id: &str) -> Option<Arc<TaskLayout>> {
+        self.jobs.get(id).map(|j| j.layout.clone())
+    }
+
+    /// Every registered worker, in registration order.
+    pub fn worker_list(&self) -> Vec<WorkerInfo> {
+        let mut leased: HashMap<&str, u64> = HashMap::new();
+        for j in self.jobs.values() {
+            for t in j.tasks() {
+                if let TaskState::Leased { worker, .. } = &t.state {
+                    *leased.entry(worker).or_insert(0) += 1;
+                }
+            }
+        }
+        let mut workers: Vec<WorkerInfo> = self
+            .workers
+            .iter()
+            .map(|(id, w)| WorkerInfo {
+                id: id.clone(),
+                name: w.name.clone(),
+                threads: w.threads,
+                registered_ms: w.registered_ms,
+                last_seen_ms: w.last_seen_ms,
+                leased: leased.get(id.as_str()).copied().unwrap_or(0),
+                tasks_done: w.tasks_done,
+                failures: w.failures,
+            })
+            .collect();
+        workers.sort_by(|a, b| a.registered_ms.cmp(&b.registered_ms).then(a.id.cmp(&b.id)));
+        workers
+    }
+
+    /// Everything `/metrics` shows, at `now` (older throughput entries are dropped).
+    pub fn metrics(&mut self, now: Now) -> Metrics {
+        let mut by_state: HashMap<JobState, u64> = HashMap::new();
+        for j in self.jobs.values() {
+            *by_state.entry(j.life().state).or_insert(0) += 1;
+        }
+        Metrics {
+            jobs: JobState::ALL
+                .into_iter()
+                .map(|s| (s, by_state.get(&s).copied().unwrap_or(0)))
+                .collect(),
+            counters: self.counters.clone(),
+            workers: self.workers.len(),
+            samples_per_second: self.throughput.per_second(now.instant),
+        }
+    }
+}
