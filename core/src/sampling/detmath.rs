@@ -52,7 +52,7 @@ pub fn exp(x: f32) -> f32 {
         * r
         + 1.666_666_5e-1)
         * r
-        + 5.000_000_1e-1)
+        + 0.5)
         * z
         + r
         + 1.0;
@@ -74,7 +74,11 @@ pub fn exp(x: f32) -> f32 {
 #[inline]
 pub fn ln(x: f32) -> f32 {
     if !(x > 0.0) {
-        return if x == 0.0 { f32::NEG_INFINITY } else { f32::NAN };
+        return if x == 0.0 {
+            f32::NEG_INFINITY
+        } else {
+            f32::NAN
+        };
     }
     if x == f32::INFINITY {
         return x;
