@@ -137,10 +137,6 @@ impl<'a> Cursor<'a> {
         Self { bytes, pos: 0 }
     }
 
-    pub(crate) fn pos(&self) -> usize {
-        self.pos
-    }
-
     pub(crate) fn remaining(&self) -> usize {
         self.bytes.len() - self.pos
     }
