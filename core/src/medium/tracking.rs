@@ -499,6 +499,15 @@ mod tests {
             estimate(N, |r| transmittance(&coarse, &ray, 5.0, r)),
             want,
         );
+        // A channel without extinction: walks it drives see no collisions at all, and the
+        // other channels' walks weigh them in through the balance heuristic.
+        let clear_red = Vec3A::new(0.0, 1.5, 3.0);
+        let m = constant_grid(1.0, clear_red);
+        check(
+            "clear red",
+            estimate(N, |r| transmittance(&m, &ray, 5.0, r)),
+            exact(clear_red),
+        );
         // Delta tracking, one channel at a time.
         for k in 0..3 {
             let (mean, err) = estimate(N, |r| escaped(&grid, &ray, 5.0, k, r));

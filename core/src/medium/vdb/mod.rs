@@ -232,6 +232,7 @@ impl VdbGrid {
     /// the grid's voxel centres). For an axis-aligned map the box is in world space and the
     /// transform the identity; otherwise the box is in index space and the transform the map.
     ///
+    /// Outside the box the density is 0, whatever the background (which fills the padding).
     /// Level sets (signed distances) are not densities and are refused, as are grids with
     /// negative values, no active voxels, or more than `limits.max_voxels` voxels in the box.
     pub fn to_density(&self, limits: &GridLimits) -> Result<LoadedGrid, GridFormatError> {
@@ -320,9 +321,9 @@ struct Ctx<'a, 'b> {
     compression: u32,
     half: bool,
     background: f32,
-    /// Node slots allocated so far, against the budget.
-    slots: u64,
-    max_slots: u64,
+    /// Bytes of tree allocated so far, against the budget.
+    bytes: u64,
+    max_bytes: u64,
 }
 
 fn invalid(m: impl Into<String>) -> GridFormatError {
@@ -421,13 +422,14 @@ fn transform(c: &mut Cursor<'_>) -> Result<(DAffine3, bool), GridFormatError> {
 }
 
 impl Ctx<'_, '_> {
-    fn budget(&mut self, slots: u64) -> Result<(), GridFormatError> {
-        self.slots += slots;
-        if self.slots > self.max_slots {
+    /// Counts `bytes` more of tree against the budget.
+    fn budget(&mut self, bytes: u64) -> Result<(), GridFormatError> {
+        self.bytes += bytes;
+        if self.bytes > self.max_bytes {
             return Err(GridFormatError::TooLarge {
                 what: "the sparse tree".into(),
-                count: self.slots,
-                limit: self.max_slots,
+                count: self.bytes / 4,
+                limit: self.max_bytes / 4,
             });
         }
         Ok(())
@@ -550,7 +552,8 @@ impl Ctx<'_, '_> {
         log2: u32,
     ) -> Result<u32, GridFormatError> {
         let slots = 1usize << (3 * log2);
-        self.budget(slots as u64)?;
+        // A value and a child index per slot.
+        self.budget(8 * slots as u64)?;
         let child_mask = self.mask(slots / 64, "a child mask")?;
         let active = self.mask(slots / 64, "a value mask")?;
         let mut values = vec![0f32; slots];
@@ -569,7 +572,7 @@ impl Ctx<'_, '_> {
             *c = if log2 == N5_LOG2 {
                 self.internal(grid, o, N4_LOG2)?
             } else {
-                self.budget(512)?;
+                self.budget(4 * 512 + 64)?;
                 let mask = self.mask(8, "a leaf's value mask")?;
                 grid.leaves.push(Leaf {
                     origin: o,
@@ -615,8 +618,9 @@ fn f16_to_f32(h: u16) -> f32 {
 }
 
 /// Reads the float grid `name` (or the one named `density`, or the only float grid) from the
-/// bytes of a `.vdb` file, within `limits` (the sparse tree may hold at most twice
-/// `limits.max_voxels` values).
+/// bytes of a `.vdb` file, within `limits`: the sparse tree may take at most 1.25 times the
+/// memory of a dense grid of `limits.max_voxels` (four bytes per leaf value, eight per
+/// internal-node slot), whatever the file's headers say.
 pub fn read_vdb(
     bytes: &[u8],
     name: Option<&str>,
@@ -734,8 +738,8 @@ pub fn read_vdb(
         compression,
         half: d.type_name.ends_with("_HalfFloat"),
         background: 0.0,
-        slots: 0,
-        max_slots: limits.max_voxels.saturating_mul(2),
+        bytes: 0,
+        max_bytes: limits.max_voxels.saturating_mul(5),
     };
     // Topology: the root's background, tiles and children, each child's masks and tile
     // values depth first.
