@@ -36,7 +36,9 @@ fn fixtures() -> Option<&'static Path> {
             eprintln!("skipped: python3-openvdb is not installed");
             return None;
         };
-        let dir = std::env::temp_dir().join(format!("raytile-vdb-fixtures-{}", std::process::id()));
+        // Cargo's scratch folder for integration tests: rewritten on every run, never left
+        // in the system's temporary folder.
+        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("vdb-fixtures");
         std::fs::create_dir_all(&dir).unwrap();
         let out = Command::new(python).arg(SCRIPT).arg(&dir).output().unwrap();
         assert!(

