@@ -156,16 +156,23 @@ impl GridMedium {
 
     /// The majorant segments of the world ray `o + t·d`, `0 < t < t_max`: one per majorant
     /// cell crossed inside the grid's box, none outside it (the density is 0 there). `t` is in
-    /// the ray's own units.
+    /// the ray's own units and σ_maj per unit of `t` (per metre for a unit `d`).
     pub fn majorants(&self, o: Vec3A, d: Vec3A, t_max: f32) -> MajorantIter<'_> {
         let (ou, du) = self.ray_to_unit(o, d);
-        self.majorants_unit(ou, du, t_max)
+        self.majorants_unit(ou, du, t_max, d.length())
     }
 
-    /// [`GridMedium::majorants`] for a ray already in unit coordinates.
+    /// [`GridMedium::majorants`] for a ray already in unit coordinates, whose parameter
+    /// advances `per_t` metres in the world per unit.
     #[inline]
-    pub(crate) fn majorants_unit(&self, ou: Vec3A, du: Vec3A, t_max: f32) -> MajorantIter<'_> {
-        let sigma_t = self.sigma_a + self.sigma_s;
+    pub(crate) fn majorants_unit(
+        &self,
+        ou: Vec3A,
+        du: Vec3A,
+        t_max: f32,
+        per_t: f32,
+    ) -> MajorantIter<'_> {
+        let sigma_t = (self.sigma_a + self.sigma_s) * per_t;
         match clip_unit_cube(ou, du, 0.0, t_max) {
             Some((t0, t1)) => {
                 MajorantIter::Dda(DdaIter::new(&self.majorant, sigma_t, ou, du, t0, t1))

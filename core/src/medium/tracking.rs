@@ -126,7 +126,7 @@ where
         Medium::Grid(g) => {
             let (ou, du) = g.ray_to_unit(ray.o, d);
             walk(
-                g.majorants_unit(ou, du, t_end),
+                g.majorants_unit(ou, du, t_end, 1.0),
                 |t| g.properties_unit(ou + du * t),
                 ray.o,
                 d,
