@@ -18,6 +18,7 @@ pub mod geometry;
 pub mod integrator;
 pub mod light;
 pub mod material;
+pub mod medium;
 pub mod sampling;
 pub mod scene;
 pub mod settings;

@@ -1,5 +1,6 @@
 //! Deterministic sample sequences and warps from the unit square to useful distributions.
 
+pub mod detmath;
 pub mod distrib;
 pub mod sequence;
 pub mod warp;

@@ -1,0 +1,202 @@
+//! Loading density grids from files: limits, errors, and the reader picked by extension.
+
+use super::grid::DensityGrid;
+use glam::Affine3A;
+use std::path::{Path, PathBuf};
+
+/// Bounds on what a grid file may make the renderer allocate. Every size read from a header is
+/// checked against these and against the file's length before anything is allocated.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct GridLimits {
+    /// Most voxels of the dense grid (512³ by default: 512 MiB of f32).
+    pub max_voxels: u64,
+    /// Largest file read, in bytes (2 GiB by default).
+    pub max_file_bytes: u64,
+}
+
+impl Default for GridLimits {
+    fn default() -> Self {
+        Self {
+            max_voxels: 512 * 512 * 512,
+            max_file_bytes: 2 << 30,
+        }
+    }
+}
+
+/// What is wrong with a grid file's contents.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum GridFormatError {
+    /// The bytes are not a well-formed file of the format (truncated, corrupted, inconsistent).
+    #[error("{0}")]
+    Invalid(String),
+    /// A well-formed file using a feature the reader does not support.
+    #[error("unsupported: {0}")]
+    Unsupported(String),
+    /// The grid is larger than [`GridLimits`] allow.
+    #[error("{what} has {count} voxels, more than the limit of {limit}")]
+    TooLarge {
+        /// What was too large.
+        what: String,
+        /// Its size in voxels.
+        count: u64,
+        /// The limit.
+        limit: u64,
+    },
+}
+
+/// Why a grid file could not be loaded; the message names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum GridFileError {
+    /// The file could not be read.
+    #[error("cannot read {}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The error.
+        source: std::io::Error,
+    },
+    /// The file's contents are not a usable grid.
+    #[error("{}: {source}", path.display())]
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        source: GridFormatError,
+    },
+}
+
+/// A density grid read from a file, and where it sits in the space of the object that holds it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LoadedGrid {
+    /// The density, over the box the file states (`.vol`: its header's box; `.vdb`: its active
+    /// voxels' world positions, for axis-aligned index-to-world maps).
+    pub density: DensityGrid,
+    /// From the density's space to the object's space: the identity, except for `.vdb` grids
+    /// whose index-to-world map rotates or shears (then `density` is in index space).
+    pub transform: Affine3A,
+}
+
+/// Loads the density grid in `path`, picking the reader by extension: `.vol` (Mitsuba 3) or
+/// `.vdb` (OpenVDB; `grid_name` selects a grid, else the one named `density`, else the only
+/// float grid).
+pub fn load_grid_file(
+    path: &Path,
+    grid_name: Option<&str>,
+    limits: &GridLimits,
+) -> Result<LoadedGrid, GridFileError> {
+    let format = |source| GridFileError::Format {
+        path: path.to_owned(),
+        source,
+    };
+    let io = |source| GridFileError::Io {
+        path: path.to_owned(),
+        source,
+    };
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    let kind = match ext.as_deref() {
+        Some("vol") => "vol",
+        Some("vdb") => "vdb",
+        _ => {
+            return Err(format(GridFormatError::Unsupported(
+                "unknown grid file extension (expected .vol or .vdb)".into(),
+            )))
+        }
+    };
+    let len = std::fs::metadata(path).map_err(io)?.len();
+    if len > limits.max_file_bytes {
+        return Err(format(GridFormatError::Unsupported(format!(
+            "the file has {len} bytes, more than the limit of {}",
+            limits.max_file_bytes
+        ))));
+    }
+    let bytes = std::fs::read(path).map_err(io)?;
+    if kind == "vol" {
+        let density = super::vol::read_vol(&bytes, limits).map_err(format)?;
+        Ok(LoadedGrid {
+            density,
+            transform: Affine3A::IDENTITY,
+        })
+    } else {
+        let grid = super::vdb::read_vdb(&bytes, grid_name, limits).map_err(format)?;
+        grid.to_density(limits).map_err(format)
+    }
+}
+
+/// A bounds-checked little-endian reader over a byte slice: every read past the end is an
+/// error naming what was being read, never a panic.
+pub(crate) struct Cursor<'a> {
+    bytes: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> Cursor<'a> {
+    pub(crate) fn new(bytes: &'a [u8]) -> Self {
+        Self { bytes, pos: 0 }
+    }
+
+    pub(crate) fn remaining(&self) -> usize {
+        self.bytes.len() - self.pos
+    }
+
+    pub(crate) fn seek(&mut self, pos: u64, what: &str) -> Result<(), GridFormatError> {
+        if pos > self.bytes.len() as u64 {
+            return Err(GridFormatError::Invalid(format!(
+                "{what} at byte {pos} is past the end of the file ({} bytes)",
+                self.bytes.len()
+            )));
+        }
+        self.pos = pos as usize;
+        Ok(())
+    }
+
+    pub(crate) fn take(&mut self, n: usize, what: &str) -> Result<&'a [u8], GridFormatError> {
+        if n > self.remaining() {
+            return Err(GridFormatError::Invalid(format!(
+                "truncated: {what} needs {n} bytes at byte {}, the file has {} left",
+                self.pos,
+                self.remaining()
+            )));
+        }
+        let s = &self.bytes[self.pos..self.pos + n];
+        self.pos += n;
+        Ok(s)
+    }
+
+    pub(crate) fn array<const N: usize>(&mut self, what: &str) -> Result<[u8; N], GridFormatError> {
+        let s = self.take(N, what)?;
+        let mut a = [0u8; N];
+        a.copy_from_slice(s);
+        Ok(a)
+    }
+
+    pub(crate) fn u8(&mut self, what: &str) -> Result<u8, GridFormatError> {
+        Ok(self.array::<1>(what)?[0])
+    }
+
+    pub(crate) fn u32(&mut self, what: &str) -> Result<u32, GridFormatError> {
+        Ok(u32::from_le_bytes(self.array(what)?))
+    }
+
+    pub(crate) fn i32(&mut self, what: &str) -> Result<i32, GridFormatError> {
+        Ok(i32::from_le_bytes(self.array(what)?))
+    }
+
+    pub(crate) fn i64(&mut self, what: &str) -> Result<i64, GridFormatError> {
+        Ok(i64::from_le_bytes(self.array(what)?))
+    }
+
+    pub(crate) fn u64(&mut self, what: &str) -> Result<u64, GridFormatError> {
+        Ok(u64::from_le_bytes(self.array(what)?))
+    }
+
+    pub(crate) fn f32(&mut self, what: &str) -> Result<f32, GridFormatError> {
+        Ok(f32::from_le_bytes(self.array(what)?))
+    }
+
+    pub(crate) fn f64(&mut self, what: &str) -> Result<f64, GridFormatError> {
+        Ok(f64::from_le_bytes(self.array(what)?))
+    }
+}
