@@ -184,7 +184,10 @@ impl Default for RenderSettings {
 pub const MAX_EDGE: u32 = 1 << 15;
 /// Largest image accepted, in pixels.
 pub const MAX_PIXELS: u64 = 1 << 27;
-/// Largest sample count accepted (sample indices must fit the Sobol sequence's 2^24 range).
+/// Largest sample count accepted. The sampler draws Owen-scrambled Sobol points for the first
+/// [`crate::sampling::SOBOL_SAMPLES`] (2^16, the sequence's length) samples of a pixel and hashed
+/// numbers for the samples after them: just as deterministic and unbiased, but not stratified,
+/// so the extra samples converge at the plain Monte Carlo rate.
 pub const MAX_SPP: u32 = 1 << 20;
 /// Longest path accepted.
 pub const MAX_DEPTH: u32 = 1024;
