@@ -1,6 +1,6 @@
 //! `raytile cluster`: a coordinator and N workers in one process, for one machine.
 
-use crate::submit::{self, JobFlags};
+use crate::submit::{self, JobArgs};
 use anyhow::Context;
 use clap::Args;
 use std::path::PathBuf;
@@ -32,7 +32,7 @@ pub struct ClusterArgs {
     pub output: PathBuf,
     /// Job settings for --render.
     #[command(flatten)]
-    pub job: JobFlags,
+    pub job: JobArgs,
 }
 
 /// Runs `raytile cluster`.

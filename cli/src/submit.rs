@@ -1,83 +1,33 @@
 //! `raytile submit`: upload a scene, submit a job, follow it with a progress bar, download
 //! the image.
 
-use anyhow::{anyhow, bail, Context};
+use crate::render::flag_error;
+use anyhow::{bail, Context};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use raytile_proto::{self as proto, scene as pkg, JobRequest, JobState};
+use raytile_proto::{self as proto, scene as pkg, JobRequest, JobState, RenderOverrides};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-/// Job settings as flags; unset flags take the scene's own settings, then the defaults.
+/// Job settings as flags: the settings that differ from the scene's own, and the priority.
 #[derive(Args, Debug, Clone, Default)]
-pub struct JobFlags {
-    /// Image width in pixels.
-    #[arg(long)]
-    pub width: Option<u32>,
-    /// Image height in pixels.
-    #[arg(long)]
-    pub height: Option<u32>,
-    /// Samples per pixel.
-    #[arg(long)]
-    pub spp: Option<u32>,
-    /// Maximum path depth.
-    #[arg(long)]
-    pub max_depth: Option<u32>,
-    /// Integrator: path, whitted, normals, albedo, depth, ao.
-    #[arg(long)]
-    pub integrator: Option<String>,
-    /// Random seed.
-    #[arg(long)]
-    pub seed: Option<u32>,
-    /// Camera name or index.
-    #[arg(long)]
-    pub camera: Option<String>,
-    /// Pixel filter: box, gaussian, blackman-harris.
-    #[arg(long)]
-    pub filter: Option<String>,
-    /// Tile edge in pixels.
-    #[arg(long)]
-    pub tile_size: Option<u32>,
-    /// Progressive passes.
-    #[arg(long)]
-    pub passes: Option<u32>,
+pub struct JobArgs {
+    /// Settings that differ from the scene's own.
+    #[command(flatten)]
+    pub overrides: RenderOverrides,
     /// Job priority (higher first).
     #[arg(long, allow_hyphen_values = true)]
     pub priority: Option<i32>,
-    /// A glTF scene without any light renders black instead of under the default white
-    /// environment.
-    #[arg(long)]
-    pub no_default_light: bool,
 }
 
-impl JobFlags {
+impl JobArgs {
     /// The job request for `scene`.
-    pub fn request(&self, scene: String) -> anyhow::Result<JobRequest> {
-        Ok(JobRequest {
+    pub fn request(&self, scene: String) -> JobRequest {
+        JobRequest {
             scene,
-            width: self.width,
-            height: self.height,
-            spp: self.spp,
-            max_depth: self.max_depth,
-            integrator: self
-                .integrator
-                .as_deref()
-                .map(str::parse)
-                .transpose()
-                .map_err(|e: String| anyhow!("--integrator: {e}"))?,
-            seed: self.seed,
-            camera: self.camera.clone(),
-            filter: self
-                .filter
-                .as_deref()
-                .map(str::parse)
-                .transpose()
-                .map_err(|e: String| anyhow!("--filter: {e}"))?,
-            tile_size: self.tile_size,
-            passes: self.passes,
+            overrides: self.overrides.clone(),
             priority: self.priority,
-            default_light: self.no_default_light.then_some(false),
-        })
+        }
     }
 }
 
@@ -98,7 +48,7 @@ pub struct SubmitArgs {
     pub token: Option<String>,
     /// Job settings.
     #[command(flatten)]
-    pub job: JobFlags,
+    pub job: JobArgs,
     /// Write the final image here (.png, .exr or .hdr); implies --wait.
     #[arg(short = 'o', long)]
     pub output: Option<PathBuf>,
@@ -221,10 +171,11 @@ pub fn scene_upload(
 pub async fn submit_and_follow(
     c: &Api,
     scene: &Path,
-    flags: &JobFlags,
+    job_args: &JobArgs,
     wait: bool,
     output: Option<&Path>,
 ) -> anyhow::Result<proto::JobStatus> {
+    job_args.overrides.check().map_err(flag_error)?;
     let (bytes, hint, entry) = scene_upload(scene)?;
     let mut q: Vec<(&str, String)> = Vec::new();
     if let Some(h) = hint {
@@ -243,7 +194,7 @@ pub async fn submit_and_follow(
         .context("uploading the scene")?
         .json()
         .await?;
-    let req = flags.request(created.id)?;
+    let req = job_args.request(created.id);
     let mut job: proto::JobStatus = c
         .send(c.req(reqwest::Method::POST, "/v1/jobs").json(&req))
         .await
