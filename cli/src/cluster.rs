@@ -3,6 +3,8 @@
 use crate::submit::{self, JobArgs};
 use anyhow::Context;
 use clap::Args;
+use raytile_core::film::ImageFormat;
+use raytile_proto::client::Client;
 use std::path::PathBuf;
 
 /// `raytile cluster` flags.
@@ -37,6 +39,10 @@ pub struct ClusterArgs {
 
 /// Runs `raytile cluster`.
 pub fn run(a: ClusterArgs) -> anyhow::Result<()> {
+    if a.render.is_some() {
+        // Before the cluster starts: an unknown extension would fail only after the render.
+        ImageFormat::from_path(&a.output)?;
+    }
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -104,7 +110,7 @@ async fn cluster(a: ClusterArgs) -> anyhow::Result<()> {
     }
     let result = match &a.render {
         Some(scene) => {
-            let api = submit::Api::new(&base, a.token.clone())?;
+            let api = Client::new(&base, a.token.clone())?;
             submit::submit_and_follow(&api, scene, &a.job, true, Some(a.output.as_path()))
                 .await
                 .map(|_| ())

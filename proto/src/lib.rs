@@ -8,16 +8,24 @@
 //! - [`tile`]: the binary tile-result format workers upload (little-endian, length-checked).
 //! - [`scene`]: scene packages: format detection; with the `package` feature, content ids, safe
 //!   archive extraction and packing.
+//! - `client` (feature `client`): the HTTP client of the API, one for workers and the CLI.
+//! - `shutdown_signal` (feature `signal`): Ctrl-C or SIGTERM, for the service binaries.
 //!
 //! How the wire format may change between releases is in `docs/farm.md`, "Compatibility".
 
 pub mod api;
+#[cfg(feature = "client")]
+pub mod client;
 pub mod scene;
 pub mod settings;
+#[cfg(feature = "signal")]
+mod signal;
 pub mod tile;
 
 pub use api::*;
 pub use settings::{
     FilterKind, IntegratorKind, RenderOverrides, RenderSettings, SettingsError, Tile,
 };
+#[cfg(feature = "signal")]
+pub use signal::shutdown_signal;
 pub use tile::TileAccum;
