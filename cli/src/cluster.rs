@@ -1,8 +1,10 @@
 //! `raytile cluster`: a coordinator and N workers in one process, for one machine.
 
-use crate::submit::{self, JobFlags};
+use crate::submit::{self, JobArgs};
 use anyhow::Context;
 use clap::Args;
+use raytile_core::film::ImageFormat;
+use raytile_proto::client::Client;
 use std::path::PathBuf;
 
 /// `raytile cluster` flags.
@@ -32,11 +34,15 @@ pub struct ClusterArgs {
     pub output: PathBuf,
     /// Job settings for --render.
     #[command(flatten)]
-    pub job: JobFlags,
+    pub job: JobArgs,
 }
 
 /// Runs `raytile cluster`.
 pub fn run(a: ClusterArgs) -> anyhow::Result<()> {
+    if a.render.is_some() {
+        // Before the cluster starts: an unknown extension would fail only after the render.
+        ImageFormat::from_path(&a.output)?;
+    }
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -104,7 +110,7 @@ async fn cluster(a: ClusterArgs) -> anyhow::Result<()> {
     }
     let result = match &a.render {
         Some(scene) => {
-            let api = submit::Api::new(&base, a.token.clone())?;
+            let api = Client::new(&base, a.token.clone())?;
             submit::submit_and_follow(&api, scene, &a.job, true, Some(a.output.as_path()))
                 .await
                 .map(|_| ())

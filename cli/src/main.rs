@@ -40,3 +40,84 @@ fn main() {
         std::process::exit(1);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use raytile_core::{IntegratorKind, RenderOverrides};
+
+    fn overrides(args: &[&str]) -> RenderOverrides {
+        let cli = Cli::try_parse_from(args).unwrap();
+        match cli.command {
+            Command::Render(a) => a.overrides,
+            Command::Submit(a) => a.job.overrides,
+            Command::Cluster(a) => a.job.overrides,
+            Command::Bench(_) => unreachable!(),
+        }
+    }
+
+    #[test]
+    fn render_submit_and_cluster_read_the_same_settings_flags() {
+        let flags = [
+            "--width",
+            "64",
+            "--height",
+            "32",
+            "--spp",
+            "8",
+            "--max-depth",
+            "3",
+            "--integrator",
+            "ao",
+            "--seed",
+            "7",
+            "--camera",
+            "side",
+            "--filter",
+            "gaussian",
+            "--tile-size",
+            "16",
+            "--passes",
+            "2",
+            "--no-default-light",
+        ];
+        let want = RenderOverrides {
+            width: Some(64),
+            height: Some(32),
+            spp: Some(8),
+            max_depth: Some(3),
+            integrator: Some(IntegratorKind::Ao),
+            seed: Some(7),
+            camera: Some("side".into()),
+            filter: Some(raytile_core::settings::FilterKind::Gaussian),
+            tile_size: Some(16),
+            passes: Some(2),
+            default_light: Some(false),
+        };
+        for command in [
+            &["raytile", "render", "s.json", "-o", "x.png"][..],
+            &["raytile", "submit", "s.json"],
+            &["raytile", "cluster", "--render", "s.json"],
+        ] {
+            let args: Vec<&str> = command.iter().chain(&flags).copied().collect();
+            assert_eq!(overrides(&args), want, "{command:?}");
+            assert_eq!(
+                overrides(command),
+                RenderOverrides::default(),
+                "{command:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn unknown_names_are_refused_by_the_parser() {
+        let e = Cli::try_parse_from(["raytile", "submit", "s.json", "--integrator", "magic"])
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            e.contains("--integrator") && e.contains("unknown integrator 'magic'"),
+            "{e}"
+        );
+    }
+}

@@ -1,88 +1,19 @@
 //! `raytile render`: one scene, one machine, one image.
 
-use anyhow::{bail, Context, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use raytile_core::film::{self, OutputOptions, ToneMap};
-use raytile_core::settings::FilterKind;
-use raytile_core::{load_scene, IntegratorKind, RenderProgress, RenderSettings, Scene};
+use raytile_core::{load_scene, RenderOverrides, RenderProgress, Scene, SettingsError};
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 use std::time::Instant;
 
-/// Render settings shared by `render` and `submit`: each overrides the scene's own setting.
-#[derive(Args, Clone, Debug, Default)]
-pub struct RenderFlags {
-    /// Image width in pixels.
-    #[arg(long)]
-    pub width: Option<u32>,
-    /// Image height in pixels.
-    #[arg(long)]
-    pub height: Option<u32>,
-    /// Samples per pixel.
-    #[arg(long)]
-    pub spp: Option<u32>,
-    /// Maximum path depth (bounces).
-    #[arg(long)]
-    pub max_depth: Option<u32>,
-    /// Integrator: path, whitted, normals, albedo, depth, ao.
-    #[arg(long)]
-    pub integrator: Option<IntegratorKind>,
-    /// Random seed.
-    #[arg(long)]
-    pub seed: Option<u32>,
-    /// Camera name or index.
-    #[arg(long)]
-    pub camera: Option<String>,
-    /// Pixel filter: box, gaussian, blackman-harris.
-    #[arg(long)]
-    pub filter: Option<FilterKind>,
-    /// Tile edge in pixels (scheduling only; never changes the image).
-    #[arg(long)]
-    pub tile_size: Option<u32>,
-    /// Progressive passes the samples are split into (part of the job: same passes, same bits).
-    #[arg(long)]
-    pub passes: Option<u32>,
-    /// A glTF scene without any light renders black instead of under the default white
-    /// environment.
-    #[arg(long)]
-    pub no_default_light: bool,
-}
-
-impl RenderFlags {
-    /// raytile's defaults, overridden by the scene's settings, overridden by these flags.
-    pub fn resolve(
-        &self,
-        scene: &raytile_core::scene::desc::RenderDefaults,
-    ) -> Result<RenderSettings> {
-        let mut s = RenderSettings::default();
-        let d = scene;
-        s.width = self.width.or(d.width).unwrap_or(s.width);
-        s.height = self.height.or(d.height).unwrap_or(s.height);
-        s.spp = self.spp.or(d.spp).unwrap_or(s.spp);
-        s.max_depth = self.max_depth.or(d.max_depth).unwrap_or(s.max_depth);
-        s.seed = self.seed.or(d.seed).unwrap_or(s.seed);
-        s.camera = self.camera.clone().or_else(|| d.camera.clone());
-        s.integrator = match (self.integrator, &d.integrator) {
-            (Some(i), _) => i,
-            (None, Some(name)) => name.parse().map_err(anyhow::Error::msg)?,
-            (None, None) => s.integrator,
-        };
-        s.filter = match (self.filter, &d.filter) {
-            (Some(f), _) => f,
-            (None, Some(name)) => name.parse().map_err(anyhow::Error::msg)?,
-            (None, None) => s.filter,
-        };
-        s.tile_size = self.tile_size.unwrap_or(s.tile_size);
-        s.passes = self.passes.unwrap_or(s.passes);
-        s.default_light = !self.no_default_light;
-        if let Err((field, msg)) = s.validate() {
-            bail!("--{}: {msg}", field.replace('_', "-"));
-        }
-        Ok(s)
-    }
+/// A settings error as the command line says it: the field as its flag (`--max-depth`).
+pub fn flag_error(e: SettingsError) -> anyhow::Error {
+    anyhow!("--{}: {}", e.field.replace('_', "-"), e.message)
 }
 
 /// Arguments of `raytile render`.
@@ -93,8 +24,9 @@ pub struct RenderArgs {
     /// Output image: .png, .exr or .hdr.
     #[arg(short, long)]
     pub output: PathBuf,
+    /// Settings that differ from the scene's own.
     #[command(flatten)]
-    pub flags: RenderFlags,
+    pub overrides: RenderOverrides,
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
@@ -139,7 +71,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     for w in &desc.warnings {
         eprintln!("raytile: warning: {w}");
     }
-    let settings = args.flags.resolve(&desc.render)?;
+    let settings = desc.render.resolve(&args.overrides).map_err(flag_error)?;
     let mut pool = rayon::ThreadPoolBuilder::new();
     if let Some(t) = args.threads {
         if t == 0 {

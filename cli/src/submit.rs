@@ -1,83 +1,36 @@
 //! `raytile submit`: upload a scene, submit a job, follow it with a progress bar, download
 //! the image.
 
+use crate::render::flag_error;
 use anyhow::{anyhow, bail, Context};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use raytile_proto::{self as proto, scene as pkg, JobRequest, JobState};
+use raytile_core::film::ImageFormat;
+use raytile_proto::client::{Client, ClientError};
+use raytile_proto::scene::{self as pkg, SceneFormat};
+use raytile_proto::{JobRequest, JobState, JobStatus, RenderOverrides};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-/// Job settings as flags; unset flags take the scene's own settings, then the defaults.
+/// Job settings as flags: the settings that differ from the scene's own, and the priority.
 #[derive(Args, Debug, Clone, Default)]
-pub struct JobFlags {
-    /// Image width in pixels.
-    #[arg(long)]
-    pub width: Option<u32>,
-    /// Image height in pixels.
-    #[arg(long)]
-    pub height: Option<u32>,
-    /// Samples per pixel.
-    #[arg(long)]
-    pub spp: Option<u32>,
-    /// Maximum path depth.
-    #[arg(long)]
-    pub max_depth: Option<u32>,
-    /// Integrator: path, whitted, normals, albedo, depth, ao.
-    #[arg(long)]
-    pub integrator: Option<String>,
-    /// Random seed.
-    #[arg(long)]
-    pub seed: Option<u32>,
-    /// Camera name or index.
-    #[arg(long)]
-    pub camera: Option<String>,
-    /// Pixel filter: box, gaussian, blackman-harris.
-    #[arg(long)]
-    pub filter: Option<String>,
-    /// Tile edge in pixels.
-    #[arg(long)]
-    pub tile_size: Option<u32>,
-    /// Progressive passes.
-    #[arg(long)]
-    pub passes: Option<u32>,
+pub struct JobArgs {
+    /// Settings that differ from the scene's own.
+    #[command(flatten)]
+    pub overrides: RenderOverrides,
     /// Job priority (higher first).
     #[arg(long, allow_hyphen_values = true)]
     pub priority: Option<i32>,
-    /// A glTF scene without any light renders black instead of under the default white
-    /// environment.
-    #[arg(long)]
-    pub no_default_light: bool,
 }
 
-impl JobFlags {
+impl JobArgs {
     /// The job request for `scene`.
-    pub fn request(&self, scene: String) -> anyhow::Result<JobRequest> {
-        Ok(JobRequest {
+    pub fn request(&self, scene: String) -> JobRequest {
+        JobRequest {
             scene,
-            width: self.width,
-            height: self.height,
-            spp: self.spp,
-            max_depth: self.max_depth,
-            integrator: self
-                .integrator
-                .as_deref()
-                .map(str::parse)
-                .transpose()
-                .map_err(|e: String| anyhow!("--integrator: {e}"))?,
-            seed: self.seed,
-            camera: self.camera.clone(),
-            filter: self
-                .filter
-                .as_deref()
-                .map(str::parse)
-                .transpose()
-                .map_err(|e: String| anyhow!("--filter: {e}"))?,
-            tile_size: self.tile_size,
-            passes: self.passes,
+            overrides: self.overrides.clone(),
             priority: self.priority,
-            default_light: self.no_default_light.then_some(false),
-        })
+        }
     }
 }
 
@@ -98,7 +51,7 @@ pub struct SubmitArgs {
     pub token: Option<String>,
     /// Job settings.
     #[command(flatten)]
-    pub job: JobFlags,
+    pub job: JobArgs,
     /// Write the final image here (.png, .exr or .hdr); implies --wait.
     #[arg(short = 'o', long)]
     pub output: Option<PathBuf>,
@@ -113,7 +66,7 @@ pub fn run(args: SubmitArgs) -> anyhow::Result<()> {
         .enable_all()
         .build()?;
     rt.block_on(async {
-        let c = Api::new(&args.coordinator, args.token.clone())?;
+        let c = Client::new(&args.coordinator, args.token.clone())?;
         let wait = args.wait || args.output.is_some();
         let job =
             submit_and_follow(&c, &args.scene, &args.job, wait, args.output.as_deref()).await?;
@@ -124,46 +77,21 @@ pub fn run(args: SubmitArgs) -> anyhow::Result<()> {
     })
 }
 
-/// A small client of the coordinator's API.
-pub struct Api {
-    http: reqwest::Client,
-    base: String,
-    token: Option<String>,
-}
-
-impl Api {
-    /// A client for `base` (e.g. `http://127.0.0.1:8080`).
-    pub fn new(base: &str, token: Option<String>) -> anyhow::Result<Api> {
-        Ok(Api {
-            http: reqwest::Client::builder().build()?,
-            base: base.trim_end_matches('/').to_string(),
-            token: token.filter(|t| !t.is_empty()),
-        })
-    }
-
-    fn req(&self, m: reqwest::Method, path: &str) -> reqwest::RequestBuilder {
-        let r = self.http.request(m, format!("{}{path}", self.base));
-        match &self.token {
-            Some(t) => r.bearer_auth(t),
-            None => r,
+/// A coordinator's refusal of a job as the command line says it: a settings field named by the
+/// coordinator (`max_depth`) is named as its flag (`--max-depth`).
+fn job_error(e: ClientError) -> anyhow::Error {
+    if let ClientError::Status {
+        field: Some(field),
+        message,
+        ..
+    } = &e
+    {
+        if let Some(f) = RenderOverrides::FIELDS.iter().find(|f| *f == field) {
+            let message = message.strip_prefix(&format!("{f}: ")).unwrap_or(message);
+            return anyhow!("--{}: {message}", f.replace('_', "-"));
         }
     }
-
-    async fn send(&self, r: reqwest::RequestBuilder) -> anyhow::Result<reqwest::Response> {
-        let resp = r
-            .send()
-            .await
-            .with_context(|| format!("cannot reach the coordinator at {}", self.base))?;
-        if resp.status().is_success() {
-            return Ok(resp);
-        }
-        let status = resp.status();
-        let text = resp.text().await.unwrap_or_default();
-        let msg = serde_json::from_str::<proto::ErrorBody>(&text)
-            .map(|b| b.error.message)
-            .unwrap_or(text);
-        bail!("coordinator answered {status}: {msg}")
-    }
+    anyhow::Error::new(e).context("submitting the job")
 }
 
 /// Whether a .gltf file references files beside it (not data URIs).
@@ -183,18 +111,17 @@ fn gltf_has_external_files(path: &Path) -> anyhow::Result<bool> {
     Ok(external("buffers") || external("images"))
 }
 
-/// Reads a scene for upload: (bytes, format hint, entry).
-pub fn scene_upload(
-    path: &Path,
-) -> anyhow::Result<(Vec<u8>, Option<&'static str>, Option<String>)> {
+/// Reads a scene for upload: (bytes, format, entry). A folder, or a `.gltf` with files beside
+/// it, travels as a tar archive of the folder.
+pub fn scene_upload(path: &Path) -> anyhow::Result<(Vec<u8>, Option<SceneFormat>, Option<String>)> {
     if path.is_dir() {
-        return Ok((pkg::pack_folder(path)?, Some("tar"), None));
+        return Ok((pkg::pack_folder(path)?, Some(SceneFormat::Tar), None));
     }
-    let ext = path
+    let format = path
         .extension()
         .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase);
-    if ext.as_deref() == Some("gltf") && gltf_has_external_files(path)? {
+        .and_then(SceneFormat::from_name);
+    if format == Some(SceneFormat::Gltf) && gltf_has_external_files(path)? {
         let dir = path.parent().unwrap_or(Path::new("."));
         let dir = if dir.as_os_str().is_empty() {
             Path::new(".")
@@ -202,109 +129,67 @@ pub fn scene_upload(
             dir
         };
         let entry = path.file_name().map(|n| n.to_string_lossy().into_owned());
-        return Ok((pkg::pack_folder(dir)?, Some("tar"), entry));
+        return Ok((pkg::pack_folder(dir)?, Some(SceneFormat::Tar), entry));
     }
     let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    let hint = match ext.as_deref() {
-        Some("gltf") => Some("gltf"),
-        Some("glb") => Some("glb"),
-        Some("json") => Some("json"),
-        Some("tar") => Some("tar"),
-        Some("zip") => Some("zip"),
-        _ => None,
-    };
-    Ok((bytes, hint, None))
+    Ok((bytes, format, None))
 }
 
 /// Uploads the scene, submits the job and, if `wait`, follows it to the end and writes the
-/// image to `output`.
+/// image to `output`. Bad flags and an unknown output extension are refused before anything is
+/// uploaded.
 pub async fn submit_and_follow(
-    c: &Api,
+    c: &Client,
     scene: &Path,
-    flags: &JobFlags,
+    job: &JobArgs,
     wait: bool,
     output: Option<&Path>,
-) -> anyhow::Result<proto::JobStatus> {
-    let (bytes, hint, entry) = scene_upload(scene)?;
-    let mut q: Vec<(&str, String)> = Vec::new();
-    if let Some(h) = hint {
-        q.push(("format", h.into()));
-    }
-    if let Some(e) = entry {
-        q.push(("entry", e));
-    }
-    let created: proto::SceneCreated = c
-        .send(
-            c.req(reqwest::Method::POST, "/v1/scenes")
-                .query(&q)
-                .body(bytes),
-        )
+) -> anyhow::Result<JobStatus> {
+    let format = output.map(ImageFormat::from_path).transpose()?;
+    job.overrides.check().map_err(flag_error)?;
+    let (bytes, scene_format, entry) = scene_upload(scene)?;
+    let created = c
+        .upload_scene(bytes, scene_format, entry.as_deref())
         .await
-        .context("uploading the scene")?
-        .json()
-        .await?;
-    let req = flags.request(created.id)?;
-    let mut job: proto::JobStatus = c
-        .send(c.req(reqwest::Method::POST, "/v1/jobs").json(&req))
+        .context("uploading the scene")?;
+    let mut status = c
+        .create_job(&job.request(created.id))
         .await
-        .context("submitting the job")?
-        .json()
-        .await?;
+        .map_err(job_error)?;
     if !wait {
-        return Ok(job);
+        return Ok(status);
     }
-    let bar = ProgressBar::new(job.tasks_total);
+    let bar = ProgressBar::new(status.tasks_total);
     bar.set_style(
         ProgressStyle::with_template(
             "{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} tile passes {msg}",
         )
         .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
-    while !job.state.is_final() {
+    while !status.state.is_final() {
         tokio::time::sleep(Duration::from_millis(100)).await;
-        job = c
-            .send(c.req(reqwest::Method::GET, &format!("/v1/jobs/{}", job.id)))
-            .await?
-            .json()
-            .await?;
-        bar.set_position(job.tasks_done);
+        status = c.job(&status.id).await?;
+        bar.set_position(status.tasks_done);
         bar.set_message(format!(
             "{} ({} workers)",
-            job.state.name(),
-            job.workers.len()
+            status.state.name(),
+            status.workers.len()
         ));
     }
     bar.finish_and_clear();
-    match job.state {
+    match status.state {
         JobState::Done => {}
         JobState::Failed => bail!(
             "job {} failed: {}",
-            job.id,
-            job.error.as_deref().unwrap_or("unknown error")
+            status.id,
+            status.error.as_deref().unwrap_or("unknown error")
         ),
-        _ => bail!("job {} was {}", job.id, job.state.name()),
+        _ => bail!("job {} was {}", status.id, status.state.name()),
     }
-    if let Some(out) = output {
-        let fmt = match out
-            .extension()
-            .and_then(|e| e.to_str())
-            .map(str::to_ascii_lowercase)
-            .as_deref()
-        {
-            Some("exr") => "exr",
-            Some("hdr") => "hdr",
-            _ => "png",
-        };
-        let bytes = c
-            .send(c.req(
-                reqwest::Method::GET,
-                &format!("/v1/jobs/{}/image?format={fmt}", job.id),
-            ))
-            .await?
-            .bytes()
-            .await?;
+    if let (Some(out), Some(format)) = (output, format) {
+        let bytes = c.job_image(&status.id, format.name()).await?;
         std::fs::write(out, &bytes).with_context(|| format!("writing {}", out.display()))?;
         eprintln!("wrote {}", out.display());
     }
-    Ok(job)
+    Ok(status)
 }

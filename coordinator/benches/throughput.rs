@@ -34,11 +34,14 @@ async fn main() -> anyhow::Result<()> {
         .await?;
     let req = proto::JobRequest {
         scene: scene.id,
-        width: Some(1024),
-        height: Some(1024),
-        spp: Some(4),
-        passes: Some(4),
-        tile_size: Some(64),
+        overrides: proto::RenderOverrides {
+            width: Some(1024),
+            height: Some(1024),
+            spp: Some(4),
+            passes: Some(4),
+            tile_size: Some(64),
+            ..Default::default()
+        },
         ..Default::default()
     };
     let job: proto::JobStatus = http

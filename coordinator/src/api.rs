@@ -15,7 +15,6 @@ use axum::routing::{get, post, put};
 use axum::Router;
 use futures_util::StreamExt;
 use raytile_core::film::ImageFormat;
-use raytile_core::RenderSettings;
 use raytile_proto::{self as proto, JobRequest};
 use serde::Deserialize;
 use std::fmt::Write as _;
@@ -202,49 +201,16 @@ async fn download_scene(
         .into_response())
 }
 
-/// Merges a job request over the scene's own settings over the defaults.
-pub fn job_settings(
-    defaults: &raytile_core::scene::desc::RenderDefaults,
-    r: &JobRequest,
-) -> Result<RenderSettings, AppError> {
-    let mut s = RenderSettings::default();
-    let d = defaults;
-    s.width = r.width.or(d.width).unwrap_or(s.width);
-    s.height = r.height.or(d.height).unwrap_or(s.height);
-    s.spp = r.spp.or(d.spp).unwrap_or(s.spp);
-    s.max_depth = r.max_depth.or(d.max_depth).unwrap_or(s.max_depth);
-    s.seed = r.seed.or(d.seed).unwrap_or(s.seed);
-    s.camera = r.camera.clone().or(d.camera.clone());
-    s.tile_size = r.tile_size.unwrap_or(s.tile_size);
-    s.passes = r.passes.unwrap_or(s.passes);
-    s.default_light = r.default_light.unwrap_or(s.default_light);
-    s.integrator = match (r.integrator, &d.integrator) {
-        (Some(i), _) => i,
-        (None, Some(name)) => name
-            .parse()
-            .map_err(|m: String| AppError::invalid("integrator", format!("scene default: {m}")))?,
-        (None, None) => s.integrator,
-    };
-    s.filter = match (r.filter, &d.filter) {
-        (Some(f), _) => f,
-        (None, Some(name)) => name
-            .parse()
-            .map_err(|m: String| AppError::invalid("filter", format!("scene default: {m}")))?,
-        (None, None) => s.filter,
-    };
-    Ok(s)
-}
-
 async fn create_job(
     State(state): State<AppState>,
     Json(req): Json<JobRequest>,
 ) -> Result<Response, AppError> {
     let m = scenes::meta(&state, &req.scene)
         .ok_or_else(|| AppError::invalid("scene", format!("no scene '{}'", req.scene)))?;
-    let settings = job_settings(&m.defaults, &req)?;
-    settings
-        .validate()
-        .map_err(|(field, msg)| AppError::invalid(field, msg))?;
+    let settings = m
+        .defaults
+        .resolve(&req.overrides)
+        .map_err(|e| AppError::invalid(e.field, e.message))?;
     let lim = &state.cfg.limits;
     if u64::from(settings.width) * u64::from(settings.height) > lim.max_pixels {
         return Err(AppError::invalid(

@@ -88,7 +88,11 @@ async fn real_main(a: Args) -> anyhow::Result<()> {
     let listener = tokio::net::TcpListener::bind(addr)
         .await
         .map_err(|e| anyhow::anyhow!("cannot listen on {addr}: {e}"))?;
-    run(listener, cfg, shutdown_signal()).await
+    let shutdown = async {
+        raytile_proto::shutdown_signal().await;
+        tracing::info!("shutting down");
+    };
+    run(listener, cfg, shutdown).await
 }
 
 /// `GET /healthz` on the address the coordinator listens on (an unspecified address such as
@@ -121,24 +125,4 @@ fn healthcheck(listen: &str) -> anyhow::Result<()> {
     } else {
         anyhow::bail!("{addr}/healthz answered {status_line:?}")
     }
-}
-
-/// Ctrl-C or SIGTERM.
-async fn shutdown_signal() {
-    let ctrl_c = async {
-        let _ = tokio::signal::ctrl_c().await;
-    };
-    #[cfg(unix)]
-    let term = async {
-        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-            Ok(mut s) => {
-                s.recv().await;
-            }
-            Err(_) => std::future::pending::<()>().await,
-        }
-    };
-    #[cfg(not(unix))]
-    let term = std::future::pending::<()>();
-    tokio::select! { _ = ctrl_c => {}, _ = term => {} }
-    tracing::info!("shutting down");
 }

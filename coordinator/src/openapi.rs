@@ -1,6 +1,7 @@
 //! The OpenAPI 3 description of the API, written by hand (the API is small and this keeps
 //! a derive-macro dependency out). A test checks it lists every route of the router.
 
+use raytile_proto::{FilterKind, IntegratorKind, JobState};
 use serde_json::{json, Value};
 
 fn err(desc: &str) -> Value {
@@ -33,12 +34,12 @@ pub fn document() -> Value {
                 "SceneCreated": {"type": "object", "properties": {"id": {"type": "string"}, "format": {"type": "string"}, "entry": {"type": "string"}, "existed": {"type": "boolean"}, "warnings": {"type": "array", "items": {"type": "string"}}}},
                 "JobRequest": {"type": "object", "required": ["scene"], "additionalProperties": false, "properties": {
                     "scene": {"type": "string"}, "width": {"type": "integer"}, "height": {"type": "integer"}, "spp": {"type": "integer"},
-                    "max_depth": {"type": "integer"}, "integrator": {"type": "string", "enum": ["path", "whitted", "normals", "albedo", "depth", "ao"]},
-                    "seed": {"type": "integer"}, "camera": {"type": "string"}, "filter": {"type": "string", "enum": ["box", "gaussian", "blackman-harris"]},
+                    "max_depth": {"type": "integer"}, "integrator": {"type": "string", "enum": IntegratorKind::ALL.map(IntegratorKind::name)},
+                    "seed": {"type": "integer"}, "camera": {"type": "string"}, "filter": {"type": "string", "enum": FilterKind::ALL.map(FilterKind::name)},
                     "tile_size": {"type": "integer"}, "passes": {"type": "integer"}, "priority": {"type": "integer"},
                     "default_light": {"type": "boolean"}}},
                 "JobStatus": {"type": "object", "properties": {
-                    "id": {"type": "string"}, "scene": {"type": "string"}, "state": {"type": "string", "enum": ["queued", "running", "done", "failed", "cancelled"]},
+                    "id": {"type": "string"}, "scene": {"type": "string"}, "state": {"type": "string", "enum": JobState::ALL.map(JobState::name)},
                     "priority": {"type": "integer"}, "settings": {"type": "object"}, "tiles_total": {"type": "integer"}, "tiles_done": {"type": "integer"},
                     "passes": {"type": "integer"}, "passes_done": {"type": "integer"}, "tasks_total": {"type": "integer"}, "tasks_done": {"type": "integer"},
                     "tasks_leased": {"type": "integer"}, "samples_done": {"type": "integer"}, "samples_total": {"type": "integer"},

@@ -185,13 +185,19 @@ async fn jobs_validate_fields_and_scenes() {
     check(
         format!(r#"{{"scene": "{id}", "integrator": "magic"}}"#),
         StatusCode::UNPROCESSABLE_ENTITY,
-        None,
+        Some("integrator"),
+    )
+    .await;
+    check(
+        format!(r#"{{"scene": "{id}", "spp": "many"}}"#),
+        StatusCode::UNPROCESSABLE_ENTITY,
+        Some("spp"),
     )
     .await;
     check(
         format!(r#"{{"scene": "{id}", "colour": 1}}"#),
         StatusCode::UNPROCESSABLE_ENTITY,
-        None,
+        Some("colour"),
     )
     .await;
     check("not json".into(), StatusCode::BAD_REQUEST, Some("body")).await;

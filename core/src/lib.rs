@@ -27,4 +27,4 @@ pub mod texture;
 pub use film::{Film, TileAccum};
 pub use integrator::{render, render_tile, RenderProgress};
 pub use scene::{load_scene, Scene, SceneError};
-pub use settings::{IntegratorKind, RenderSettings, Tile};
+pub use settings::{IntegratorKind, RenderOverrides, RenderSettings, SettingsError, Tile};

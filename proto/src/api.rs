@@ -1,7 +1,6 @@
 //! JSON bodies of the HTTP API (see `docs/farm.md`).
 
-use raytile_core::settings::FilterKind;
-use raytile_core::{IntegratorKind, RenderSettings, Tile};
+use crate::settings::{RenderOverrides, RenderSettings, Tile};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -40,49 +39,66 @@ pub struct SceneCreated {
     pub warnings: Vec<String>,
 }
 
-/// Body of `POST /v1/jobs`: every field but `scene` is optional; missing fields take the scene's
-/// own render settings, then `RenderSettings::default()`.
+/// Body of `POST /v1/jobs`: the scene, the settings that differ from the scene's own (every
+/// field optional, flat in the JSON object: `{"scene": "…", "spp": 256}`) and a priority.
+/// Missing settings take the scene's own render settings, then `RenderSettings::default()`.
+///
+/// Unknown fields are refused (422 naming the field), so a misspelt setting is caught; a client
+/// sending a field this coordinator does not know learns so rather than getting a job without it.
 #[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields)]
+#[serde(try_from = "serde_json::Map<String, serde_json::Value>")]
 pub struct JobRequest {
     /// Scene id from `POST /v1/scenes`.
     pub scene: String,
-    /// Image width in pixels.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub width: Option<u32>,
-    /// Image height in pixels.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub height: Option<u32>,
-    /// Samples per pixel.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub spp: Option<u32>,
-    /// Maximum path depth.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub max_depth: Option<u32>,
-    /// Integrator.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub integrator: Option<IntegratorKind>,
-    /// Random seed.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub seed: Option<u32>,
-    /// Camera name or index.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub camera: Option<String>,
-    /// Reconstruction filter.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub filter: Option<FilterKind>,
-    /// Tile edge in pixels.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub tile_size: Option<u32>,
-    /// Progressive passes.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub passes: Option<u32>,
+    /// Settings that differ from the scene's own.
+    #[serde(flatten)]
+    pub overrides: RenderOverrides,
     /// Higher runs first; equal priorities run in submission order. Default 0.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub priority: Option<i32>,
-    /// `false`: no default environment for a glTF scene without lights (default true).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub default_light: Option<bool>,
+}
+
+impl TryFrom<serde_json::Map<String, serde_json::Value>> for JobRequest {
+    type Error = String;
+
+    /// Reads the object by hand rather than with `#[serde(flatten)]`, whose errors lose the
+    /// field: here a wrong type still says `spp: invalid type: …`, and the API names `spp`.
+    fn try_from(mut m: serde_json::Map<String, serde_json::Value>) -> Result<Self, String> {
+        fn field<T: serde::de::DeserializeOwned>(
+            name: &str,
+            v: serde_json::Value,
+        ) -> Result<T, String> {
+            serde_json::from_value(v).map_err(|e| format!("{name}: {e}"))
+        }
+        let scene = m.remove("scene").ok_or("missing field `scene`")?;
+        let scene = field("scene", scene)?;
+        let priority = match m.remove("priority") {
+            Some(v) => field("priority", v)?,
+            None => None,
+        };
+        let overrides = serde_path_to_error::deserialize(serde_json::Value::Object(m)).map_err(
+            |e: serde_path_to_error::Error<serde_json::Error>| {
+                let path = e.path().to_string();
+                let inner = e.inner().to_string();
+                if inner.starts_with("unknown field") {
+                    // serde's list would lack `scene` and `priority`.
+                    format!(
+                        "{path}: unknown field `{path}`, expected one of: scene, priority, {}",
+                        RenderOverrides::FIELDS.join(", ")
+                    )
+                } else if path == "." {
+                    inner
+                } else {
+                    format!("{path}: {inner}")
+                }
+            },
+        )?;
+        Ok(JobRequest {
+            scene,
+            overrides,
+            priority,
+        })
+    }
 }
 
 /// State of a job.
@@ -316,4 +332,67 @@ pub struct FailureReport {
 pub struct Health {
     /// Always `"ok"`.
     pub status: String,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::settings::IntegratorKind;
+
+    fn parse(json: &str) -> Result<JobRequest, String> {
+        serde_json::from_str(json).map_err(|e| e.to_string())
+    }
+
+    #[test]
+    fn job_requests_are_flat_and_round_trip() {
+        let r = parse(r#"{"scene": "s", "spp": 8, "integrator": "ao", "priority": -2}"#).unwrap();
+        assert_eq!(
+            r,
+            JobRequest {
+                scene: "s".into(),
+                overrides: RenderOverrides {
+                    spp: Some(8),
+                    integrator: Some(IntegratorKind::Ao),
+                    ..Default::default()
+                },
+                priority: Some(-2),
+            }
+        );
+        let json = serde_json::to_value(&r).unwrap();
+        assert_eq!(
+            json,
+            serde_json::json!({"scene": "s", "spp": 8, "integrator": "ao", "priority": -2})
+        );
+        assert_eq!(parse(&json.to_string()).unwrap(), r);
+        assert_eq!(
+            parse(r#"{"scene": "s", "priority": null}"#)
+                .unwrap()
+                .priority,
+            None
+        );
+    }
+
+    #[test]
+    fn job_request_errors_name_the_field() {
+        let check = |json: &str, start: &str| {
+            let e = parse(json).unwrap_err();
+            assert!(e.starts_with(start), "{json}: {e}");
+        };
+        check(r#"{"scene": "s", "spp": "many"}"#, "spp: invalid type");
+        check(
+            r#"{"scene": "s", "integrator": "magic"}"#,
+            "integrator: unknown variant `magic`",
+        );
+        check(r#"{"scene": 3}"#, "scene: invalid type");
+        check(
+            r#"{"scene": "s", "priority": 1.5}"#,
+            "priority: invalid type",
+        );
+        check(r#"{"spp": 8}"#, "missing field `scene`");
+        check(
+            r#"{"scene": "s", "sp": 8}"#,
+            "sp: unknown field `sp`, expected one of: scene,",
+        );
+        check(r#"[1]"#, "invalid type");
+    }
 }

@@ -14,7 +14,21 @@
 //!
 //! Floats travel as their exact bits, so the coordinator stores what the worker computed.
 
-use raytile_core::{Tile, TileAccum};
+use crate::settings::Tile;
+pub use crate::settings::MAX_TILE_EDGE;
+
+/// Per-pixel sums of one tile over one range of samples: RGB sum and weight sum, plus the
+/// count of NaN/Inf samples that were dropped. What a worker renders, uploads and the
+/// coordinator adds into the frame (the tracer's film re-exports it).
+#[derive(Clone, Debug, PartialEq)]
+pub struct TileAccum {
+    /// The pixels covered.
+    pub tile: Tile,
+    /// Row-major [r, g, b, weight] sums.
+    pub pixels: Vec<[f32; 4]>,
+    /// Samples dropped because they were NaN or infinite.
+    pub bad_samples: u64,
+}
 
 /// First four bytes of every tile result.
 pub const MAGIC: [u8; 4] = *b"RTTR";
@@ -22,8 +36,6 @@ pub const MAGIC: [u8; 4] = *b"RTTR";
 pub const VERSION: u32 = 1;
 /// Size of the header in bytes.
 pub const HEADER_LEN: usize = 40;
-/// Largest tile edge a result may have (matches `RenderSettings::validate`).
-pub const MAX_TILE_EDGE: u32 = 4096;
 
 /// Why bytes are not a valid tile result.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]

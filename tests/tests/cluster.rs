@@ -5,7 +5,7 @@
 use raytile_coordinator::{Config, LoadedScene};
 use raytile_core::film::ImageFormat;
 use raytile_core::RenderSettings;
-use raytile_proto::{self as proto, JobRequest, JobState, JobStatus};
+use raytile_proto::{self as proto, JobRequest, JobState, JobStatus, RenderOverrides};
 use std::path::PathBuf;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
@@ -213,12 +213,15 @@ mod support {
     pub fn job(scene: &str, tile_size: u32) -> JobRequest {
         JobRequest {
             scene: scene.into(),
-            width: Some(64),
-            height: Some(64),
-            spp: Some(16),
-            max_depth: Some(8),
-            tile_size: Some(tile_size),
-            passes: Some(2),
+            overrides: RenderOverrides {
+                width: Some(64),
+                height: Some(64),
+                spp: Some(16),
+                max_depth: Some(8),
+                tile_size: Some(tile_size),
+                passes: Some(2),
+                ..Default::default()
+            },
             ..Default::default()
         }
     }
@@ -368,11 +371,14 @@ mod support {
             base,
             &JobRequest {
                 scene,
-                width: Some(32),
-                height: Some(32),
-                spp: Some(2),
-                tile_size: Some(16),
-                passes: Some(2),
+                overrides: RenderOverrides {
+                    width: Some(32),
+                    height: Some(32),
+                    spp: Some(2),
+                    tile_size: Some(16),
+                    passes: Some(2),
+                    ..Default::default()
+                },
                 ..Default::default()
             },
         )
@@ -568,14 +574,9 @@ mod faults {
             .map(|i| Worker::start(&base, 1, dir.path(), &format!("w{i}")))
             .collect();
         let id = upload(&base, std::fs::read(&scene).unwrap()).await;
-        let j = submit(
-            &base,
-            &JobRequest {
-                spp: Some(128),
-                ..job(&id, 16)
-            },
-        )
-        .await;
+        let mut req = job(&id, 16);
+        req.overrides.spp = Some(128);
+        let j = submit(&base, &req).await;
         let before = wait_for(&base, &j.id, 60, |s| s.tasks_done >= 3).await;
         coord.0.kill().unwrap(); // SIGKILL: no shutdown code runs
         let _ = coord.0.wait();
@@ -823,9 +824,12 @@ mod api {
         let scene = upload(&c.base, br#"{"objects": "not a list"}"#.to_vec()).await;
         let req = JobRequest {
             scene,
-            width: Some(16),
-            height: Some(16),
-            spp: Some(1),
+            overrides: RenderOverrides {
+                width: Some(16),
+                height: Some(16),
+                spp: Some(1),
+                ..Default::default()
+            },
             ..Default::default()
         };
         let j = submit(&c.base, &req).await;

@@ -12,7 +12,7 @@
 
 use raytile_core::film::ImageFormat;
 use raytile_core::RenderSettings;
-use raytile_proto::{self as proto, JobRequest, JobState, JobStatus};
+use raytile_proto::{self as proto, JobRequest, JobState, JobStatus, RenderOverrides};
 use raytile_tests::{cornell_box, free_port};
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
@@ -328,12 +328,15 @@ impl Api {
 fn job(scene: &str) -> JobRequest {
     JobRequest {
         scene: scene.into(),
-        width: Some(160),
-        height: Some(160),
-        spp: Some(256),
-        max_depth: Some(16),
-        tile_size: Some(16),
-        passes: Some(4),
+        overrides: RenderOverrides {
+            width: Some(160),
+            height: Some(160),
+            spp: Some(256),
+            max_depth: Some(16),
+            tile_size: Some(16),
+            passes: Some(4),
+            ..Default::default()
+        },
         ..Default::default()
     }
 }

@@ -7,8 +7,8 @@
 
 use anyhow::{anyhow, Context};
 use raytile_core::{RenderSettings, Scene, TileAccum};
+use raytile_proto::client::{Client, ClientError, StatusCode};
 use raytile_proto::{self as proto, scene as pkg};
-use reqwest::StatusCode;
 use std::collections::{HashMap, HashSet};
 use std::future::Future;
 use std::path::{Path, PathBuf};
@@ -109,74 +109,6 @@ impl Backoff {
     }
 }
 
-/// An HTTP failure: a status (the coordinator answered) or none (it could not be reached).
-#[derive(Debug)]
-struct HttpError {
-    status: Option<StatusCode>,
-    message: String,
-}
-
-impl std::fmt::Display for HttpError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self.status {
-            Some(s) => write!(f, "{s}: {}", self.message),
-            None => write!(f, "{}", self.message),
-        }
-    }
-}
-
-impl From<reqwest::Error> for HttpError {
-    fn from(e: reqwest::Error) -> Self {
-        // reqwest's message is only "error sending request for url (...)": the cause (DNS,
-        // connection refused, timeout) is in the source chain.
-        let mut message = e.to_string();
-        let mut source = std::error::Error::source(&e);
-        while let Some(s) = source {
-            message.push_str(": ");
-            message.push_str(&s.to_string());
-            source = s.source();
-        }
-        HttpError {
-            status: e.status(),
-            message,
-        }
-    }
-}
-
-#[derive(Clone)]
-struct Client {
-    http: reqwest::Client,
-    base: String,
-    token: Option<String>,
-}
-
-impl Client {
-    fn req(&self, method: reqwest::Method, path: &str) -> reqwest::RequestBuilder {
-        let r = self.http.request(
-            method,
-            format!("{}{}", self.base.trim_end_matches('/'), path),
-        );
-        match &self.token {
-            Some(t) => r.bearer_auth(t),
-            None => r,
-        }
-    }
-
-    async fn send(&self, r: reqwest::RequestBuilder) -> Result<reqwest::Response, HttpError> {
-        let resp = r.send().await?;
-        if resp.status().is_success() {
-            Ok(resp)
-        } else {
-            let status = resp.status();
-            let message = resp.text().await.unwrap_or_default();
-            Err(HttpError {
-                status: Some(status),
-                message,
-            })
-        }
-    }
-}
-
 enum Flow {
     Continue,
     Exit,
@@ -199,19 +131,16 @@ pub async fn run(config: Config, shutdown: impl Future<Output = ()> + Send) -> a
     );
     std::fs::create_dir_all(&config.cache_dir)
         .with_context(|| format!("creating {}", config.cache_dir.display()))?;
-    let client = Client {
-        http: reqwest::Client::builder()
-            .connect_timeout(Duration::from_secs(5))
-            // A partition leaves established connections silent, not closed: no read for
-            // longer than a long poll plus slack means the coordinator is gone for now, and
-            // the request fails into the usual retry with backoff instead of hanging.
-            .read_timeout(config.long_poll + Duration::from_secs(30))
-            .tcp_keepalive(Duration::from_secs(15))
-            .build()
-            .context("creating the HTTP client")?,
-        base: config.coordinator.clone(),
-        token: config.token.clone(),
-    };
+    let http = raytile_proto::client::reqwest::Client::builder()
+        .connect_timeout(Duration::from_secs(5))
+        // A partition leaves established connections silent, not closed: no read for
+        // longer than a long poll plus slack means the coordinator is gone for now, and
+        // the request fails into the usual retry with backoff instead of hanging.
+        .read_timeout(config.long_poll + Duration::from_secs(30))
+        .tcp_keepalive(Duration::from_secs(15))
+        .build()
+        .context("creating the HTTP client")?;
+    let client = Client::with_http(http, &config.coordinator, config.token.clone())?;
     let mut w = Worker {
         cfg: config,
         client,
@@ -295,61 +224,25 @@ impl Worker {
                 threads: self.threads as u32,
                 render_version: proto::RENDER_VERSION,
             };
-            let r = self
-                .client
-                .send(
-                    self.client
-                        .req(reqwest::Method::POST, "/v1/workers")
-                        .json(&body),
-                )
-                .await;
-            match r {
-                Ok(resp) => match resp.json::<proto::Registered>().await {
-                    Ok(reg) => {
-                        tracing::info!(worker = %reg.worker_id, "registered");
-                        self.heartbeat = Duration::from_millis(
-                            reg.heartbeat_ms.min(reg.lease_timeout_ms / 3).max(10),
-                        );
-                        self.worker_id = Some(reg.worker_id);
-                        self.backoff.reset();
-                    }
-                    Err(e) => self.pause(&format!("bad registration reply: {e}")).await,
-                },
+            match self.client.register(&body).await {
+                Ok(reg) => {
+                    tracing::info!(worker = %reg.worker_id, "registered");
+                    self.heartbeat = Duration::from_millis(
+                        reg.heartbeat_ms.min(reg.lease_timeout_ms / 3).max(10),
+                    );
+                    self.worker_id = Some(reg.worker_id);
+                    self.backoff.reset();
+                }
                 Err(e) => self.pause(&format!("cannot register: {e}")).await,
             }
             return None;
         };
-        let path = format!(
-            "/v1/workers/{id}/lease?wait_ms={}",
-            self.cfg.long_poll.as_millis()
-        );
-        let r = self
-            .client
-            .send(
-                self.client
-                    .req(reqwest::Method::POST, &path)
-                    .timeout(self.cfg.long_poll + Duration::from_secs(10)),
-            )
-            .await;
-        match r {
-            Ok(resp) if resp.status() == StatusCode::NO_CONTENT => {
+        match self.client.lease(&id, self.cfg.long_poll).await {
+            Ok(lease) => {
                 self.backoff.reset();
-                None
+                lease
             }
-            Ok(resp) => match resp.json::<proto::Lease>().await {
-                Ok(l) => {
-                    self.backoff.reset();
-                    Some(l)
-                }
-                Err(e) => {
-                    self.pause(&format!("bad lease reply: {e}")).await;
-                    None
-                }
-            },
-            Err(HttpError {
-                status: Some(StatusCode::NOT_FOUND),
-                ..
-            }) => {
+            Err(e) if e.status() == Some(StatusCode::NOT_FOUND) => {
                 // The coordinator forgot us (new data directory): register again.
                 self.worker_id = None;
                 None
@@ -365,29 +258,19 @@ impl Worker {
         tracing::warn!(job = %lease.job, task = lease.task, "task failed: {error}");
         self.cfg.stats.failures.fetch_add(1, Ordering::Relaxed);
         let body = proto::FailureReport { error };
-        let path = format!("/v1/leases/{}/failure", lease.lease_id);
         for _ in 0..5 {
-            match self
-                .client
-                .send(self.client.req(reqwest::Method::POST, &path).json(&body))
-                .await
-            {
-                Ok(_) => return,
-                Err(e) if e.status.is_some() => return,
+            match self.client.report_failure(&lease.lease_id, &body).await {
+                Ok(()) => return,
+                Err(e) if e.status().is_some() => return,
                 Err(e) => self.pause(&format!("cannot report failure: {e}")).await,
             }
         }
     }
 
     async fn release(&self, lease: &proto::Lease) {
-        let path = format!("/v1/leases/{}/release", lease.lease_id);
         let r = self
             .client
-            .send(
-                self.client
-                    .req(reqwest::Method::POST, &path)
-                    .timeout(Duration::from_secs(3)),
-            )
+            .release(&lease.lease_id, Duration::from_secs(3))
             .await;
         if let Err(e) = r {
             tracing::warn!("could not hand the lease back ({e}); it will expire");
@@ -419,18 +302,10 @@ impl Worker {
             tracing::warn!(scene = %lease.scene, "cached scene is corrupt; downloading again");
         }
         let _ = std::fs::remove_dir_all(&dir);
-        let path = format!("/v1/scenes/{}", lease.scene);
         let bytes = loop {
-            match self
-                .client
-                .send(self.client.req(reqwest::Method::GET, &path))
-                .await
-            {
-                Ok(r) => match r.bytes().await {
-                    Ok(b) => break b,
-                    Err(e) => self.pause(&format!("scene download: {e}")).await,
-                },
-                Err(e) if e.status.is_some() => return Err(anyhow!("scene download: {e}")),
+            match self.client.download_scene(&lease.scene).await {
+                Ok(b) => break b,
+                Err(e) if e.status().is_some() => return Err(anyhow!("scene download: {e}")),
                 Err(e) => self.pause(&format!("scene download: {e}")).await,
             }
         };
@@ -526,7 +401,6 @@ impl Worker {
             })
             .map_err(panic_message)
         });
-        let hb_path = format!("/v1/leases/{}/heartbeat", lease.lease_id);
         let accum: TileAccum = loop {
             tokio::select! {
                 biased;
@@ -548,15 +422,12 @@ impl Worker {
                     }
                 },
                 _ = tokio::time::sleep(self.heartbeat) => {
-                    let r = self.client.send(self.client.req(reqwest::Method::POST, &hb_path)
-                        .timeout(self.heartbeat.max(Duration::from_secs(2)))).await;
-                    if let Ok(resp) = r {
-                        if let Ok(reply) = resp.json::<proto::HeartbeatReply>().await {
-                            if reply.cancelled {
-                                tracing::info!(job = %lease.job, task = lease.task,
-                                    reason = reply.reason.as_deref().unwrap_or(""), "stopping task");
-                                return Flow::Continue;
-                            }
+                    let timeout = self.heartbeat.max(Duration::from_secs(2));
+                    if let Ok(reply) = self.client.heartbeat(&lease.lease_id, timeout).await {
+                        if reply.cancelled {
+                            tracing::info!(job = %lease.job, task = lease.task,
+                                reason = reply.reason.as_deref().unwrap_or(""), "stopping task");
+                            return Flow::Continue;
                         }
                     }
                     // An unreachable coordinator is not a reason to stop: the result is
@@ -566,12 +437,11 @@ impl Worker {
         };
         self.cfg.stats.renders.fetch_add(1, Ordering::Relaxed);
         let bytes = proto::tile::encode(&accum, lease.pass);
-        let path = format!(
-            "/v1/jobs/{}/tasks/{}/result?worker={}",
-            lease.job,
-            lease.task,
-            self.worker_id.as_deref().unwrap_or("")
-        );
+        let target = ResultTarget {
+            job: lease.job.clone(),
+            task: lease.task,
+            worker: self.worker_id.clone().unwrap_or_default(),
+        };
         // Upload in the background while the next task renders (the round trip and the
         // coordinator's commit would otherwise idle the render threads), but keep at most one
         // result in flight: wait for the previous upload first.
@@ -582,7 +452,7 @@ impl Worker {
         };
         self.uploads.spawn(upload_result(
             self.client.clone(),
-            path,
+            target,
             bytes,
             self.cfg.stats.clone(),
             self.cfg.max_backoff,
@@ -605,26 +475,21 @@ const UPLOAD_SERVER_ERRORS: u32 = 5;
 /// cannot store never wedges the worker: its lease expires and the tile is rendered again.
 async fn upload_result(
     client: Client,
-    path: String,
+    to: ResultTarget,
     bytes: Vec<u8>,
     stats: Arc<Stats>,
     max_backoff: Duration,
 ) {
     let mut backoff = Backoff::new(max_backoff);
     let mut server_errors = 0;
+    let what = format!("job {} task {}", to.job, to.task);
     loop {
         let r = client
-            .send(
-                client
-                    .req(reqwest::Method::PUT, &path)
-                    .header(reqwest::header::CONTENT_TYPE, "application/octet-stream")
-                    .body(bytes.clone()),
-            )
+            .upload_result(&to.job, to.task, &to.worker, bytes.clone())
             .await;
         match r {
-            Ok(resp) => {
-                let reply = resp.json::<proto::ResultReply>().await.ok();
-                let c = if reply.as_ref().is_some_and(|r| r.accepted) {
+            Ok(reply) => {
+                let c = if reply.accepted {
                     &stats.accepted
                 } else {
                     &stats.duplicates
@@ -632,15 +497,20 @@ async fn upload_result(
                 c.fetch_add(1, Ordering::Relaxed);
                 return;
             }
-            Err(e) if e.status.is_some_and(|s| s.is_client_error()) => {
-                tracing::warn!("result refused ({path}): {e}");
+            // The coordinator took the result but its answer was cut off: not worth a retry.
+            Err(ClientError::Body(_)) => {
+                stats.duplicates.fetch_add(1, Ordering::Relaxed);
+                return;
+            }
+            Err(e) if e.status().is_some_and(|s| s.is_client_error()) => {
+                tracing::warn!("result refused ({what}): {e}");
                 return;
             }
             Err(e) => {
-                if e.status.is_some() {
+                if e.status().is_some() {
                     server_errors += 1;
                     if server_errors >= UPLOAD_SERVER_ERRORS {
-                        tracing::warn!("result dropped after {server_errors} errors ({path}): {e}");
+                        tracing::warn!("result dropped after {server_errors} errors ({what}): {e}");
                         return;
                     }
                 }
@@ -653,6 +523,13 @@ async fn upload_result(
             }
         }
     }
+}
+
+/// Where a tile result goes.
+struct ResultTarget {
+    job: String,
+    task: u32,
+    worker: String,
 }
 
 /// Loads and builds a scene, turning panics into errors.

@@ -42,27 +42,8 @@ async fn main() {
     if let Some(d) = a.cache_dir {
         cfg.cache_dir = d;
     }
-    if let Err(e) = raytile_worker::run(cfg, shutdown_signal()).await {
+    if let Err(e) = raytile_worker::run(cfg, raytile_proto::shutdown_signal()).await {
         eprintln!("raytile-worker: {e:#}");
         std::process::exit(1);
     }
-}
-
-/// Ctrl-C or SIGTERM.
-async fn shutdown_signal() {
-    let ctrl_c = async {
-        let _ = tokio::signal::ctrl_c().await;
-    };
-    #[cfg(unix)]
-    let term = async {
-        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-            Ok(mut s) => {
-                s.recv().await;
-            }
-            Err(_) => std::future::pending::<()>().await,
-        }
-    };
-    #[cfg(not(unix))]
-    let term = std::future::pending::<()>();
-    tokio::select! { _ = ctrl_c => {}, _ = term => {} }
 }

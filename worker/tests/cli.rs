@@ -30,3 +30,18 @@ fn coordinator_is_required() {
         .unwrap();
     assert!(!out.status.success());
 }
+
+#[test]
+fn a_coordinator_that_is_no_url_is_refused_at_once() {
+    let out = Command::new(env!("CARGO_BIN_EXE_raytile-worker"))
+        .args(["--coordinator", "farm-host:8080"])
+        .env_remove("RAYTILE_TOKEN")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("bad coordinator URL 'farm-host:8080'"),
+        "{err}"
+    );
+}

@@ -10,19 +10,9 @@ pub mod output;
 pub use filter::FilterSampler;
 pub use output::{encode, save, FilmError, ImageFormat, OutputOptions, ToneMap};
 
-use crate::Tile;
-
-/// Per-pixel sums of one tile over one range of samples: RGB sum and weight sum, plus the
-/// count of NaN/Inf samples that were dropped.
-#[derive(Clone, Debug, PartialEq)]
-pub struct TileAccum {
-    /// The pixels covered.
-    pub tile: Tile,
-    /// Row-major [r, g, b, weight] sums.
-    pub pixels: Vec<[f32; 4]>,
-    /// Samples dropped because they were NaN or infinite.
-    pub bad_samples: u64,
-}
+/// Per-pixel sums of one tile over one range of samples (what a worker uploads, so the type is
+/// the wire crate's).
+pub use raytile_proto::tile::TileAccum;
 
 /// The whole frame's accumulated sums.
 #[derive(Clone, Debug, PartialEq)]
@@ -98,6 +88,7 @@ impl Film {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::Tile;
 
     #[test]
     fn tiles_land_where_they_belong() {

@@ -42,14 +42,23 @@ pub enum ImageFormat {
 }
 
 impl ImageFormat {
+    /// Every format.
+    pub const ALL: [ImageFormat; 3] = [Self::Png, Self::Exr, Self::Hdr];
+
+    /// The name: the file extension, and the `?format=` of the farm's image endpoint.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Png => "png",
+            Self::Exr => "exr",
+            Self::Hdr => "hdr",
+        }
+    }
+
     /// From a file extension (case-insensitive).
     pub fn from_extension(ext: &str) -> Option<Self> {
-        match ext.to_ascii_lowercase().as_str() {
-            "png" => Some(Self::Png),
-            "exr" => Some(Self::Exr),
-            "hdr" => Some(Self::Hdr),
-            _ => None,
-        }
+        Self::ALL
+            .into_iter()
+            .find(|f| f.name().eq_ignore_ascii_case(ext))
     }
 
     /// From a path's extension.
@@ -206,5 +215,9 @@ mod tests {
         let hdr = encode(&film(), ImageFormat::Hdr, &OutputOptions::default()).unwrap();
         assert!(hdr.starts_with(b"#?RADIANCE"));
         assert!(ImageFormat::from_path(Path::new("x.jpg")).is_err());
+        for f in ImageFormat::ALL {
+            let upper = format!("x.{}", f.name().to_ascii_uppercase());
+            assert_eq!(ImageFormat::from_path(Path::new(&upper)).unwrap(), f);
+        }
     }
 }

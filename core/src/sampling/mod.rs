@@ -5,4 +5,4 @@ pub mod distrib;
 pub mod sequence;
 pub mod warp;
 
-pub use sequence::{hash_u32, Sampler};
+pub use sequence::{hash_u32, Sampler, SOBOL_SAMPLES};

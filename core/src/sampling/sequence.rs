@@ -3,14 +3,22 @@
 //!
 //! The first [`sobol_burley::NUM_DIMENSIONS`] dimensions of a path come from an Owen-scrambled
 //! Sobol sequence (Burley 2020), seeded per pixel so that neighbouring pixels are decorrelated;
-//! later dimensions (very long paths) and sample indices beyond the sequence's range fall back to
-//! a counter-based hash, which is just as deterministic.
+//! later dimensions (very long paths) and sample indices from [`SOBOL_SAMPLES`] on (the
+//! sequence's length) fall back to a counter-based hash, which is just as deterministic.
 
 use glam::Vec2;
 use sobol_burley::parts;
 
-/// Largest sample index the Sobol sequence covers; later indices use the hash.
-const SOBOL_MAX_INDEX: u32 = 1 << 16;
+/// Samples per pixel drawn from the Sobol sequence: indices `0..SOBOL_SAMPLES` get Sobol points,
+/// later ones hashed numbers. 2^16 is the length of `sobol_burley`'s sequence and what the
+/// nibble tables below cover (four nibbles of the index). The switch is deliberate: the render
+/// stays deterministic and unbiased past it (up to `settings::MAX_SPP` = 2^20 samples), only the
+/// extra samples are not stratified and converge at the plain Monte Carlo rate.
+pub const SOBOL_SAMPLES: u32 = 1 << 16;
+const _: () = assert!(
+    SOBOL_SAMPLES == 1 << (4 * 4),
+    "the nibble tables cover 16 index bits"
+);
 
 /// A fast, well-mixed 32-bit hash (the "lowbias32" finaliser by Chris Wellons).
 #[inline]
@@ -81,7 +89,7 @@ impl Sampler {
     pub fn next_1d(&mut self) -> f32 {
         let d = self.dimension;
         self.dimension += 1;
-        if d < sobol_burley::NUM_DIMENSIONS && self.index < SOBOL_MAX_INDEX {
+        if d < sobol_burley::NUM_DIMENSIONS && self.index < SOBOL_SAMPLES {
             if d.is_multiple_of(4) {
                 self.set = self.sobol_4d(d / 4);
             }
@@ -327,6 +335,40 @@ mod tests {
                 sobol_burley::sample(77, d, hash_words(&[5, 6, 3]))
             );
         }
+    }
+
+    #[test]
+    fn sobol_up_to_its_length_then_hashed_numbers() {
+        let (x, y, seed) = (5, 6, 3);
+        let pixel_seed = hash_words(&[x, y, seed]);
+        let last = SOBOL_SAMPLES - 1;
+        let mut s = Sampler::new(x, y, last, seed);
+        for d in 0..8 {
+            assert_eq!(s.next_1d(), sobol_burley::sample(last, d, pixel_seed));
+        }
+        // From SOBOL_SAMPLES on: the counter-based hash of (pixel, index, dimension), as the
+        // module says, in every dimension.
+        for index in [
+            SOBOL_SAMPLES,
+            SOBOL_SAMPLES + 1,
+            crate::settings::MAX_SPP - 1,
+        ] {
+            let mut s = Sampler::new(x, y, index, seed);
+            for d in 0..8 {
+                assert_eq!(
+                    s.next_1d(),
+                    to_unit(hash_words(&[pixel_seed, index, d])),
+                    "index {index}, dimension {d}"
+                );
+            }
+        }
+        // The hashed samples are still uniform in [0, 1).
+        let n = 20_000;
+        let mean = (0..n)
+            .map(|i| Sampler::new(x, y, SOBOL_SAMPLES + i, seed).next_1d() as f64)
+            .sum::<f64>()
+            / n as f64;
+        assert!((mean - 0.5).abs() < 0.01, "{mean}");
     }
 
     #[test]

@@ -286,7 +286,7 @@ impl Scene {
     pub fn build(desc: &SceneDesc, settings: &RenderSettings) -> Result<Scene, SceneError> {
         settings
             .validate()
-            .map_err(|(f, m)| invalid(format!("render setting {f}: {m}")))?;
+            .map_err(|e| invalid(format!("render setting {e}")))?;
         let textures: Vec<Texture> = desc.textures.iter().map(Texture::new).collect();
         let materials = desc
             .materials

@@ -7,6 +7,7 @@
 //! Conventions: right-handed, +Y up, metres; colours are linear Rec.709 RGB; emission is radiance
 //! in W·sr⁻¹·m⁻² per channel (glTF "nits"); angles in the JSON format are degrees, here radians.
 
+use crate::settings::{FilterKind, IntegratorKind, RenderOverrides, RenderSettings, SettingsError};
 use glam::{Mat4, Vec2, Vec3};
 use serde::{Deserialize, Serialize};
 
@@ -428,7 +429,9 @@ pub struct CameraDesc {
     pub aspect: Option<f32>,
 }
 
-/// Render settings stored in the scene file. `None` means "use raytile's default".
+/// Render settings stored in the scene file (the JSON format's `render` object). `None` means
+/// "use raytile's default". Typed, so that a wrong name is refused when the scene is loaded, with
+/// the JSON path named.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RenderDefaults {
@@ -440,12 +443,119 @@ pub struct RenderDefaults {
     pub spp: Option<u32>,
     /// Maximum path length in bounces.
     pub max_depth: Option<u32>,
-    /// Integrator name (`path`, `whitted`, `normals`, `albedo`, `depth`, `ao`).
-    pub integrator: Option<String>,
+    /// Integrator.
+    pub integrator: Option<IntegratorKind>,
     /// Random seed.
     pub seed: Option<u32>,
     /// Camera name or index.
     pub camera: Option<String>,
-    /// Reconstruction filter name (`box`, `gaussian`, `blackman-harris`).
-    pub filter: Option<String>,
+    /// Reconstruction filter.
+    pub filter: Option<FilterKind>,
+}
+
+impl RenderDefaults {
+    /// The scene's settings as overrides of raytile's defaults.
+    pub fn to_overrides(&self) -> RenderOverrides {
+        // Destructured, so that a new field cannot be forgotten here.
+        let Self {
+            width,
+            height,
+            spp,
+            max_depth,
+            integrator,
+            seed,
+            camera,
+            filter,
+        } = self;
+        RenderOverrides {
+            width: *width,
+            height: *height,
+            spp: *spp,
+            max_depth: *max_depth,
+            integrator: *integrator,
+            seed: *seed,
+            camera: camera.clone(),
+            filter: *filter,
+            ..RenderOverrides::default()
+        }
+    }
+
+    /// The settings of a render: raytile's defaults, overridden by these (the scene's own),
+    /// overridden by `overrides` (command-line flags, job fields), validated. `raytile render`,
+    /// `raytile submit` (through the coordinator) and the coordinator all come here, so a job
+    /// renders with the same settings wherever it runs.
+    ///
+    /// The error names the field as the API does (`max_depth`); the command line prints it as a
+    /// flag (`--max-depth`).
+    pub fn resolve(&self, overrides: &RenderOverrides) -> Result<RenderSettings, SettingsError> {
+        // The user's values on their own first, so that the error is about what they typed.
+        overrides.check()?;
+        let mut s = RenderSettings::default();
+        self.to_overrides().apply_to(&mut s);
+        overrides.apply_to(&mut s);
+        s.validate()?;
+        Ok(s)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn flags_override_the_scene_which_overrides_the_defaults() {
+        let scene = RenderDefaults {
+            width: Some(64),
+            spp: Some(4),
+            integrator: Some(IntegratorKind::Whitted),
+            camera: Some("side".into()),
+            ..Default::default()
+        };
+        let s = scene
+            .resolve(&RenderOverrides {
+                spp: Some(16),
+                passes: Some(2),
+                default_light: Some(false),
+                ..Default::default()
+            })
+            .unwrap();
+        assert_eq!(
+            s,
+            RenderSettings {
+                width: 64,
+                spp: 16,
+                passes: 2,
+                integrator: IntegratorKind::Whitted,
+                camera: Some("side".into()),
+                default_light: false,
+                ..RenderSettings::default()
+            }
+        );
+        assert_eq!(
+            RenderDefaults::default().resolve(&RenderOverrides::default()),
+            Ok(RenderSettings::default())
+        );
+    }
+
+    #[test]
+    fn resolve_errors_name_the_field() {
+        let scene = RenderDefaults {
+            spp: Some(4),
+            ..Default::default()
+        };
+        let err = |o: RenderOverrides| scene.resolve(&o).unwrap_err().field;
+        // More passes than the scene's samples: only the merged settings can tell.
+        let passes = RenderOverrides {
+            passes: Some(8),
+            ..Default::default()
+        };
+        assert_eq!(err(passes), "passes");
+        let depth = RenderOverrides {
+            max_depth: Some(MAX_DEPTH_PLUS_ONE),
+            ..Default::default()
+        };
+        assert_eq!(err(depth), "max_depth");
+    }
+
+    const MAX_DEPTH_PLUS_ONE: u32 = crate::settings::MAX_DEPTH + 1;
 }

@@ -437,15 +437,13 @@ impl Converter<'_> {
     }
 
     fn convert(mut self, f: File) -> Result<SceneDesc, SceneError> {
+        // Names were checked by serde (typed fields); ranges are checked here, so that a scene
+        // asking for `"spp": 0` is refused when it is loaded, not when it is rendered.
+        if let Err(e) = f.render.to_overrides().check() {
+            let needle = format!("\"{}\"", e.field);
+            return Err(self.err(&format!("render.{}", e.field), e.message, &needle));
+        }
         self.desc.render = f.render;
-        if let Some(i) = &self.desc.render.integrator {
-            i.parse::<crate::IntegratorKind>()
-                .map_err(|e| self.err("render.integrator", e, i))?;
-        }
-        if let Some(fl) = &self.desc.render.filter {
-            fl.parse::<crate::settings::FilterKind>()
-                .map_err(|e| self.err("render.filter", e, fl))?;
-        }
         // Textures.
         let mut tex_index = BTreeMap::new();
         for (name, t) in &f.textures {
@@ -1147,7 +1145,24 @@ mod tests {
             "{e}"
         );
         let e = parse("{\"render\": {\"integrator\": \"magic\"}}").unwrap_err();
-        assert!(e.contains("render.integrator"), "{e}");
+        assert!(
+            e.contains("render.integrator") && e.contains("magic"),
+            "{e}"
+        );
+        let e = parse("{\"render\": {\"filter\": \"tent\"}}").unwrap_err();
+        assert!(e.contains("render.filter") && e.contains("tent"), "{e}");
+        let e = parse("{\n\"render\": {\n\"spp\": 0}}").unwrap_err();
+        assert!(
+            e.contains("render.spp") && e.contains("line 3") && e.contains("between 1 and"),
+            "{e}"
+        );
+        let d = parse("{\"render\": {\"integrator\": \"ao\", \"filter\": \"blackman-harris\"}}")
+            .unwrap();
+        assert_eq!(d.render.integrator, Some(crate::IntegratorKind::Ao));
+        assert_eq!(
+            d.render.filter,
+            Some(crate::settings::FilterKind::BlackmanHarris)
+        );
         let e = parse("{\"objekts\": []}").unwrap_err();
         assert!(e.contains("unknown field"), "{e}");
         assert!(parse("{").is_err());

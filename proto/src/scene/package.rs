@@ -1,0 +1,370 @@
+//! Scene packages on disk: content ids, safe archive extraction, folder packing.
+
+use super::{single_file_name, SceneFormat};
+use sha2::{Digest, Sha256};
+use std::io::Read;
+use std::path::{Component, Path, PathBuf};
+
+/// Why a scene package could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum PackageError {
+    /// The content is none of the known formats.
+    #[error("cannot tell the scene format: expected glTF, GLB, a raytile JSON scene, tar or zip (give ?format=)")]
+    UnknownFormat,
+    /// The archive is malformed.
+    #[error("bad archive: {0}")]
+    Archive(String),
+    /// An archive member would land outside the folder, or is a link or device.
+    #[error("refusing archive member '{0}': {1}")]
+    UnsafeMember(String, &'static str),
+    /// The archive unpacks to too much data or too many files.
+    #[error("archive too large when unpacked (limit {0} bytes, {1} files)")]
+    TooLarge(u64, usize),
+    /// No scene file, or several, at the archive root.
+    #[error("{0}")]
+    Entry(String),
+    /// Disk trouble.
+    #[error("io: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+/// Limits of [`unpack`].
+#[derive(Clone, Copy, Debug)]
+pub struct UnpackLimits {
+    /// Total unpacked bytes.
+    pub max_bytes: u64,
+    /// Number of members.
+    pub max_files: usize,
+}
+
+impl Default for UnpackLimits {
+    fn default() -> Self {
+        Self {
+            max_bytes: 2 << 30,
+            max_files: 10_000,
+        }
+    }
+}
+
+/// Hex sha256 of bytes.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    hex::encode(Sha256::digest(bytes))
+}
+
+/// Hex sha256 of a file, streamed.
+pub fn sha256_file(path: &Path) -> std::io::Result<String> {
+    let mut f = std::fs::File::open(path)?;
+    let mut h = Sha256::new();
+    let mut buf = vec![0u8; 1 << 16];
+    loop {
+        let n = f.read(&mut buf)?;
+        if n == 0 {
+            break;
+        }
+        h.update(&buf[..n]);
+    }
+    Ok(hex::encode(h.finalize()))
+}
+
+/// Scene id of a blob with digest `sha256` and the archive entry asked for, if any.
+pub fn scene_id(sha256: &str, entry: Option<&str>) -> String {
+    match entry {
+        None => sha256.to_string(),
+        Some(e) => sha256_hex(format!("{sha256}\0{e}").as_bytes()),
+    }
+}
+
+/// Checks an archive member name and returns it as a relative path.
+fn safe_relative(name: &str) -> Result<PathBuf, PackageError> {
+    let p = Path::new(name);
+    let mut out = PathBuf::new();
+    for c in p.components() {
+        match c {
+            Component::Normal(s) => out.push(s),
+            Component::CurDir => {}
+            Component::ParentDir => {
+                return Err(PackageError::UnsafeMember(name.into(), "contains '..'"))
+            }
+            Component::RootDir | Component::Prefix(_) => {
+                return Err(PackageError::UnsafeMember(name.into(), "absolute path"))
+            }
+        }
+    }
+    if name.contains('\\') || name.contains('\0') {
+        return Err(PackageError::UnsafeMember(
+            name.into(),
+            "backslash or NUL in name",
+        ));
+    }
+    Ok(out)
+}
+
+/// Copies at most `budget` bytes from `r` into a new file; errors if there is more.
+fn copy_limited(
+    r: &mut dyn Read,
+    dest: &Path,
+    budget: &mut u64,
+    limits: UnpackLimits,
+) -> Result<(), PackageError> {
+    if let Some(parent) = dest.parent() {
+        std::fs::create_dir_all(parent)?;
+    }
+    let mut f = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(dest)?;
+    let mut limited = r.take(*budget + 1);
+    let n = std::io::copy(&mut limited, &mut f)?;
+    if n > *budget {
+        return Err(PackageError::TooLarge(limits.max_bytes, limits.max_files));
+    }
+    *budget -= n;
+    Ok(())
+}
+
+/// Unpacks a blob of `format` into `dir` (which must exist and be empty) and returns the scene
+/// file to load. For archives, `entry` names the scene file; without it, the single
+/// `.gltf`/`.glb`/`.json` at the archive root (or in its single top folder) is taken.
+pub fn unpack(
+    blob: &Path,
+    format: SceneFormat,
+    entry: Option<&str>,
+    dir: &Path,
+    limits: UnpackLimits,
+) -> Result<PathBuf, PackageError> {
+    let mut budget = limits.max_bytes;
+    let mut files: Vec<PathBuf> = Vec::new();
+    match format {
+        SceneFormat::Gltf | SceneFormat::Glb | SceneFormat::Json => {
+            let dest = dir.join(single_file_name(format));
+            std::fs::copy(blob, &dest)?;
+            return Ok(dest);
+        }
+        SceneFormat::Tar => {
+            let f = std::fs::File::open(blob)?;
+            let mut ar = tar::Archive::new(f);
+            let entries = ar
+                .entries()
+                .map_err(|e| PackageError::Archive(e.to_string()))?;
+            for e in entries {
+                let mut e = e.map_err(|e| PackageError::Archive(e.to_string()))?;
+                let name = e
+                    .path()
+                    .map_err(|e| PackageError::Archive(e.to_string()))?
+                    .to_string_lossy()
+                    .into_owned();
+                let rel = safe_relative(&name)?;
+                let kind = e.header().entry_type();
+                if kind.is_dir() {
+                    continue;
+                }
+                if kind.is_pax_global_extensions()
+                    || kind.is_pax_local_extensions()
+                    || kind.is_gnu_longname()
+                {
+                    continue;
+                }
+                if !kind.is_file() {
+                    return Err(PackageError::UnsafeMember(
+                        name,
+                        "links and special files are not allowed",
+                    ));
+                }
+                if rel.as_os_str().is_empty() {
+                    continue;
+                }
+                if files.len() >= limits.max_files {
+                    return Err(PackageError::TooLarge(limits.max_bytes, limits.max_files));
+                }
+                copy_limited(&mut e, &dir.join(&rel), &mut budget, limits)?;
+                files.push(rel);
+            }
+        }
+        SceneFormat::Zip => {
+            let f = std::fs::File::open(blob)?;
+            let mut ar =
+                zip::ZipArchive::new(f).map_err(|e| PackageError::Archive(e.to_string()))?;
+            if ar.len() > limits.max_files {
+                return Err(PackageError::TooLarge(limits.max_bytes, limits.max_files));
+            }
+            for i in 0..ar.len() {
+                let mut e = ar
+                    .by_index(i)
+                    .map_err(|e| PackageError::Archive(e.to_string()))?;
+                let name = e.name().to_string();
+                let rel = safe_relative(&name)?;
+                if e.is_dir() {
+                    continue;
+                }
+                if e.is_symlink() {
+                    return Err(PackageError::UnsafeMember(name, "links are not allowed"));
+                }
+                if rel.as_os_str().is_empty() {
+                    continue;
+                }
+                copy_limited(&mut e, &dir.join(&rel), &mut budget, limits)?;
+                files.push(rel);
+            }
+        }
+    }
+    pick_entry(&files, entry).map(|rel| dir.join(rel))
+}
+
+fn is_scene_file(p: &Path) -> bool {
+    matches!(
+        p.extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase)
+            .as_deref(),
+        Some("gltf" | "glb" | "json")
+    )
+}
+
+fn pick_entry(files: &[PathBuf], entry: Option<&str>) -> Result<PathBuf, PackageError> {
+    if let Some(e) = entry {
+        let want = safe_relative(e)?;
+        return files
+            .iter()
+            .find(|f| **f == want)
+            .cloned()
+            .ok_or_else(|| PackageError::Entry(format!("entry '{e}' is not in the archive")));
+    }
+    let at_depth = |d: usize| -> Vec<&PathBuf> {
+        files
+            .iter()
+            .filter(|f| f.components().count() == d && is_scene_file(f))
+            .collect()
+    };
+    let mut found = at_depth(1);
+    if found.is_empty() {
+        // A folder archived with its own name: `scene/scene.gltf`.
+        let tops: std::collections::BTreeSet<_> =
+            files.iter().filter_map(|f| f.components().next()).collect();
+        if tops.len() == 1 {
+            found = at_depth(2);
+        }
+    }
+    match found.as_slice() {
+        [one] => Ok((*one).clone()),
+        [] => Err(PackageError::Entry(
+            "no .gltf, .glb or .json scene file at the archive root".into(),
+        )),
+        many => Err(PackageError::Entry(format!(
+            "several scene files at the archive root ({}); choose one with ?entry=",
+            many.iter()
+                .map(|p| p.to_string_lossy().into_owned())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ))),
+    }
+}
+
+/// Packs a scene folder into a tar archive in memory (regular files only, relative names).
+pub fn pack_folder(dir: &Path) -> std::io::Result<Vec<u8>> {
+    let mut b = tar::Builder::new(Vec::new());
+    b.follow_symlinks(false);
+    let mut stack = vec![dir.to_path_buf()];
+    let mut files = Vec::new();
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d)? {
+            let e = e?;
+            let ft = e.file_type()?;
+            if ft.is_dir() {
+                stack.push(e.path());
+            } else if ft.is_file() {
+                files.push(e.path());
+            }
+        }
+    }
+    files.sort();
+    for f in files {
+        let rel = f.strip_prefix(dir).unwrap_or(&f).to_path_buf();
+        b.append_path_with_name(&f, rel)?;
+    }
+    b.into_inner()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::sniff;
+    use super::*;
+
+    fn tar_with(members: &[(&str, &[u8])]) -> Vec<u8> {
+        let mut b = tar::Builder::new(Vec::new());
+        for (name, data) in members {
+            let mut h = tar::Header::new_gnu();
+            h.set_size(data.len() as u64);
+            h.set_mode(0o644);
+            h.set_entry_type(tar::EntryType::Regular);
+            // set_path refuses '..', so write the raw name as an attacker would.
+            let raw = &mut h.as_old_mut().name;
+            raw[..name.len()].copy_from_slice(name.as_bytes());
+            h.set_cksum();
+            b.append(&h, *data).unwrap();
+        }
+        b.into_inner().unwrap()
+    }
+
+    fn check_unpack(blob: &[u8], entry: Option<&str>) -> Result<String, String> {
+        let t = tempfile::tempdir().unwrap();
+        let p = t.path().join("blob");
+        std::fs::write(&p, blob).unwrap();
+        let out = t.path().join("out");
+        std::fs::create_dir(&out).unwrap();
+        let fmt = sniff(blob).ok_or("sniff")?;
+        unpack(
+            &p,
+            fmt,
+            entry,
+            &out,
+            UnpackLimits {
+                max_bytes: 1000,
+                max_files: 10,
+            },
+        )
+        .map(|p| p.strip_prefix(&out).unwrap().to_string_lossy().into_owned())
+        .map_err(|e| e.to_string())
+    }
+
+    #[test]
+    fn sniffs_formats() {
+        assert_eq!(sniff(b"glTF\x02\0\0\0"), Some(SceneFormat::Glb));
+        assert_eq!(sniff(b" {\"asset\":{}}"), Some(SceneFormat::Gltf));
+        assert_eq!(sniff(b"{\"objects\":[]}"), Some(SceneFormat::Json));
+        assert_eq!(sniff(b"PK\x03\x04rest"), Some(SceneFormat::Zip));
+        assert_eq!(
+            sniff(&tar_with(&[("a.gltf", b"{}")])),
+            Some(SceneFormat::Tar)
+        );
+        assert_eq!(sniff(b"hello"), None);
+    }
+
+    #[test]
+    fn unpacks_safe_archives_and_finds_the_entry() {
+        let t = tar_with(&[("s.gltf", b"{}"), ("s.bin", b"12")]);
+        assert_eq!(check_unpack(&t, None).unwrap(), "s.gltf");
+        let t = tar_with(&[("dir/s.gltf", b"{}"), ("dir/tex/a.png", b"1")]);
+        assert_eq!(check_unpack(&t, None).unwrap(), "dir/s.gltf");
+        let t = tar_with(&[("a.gltf", b"{}"), ("b.gltf", b"{}")]);
+        assert!(check_unpack(&t, None).unwrap_err().contains("entry"));
+        assert_eq!(check_unpack(&t, Some("b.gltf")).unwrap(), "b.gltf");
+    }
+
+    #[test]
+    fn refuses_hostile_archives() {
+        let t = tar_with(&[("../evil.gltf", b"{}")]);
+        assert!(check_unpack(&t, None).unwrap_err().contains(".."));
+        let t = tar_with(&[("/etc/evil.gltf", b"{}")]);
+        assert!(check_unpack(&t, None).unwrap_err().contains("absolute"));
+        let big = vec![0u8; 2000];
+        let t = tar_with(&[("s.gltf", &big)]);
+        assert!(check_unpack(&t, None).unwrap_err().contains("too large"));
+        let mut b = tar::Builder::new(Vec::new());
+        let mut h = tar::Header::new_gnu();
+        h.set_entry_type(tar::EntryType::Symlink);
+        h.set_size(0);
+        b.append_link(&mut h, "s.gltf", "/etc/passwd").unwrap();
+        let t = b.into_inner().unwrap();
+        assert!(check_unpack(&t, None).unwrap_err().contains("link"));
+    }
+}
