@@ -488,6 +488,13 @@ async fn release(
     Ok(StatusCode::NO_CONTENT)
 }
 
+/// Path parameters of a result upload (by name, so that a bad one is named in the answer).
+#[derive(Deserialize)]
+struct TaskPath {
+    id: String,
+    task: u32,
+}
+
 #[derive(Deserialize)]
 struct ResultQuery {
     /// Worker id, for the per-worker share.
@@ -496,7 +503,7 @@ struct ResultQuery {
 
 async fn upload_result(
     State(state): State<AppState>,
-    Path((job, task)): Path<(String, u32)>,
+    Path(TaskPath { id: job, task }): Path<TaskPath>,
     Query(q): Query<ResultQuery>,
     headers: HeaderMap,
     body: Body,

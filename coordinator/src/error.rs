@@ -195,10 +195,15 @@ impl From<JsonRejection> for AppError {
             .split_once(": ")
             .and_then(|(_, rest)| rest.split_once(": "))
             .map(|(f, _)| f.to_string())
-            .filter(|f| !f.contains(' '));
+            .filter(|f| {
+                f.starts_with(|c: char| c.is_ascii_alphabetic())
+                    && f.chars()
+                        .all(|c| c.is_ascii_alphanumeric() || "_.".contains(c))
+            });
         match r {
+            // A body of the wrong shape altogether (an array, a string) names the body.
             J::JsonDataError(_) => AppError::Invalid {
-                field,
+                field: field.or_else(|| Some("body".into())),
                 message: text,
             },
             J::MissingJsonContentType(_) => AppError::UnsupportedMediaType(

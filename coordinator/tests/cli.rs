@@ -41,6 +41,13 @@ fn help_lists_the_flags() {
         "--insecure",
         "--lease-timeout",
         "--max-upload-bytes",
+        "--max-queued-jobs",
+        "--max-pixels",
+        "--max-spp",
+        "--max-passes",
+        "--min-tile-size",
+        "--max-tasks-per-job",
+        "--long-poll-max",
         "--healthcheck",
     ] {
         assert!(text.contains(flag), "{flag} missing from:\n{text}");
