@@ -332,16 +332,17 @@ async fn job_image(
         (layout, s.reader().map_err(AppError::internal)?)
     };
     let job_id = id.clone();
+    // Pass by pass, one stored tile decoded at a time: the frame and one tile in memory.
     let bytes = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, AppError> {
-        let mut results = Vec::new();
-        crate::store::for_each_result(&conn, &job_id, |idx, data| {
-            match proto::tile::decode(data) {
-                Ok((acc, _)) => results.push((idx, acc)),
-                Err(e) => tracing::error!(job = %job_id, idx, "stored result unreadable: {e}"),
-            }
+        let film = compose::compose_by_pass(&layout, |tasks, add| {
+            crate::store::for_each_result(&conn, &job_id, tasks, |idx, data| {
+                match proto::tile::decode(data) {
+                    Ok((acc, _)) => add(idx, acc),
+                    Err(e) => tracing::error!(job = %job_id, idx, "stored result unreadable: {e}"),
+                }
+            })
         })
         .map_err(AppError::internal)?;
-        let film = compose::compose(&layout, results);
         compose::encode(&film, format).map_err(AppError::internal)
     })
     .await

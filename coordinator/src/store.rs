@@ -527,15 +527,18 @@ impl Faults {
     }
 }
 
-/// Reads every stored result of a job as (task index, bytes), through `conn`, calling `f` for
-/// each so the caller never holds them all at once.
+/// Reads the stored results of a job's tasks `tasks` as (task index, bytes), through `conn`,
+/// calling `f` for each so the caller never holds them all at once.
 pub fn for_each_result(
     conn: &Connection,
     job: &str,
+    tasks: std::ops::Range<usize>,
     mut f: impl FnMut(u32, &[u8]),
 ) -> rusqlite::Result<()> {
-    let mut st = conn.prepare("SELECT idx, data FROM results WHERE job_id = ?1 ORDER BY idx")?;
-    let mut rows = st.query([job])?;
+    let mut st = conn.prepare_cached(
+        "SELECT idx, data FROM results WHERE job_id = ?1 AND idx >= ?2 AND idx < ?3 ORDER BY idx",
+    )?;
+    let mut rows = st.query(params![job, tasks.start as i64, tasks.end as i64])?;
     while let Some(r) = rows.next()? {
         let idx: u32 = r.get(0)?;
         let data = r.get_ref(1)?.as_blob()?;
