@@ -258,6 +258,14 @@ async fn create_job(
                 lim.max_queued_jobs
             )));
         }
+        let queued = s.unfinished_tasks();
+        if queued + layout.task_count() as u64 > lim.max_queued_tasks {
+            return Err(AppError::TooMany(format!(
+                "unfinished jobs hold {queued} tasks already; this job's {} would pass the limit of {}",
+                layout.task_count(),
+                lim.max_queued_tasks
+            )));
+        }
         s.create_job(
             req.scene.clone(),
             settings,

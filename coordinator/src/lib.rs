@@ -56,6 +56,9 @@ pub struct Limits {
     pub max_tasks_per_job: u64,
     /// Most unfinished jobs at once; more is answered 429.
     pub max_queued_jobs: usize,
+    /// Most tasks of all unfinished jobs together; a job that would go over is answered 429.
+    /// With `max_queued_jobs`, bounds the memory that queued work takes.
+    pub max_queued_tasks: u64,
 }
 
 impl Default for Limits {
@@ -69,6 +72,7 @@ impl Default for Limits {
             min_tile_size: 16,
             max_tasks_per_job: 1 << 18,
             max_queued_jobs: 1000,
+            max_queued_tasks: 1 << 22,
         }
     }
 }

@@ -36,6 +36,9 @@ struct Args {
     /// Most unfinished jobs at once (more: 429).
     #[arg(long, default_value_t = Limits::default().max_queued_jobs)]
     max_queued_jobs: usize,
+    /// Most tasks of all unfinished jobs together (a job that would go over: 429).
+    #[arg(long, default_value_t = Limits::default().max_queued_tasks)]
+    max_queued_tasks: u64,
     /// Largest width × height of a job (more: 422 naming width).
     #[arg(long, default_value_t = Limits::default().max_pixels)]
     max_pixels: u64,
@@ -98,6 +101,7 @@ async fn real_main(a: Args) -> anyhow::Result<()> {
     cfg.max_task_failures = a.max_task_failures;
     cfg.limits.max_upload_bytes = a.max_upload_bytes;
     cfg.limits.max_queued_jobs = a.max_queued_jobs;
+    cfg.limits.max_queued_tasks = a.max_queued_tasks;
     cfg.limits.max_pixels = a.max_pixels;
     cfg.limits.max_spp = a.max_spp;
     cfg.limits.max_passes = a.max_passes;

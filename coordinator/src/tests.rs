@@ -540,6 +540,16 @@ async fn jobs_over_the_limits_are_refused_at_once_naming_the_field() {
         call(&st2, post("/v1/jobs", body)).await.0,
         StatusCode::CREATED
     );
+    // Queued work as a whole: 2^22 tasks by default, 2^18 in a job; the 17th such job waits.
+    let big =
+        format!(r#"{{"scene": "{id}", "width": 8192, "height": 8192, "tile_size": 16, "spp": 1}}"#);
+    for _ in 0..16 {
+        let (code, b) = call(&st, post("/v1/jobs", big.clone())).await;
+        assert_eq!(code, StatusCode::CREATED, "{b}");
+    }
+    let (code, b) = call(&st, post("/v1/jobs", big)).await;
+    assert_eq!(code, StatusCode::TOO_MANY_REQUESTS, "{b}");
+    assert_error_body("429", &b);
 }
 
 /// A store that cannot be written answers 503 with a retryable body and changes nothing; the

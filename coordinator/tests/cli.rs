@@ -42,6 +42,7 @@ fn help_lists_the_flags() {
         "--lease-timeout",
         "--max-upload-bytes",
         "--max-queued-jobs",
+        "--max-queued-tasks",
         "--max-pixels",
         "--max-spp",
         "--max-passes",

@@ -219,6 +219,15 @@ impl Sched {
         self.jobs.values().filter(|j| !j.is_final()).count()
     }
 
+    /// Tasks of the jobs not yet final.
+    pub fn unfinished_tasks(&self) -> u64 {
+        self.jobs
+            .values()
+            .filter(|j| !j.is_final())
+            .map(|j| j.tasks().len() as u64)
+            .sum()
+    }
+
     /// Creates a job submitted at `now`; `settings` must be valid and within the
     /// coordinator's limits, and `layout` is `TaskLayout::new(&settings)`, made by the caller
     /// before it takes the lock (it is what costs time on a large job). Storing the job writes
