@@ -25,5 +25,16 @@ pub mod texture;
 
 pub use film::{Film, TileAccum};
 pub use integrator::{render, render_tile, RenderProgress};
-pub use scene::{load_scene, Scene, SceneError};
+pub use scene::{load_scene, RenderJob, Scene, SceneError};
 pub use settings::{IntegratorKind, RenderSettings, Tile};
+
+/// Version of the renderer's arithmetic: raised whenever a change to the tracer changes the
+/// bits of any image (sampling, intersection, shading). Workers send it when they register and
+/// the coordinator refuses workers whose version differs from its own, so that every tile of a
+/// frame comes from the same arithmetic and the frame stays bit-identical to a local render.
+/// The golden-image test (`core/tests/golden.rs`) fails when image bits change, as a reminder.
+///
+/// 2: one 4D Sobol set per bounce (2026-11-30).
+/// 3: shading frame about the normal alone, sin/cos by our own polynomials, flat triangles
+/// shaded from world-space data, small scenes' BVH built with the thorough preset (2026-11-30).
+pub const RENDER_VERSION: u32 = 3;

@@ -4,7 +4,7 @@
 use glam::Vec3;
 use raytile_core::scene::desc::{BsdfDesc, SceneDesc};
 use raytile_core::scene::load_scene;
-use raytile_core::{render, IntegratorKind, RenderSettings, Scene};
+use raytile_core::{render, IntegratorKind, RenderJob, RenderSettings, Scene};
 use std::path::Path;
 
 const SAMPLES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/gltf-samples");
@@ -29,8 +29,9 @@ fn render_desc(desc: &SceneDesc, size: u32, spp: u32, integrator: IntegratorKind
         integrator,
         ..Default::default()
     };
-    let scene = Scene::build(desc, &settings).unwrap_or_else(|e| panic!("{e}"));
-    let film = render(&scene, &settings, &());
+    let scene = Scene::build(desc).unwrap_or_else(|e| panic!("{e}"));
+    let job = RenderJob::new(&scene, &settings).unwrap_or_else(|e| panic!("{e}"));
+    let film = render(&scene, &job, &());
     let px: Vec<Vec3> = film.resolve().into_iter().map(Vec3::from).collect();
     assert_eq!(px.len(), (size * size) as usize);
     assert!(px.iter().all(|p| p.is_finite()), "non-finite pixel");
@@ -183,9 +184,9 @@ fn every_sample_renders_without_nan() {
                 integrator,
                 ..Default::default()
             };
-            let scene =
-                Scene::build(&desc, &settings).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
-            let film = render(&scene, &settings, &());
+            let scene = Scene::build(&desc).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
+            let job = RenderJob::new(&scene, &settings).unwrap();
+            let film = render(&scene, &job, &());
             assert_eq!(film.bad_samples, 0, "{} {integrator:?}", f.display());
         }
     }
@@ -209,8 +210,9 @@ fn each_camera_renders_its_own_view() {
                 camera: Some(sel),
                 ..Default::default()
             };
-            let scene = Scene::build(&desc, &settings).unwrap_or_else(|e| panic!("{e}"));
-            render(&scene, &settings, &()).resolve()
+            let scene = Scene::build(&desc).unwrap_or_else(|e| panic!("{e}"));
+            let job = RenderJob::new(&scene, &settings).unwrap_or_else(|e| panic!("{e}"));
+            render(&scene, &job, &()).resolve()
         };
         let by_index = px(i.to_string());
         assert_eq!(
@@ -243,8 +245,9 @@ fn default_light_can_be_turned_off() {
             default_light,
             ..Default::default()
         };
-        let scene = Scene::build(desc, &settings).unwrap();
-        let film = render(&scene, &settings, &());
+        let scene = Scene::build(desc).unwrap();
+        let job = RenderJob::new(&scene, &settings).unwrap();
+        let film = render(&scene, &job, &());
         film.resolve()
             .into_iter()
             .map(|p| Vec3::from(p).element_sum())

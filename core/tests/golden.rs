@@ -6,7 +6,7 @@
 
 use glam::{Mat3, Mat4, Vec2, Vec3};
 use raytile_core::scene::desc::*;
-use raytile_core::{render, IntegratorKind, RenderSettings, Scene};
+use raytile_core::{render, IntegratorKind, RenderJob, RenderSettings, Scene};
 use sha2::{Digest, Sha256};
 
 /// A checkerboard texture written texel by texel (sRGB, nearest or bilinear).
@@ -17,7 +17,7 @@ fn checker(name: &str, n: u32, bilinear: bool) -> TextureDesc {
         height: n,
         texels: (0..n * n)
             .map(|i| {
-                let v = if (i % n + i / n) % 2 == 0 { 0.9 } else { 0.2 };
+                let v = if (i % n + i / n) & 1 == 0 { 0.9 } else { 0.2 };
                 [v, v * 0.8, v * 0.5, 1.0]
             })
             .collect(),
@@ -245,8 +245,9 @@ fn image_hash(integrator: IntegratorKind) -> String {
         tile_size: 16,
         ..Default::default()
     };
-    let scene = Scene::build(&desc, &settings).unwrap();
-    let film = render(&scene, &settings, &());
+    let scene = Scene::build(&desc).unwrap();
+    let job = RenderJob::new(&scene, &settings).unwrap();
+    let film = render(&scene, &job, &());
     let mut h = Sha256::new();
     for p in &film.pixels {
         for c in p {

@@ -237,8 +237,9 @@ mod support {
     /// The EXR of the same job rendered locally.
     pub fn local_exr(scene: &std::path::Path, s: &RenderSettings) -> Vec<u8> {
         let desc = raytile_core::load_scene(scene).unwrap();
-        let built = raytile_core::Scene::build(&desc, s).unwrap();
-        let film = raytile_core::render(&built, s, &());
+        let built = raytile_core::Scene::build(&desc).unwrap();
+        let job = raytile_core::RenderJob::new(&built, s).unwrap();
+        let film = raytile_core::render(&built, &job, &());
         raytile_coordinator::compose::encode(&film, raytile_coordinator::compose::Format::Exr)
             .unwrap()
     }

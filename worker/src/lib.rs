@@ -6,7 +6,7 @@
 //! task that runs it is how tests "kill" a worker.
 
 use anyhow::{anyhow, Context};
-use raytile_core::{RenderSettings, Scene, TileAccum};
+use raytile_core::{Scene, TileAccum};
 use raytile_proto::{self as proto, scene as pkg};
 use reqwest::StatusCode;
 use std::collections::{HashMap, HashSet};
@@ -477,8 +477,7 @@ impl Worker {
             return Ok(s.clone());
         }
         let file = self.scene_file(lease).await?;
-        let settings = lease.settings.clone();
-        let scene = tokio::task::spawn_blocking(move || load_and_build(&file, &settings))
+        let scene = tokio::task::spawn_blocking(move || load_and_build(&file))
             .await
             .map_err(|e| anyhow!("scene build task: {e}"))??;
         let scene = Arc::new(scene);
@@ -521,10 +520,13 @@ impl Worker {
         let mut render = tokio::task::spawn_blocking(move || {
             pool.install(|| {
                 std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                    raytile_core::render_tile(&scene, &settings, tile, samples)
+                    let job = raytile_core::RenderJob::new(&scene, &settings)
+                        .map_err(|e| format!("job: {e}"))?;
+                    Ok::<_, String>(raytile_core::render_tile(&scene, &job, tile, samples))
                 }))
             })
-            .map_err(panic_message)
+            .map_err(|p| format!("render panicked: {}", panic_message(p)))
+            .and_then(|r| r)
         });
         let hb_path = format!("/v1/leases/{}/heartbeat", lease.lease_id);
         let accum: TileAccum = loop {
@@ -539,7 +541,7 @@ impl Worker {
                 r = &mut render => match r {
                     Ok(Ok(acc)) => break acc,
                     Ok(Err(msg)) => {
-                        self.report_failure(&lease, format!("render panicked: {msg}")).await;
+                        self.report_failure(&lease, msg).await;
                         return Flow::Continue;
                     }
                     Err(e) => {
@@ -656,12 +658,11 @@ async fn upload_result(
 }
 
 /// Loads and builds a scene, turning panics into errors.
-fn load_and_build(file: &Path, settings: &RenderSettings) -> anyhow::Result<Scene> {
+fn load_and_build(file: &Path) -> anyhow::Result<Scene> {
     let f = file.to_path_buf();
-    let s = settings.clone();
     match std::panic::catch_unwind(move || -> Result<Scene, raytile_core::SceneError> {
         let desc = raytile_core::load_scene(&f)?;
-        Scene::build(&desc, &s)
+        Scene::build(&desc)
     }) {
         Ok(Ok(scene)) => Ok(scene),
         Ok(Err(e)) => Err(anyhow!("scene: {e}")),
