@@ -105,7 +105,20 @@ mod support {
     impl Worker {
         /// Starts a worker for `base` with `threads` threads.
         pub fn start(base: &str, threads: usize, cache: &std::path::Path, name: &str) -> Worker {
+            Self::start_with(base, threads, cache, name, Default::default())
+        }
+
+        /// Starts a worker that keeps built scenes in `scenes` (shared, as `raytile cluster`
+        /// shares one among its workers).
+        pub fn start_with(
+            base: &str,
+            threads: usize,
+            cache: &std::path::Path,
+            name: &str,
+            scenes: Arc<raytile_worker::SceneCache>,
+        ) -> Worker {
             let mut c = raytile_worker::Config::new(base);
+            c.scene_cache = scenes;
             c.threads = threads;
             c.name = name.into();
             c.cache_dir = cache.join(name);
@@ -882,6 +895,55 @@ mod api {
             .unwrap();
         assert!(workers.workers.is_empty());
         Fake::register(&c.base, "current").await;
+        c.stop().await;
+    }
+}
+
+/// Built scenes are kept between jobs: a second job on a scene does not build it again.
+/// (Needs the core.)
+mod scene_cache {
+    use super::*;
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_second_job_on_a_scene_reuses_the_built_scene() {
+        let scene = PathBuf::from(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../scenes/cornell-box.json"
+        ));
+        let dir = tempfile::tempdir().unwrap();
+        let c = Coord::start(test_config(&dir.path().join("data")), 0).await;
+        // Two workers sharing one cache, as `raytile cluster` runs them.
+        let scenes = Arc::new(raytile_worker::SceneCache::default());
+        let ws: Vec<Worker> = (0..2)
+            .map(|i| Worker::start_with(&c.base, 1, dir.path(), &format!("w{i}"), scenes.clone()))
+            .collect();
+        let id = upload(&c.base, std::fs::read(&scene).unwrap()).await;
+        let builds = || -> u64 {
+            ws.iter()
+                .map(|w| w.stats.scene_builds.load(Ordering::Relaxed))
+                .sum()
+        };
+        for (n, seed) in [(1, 1), (2, 2)] {
+            let req = JobRequest {
+                seed: Some(seed),
+                spp: Some(2),
+                ..job(&id, 32)
+            };
+            let j = submit(&c.base, &req).await;
+            let done = wait_for(&c.base, &j.id, 120, |s| s.state.is_final()).await;
+            assert_eq!(done.state, JobState::Done, "job {n}: {:?}", done.error);
+            assert_eq!(
+                image(&c.base, &j.id, "exr").await,
+                local_exr(&scene, &done.settings),
+                "job {n}"
+            );
+            assert_eq!(builds(), 1, "after job {n}: the scene is built once");
+        }
+        assert_eq!(scenes.builds(), 1);
+        assert!(scenes.memory_bytes() > 0);
+        for w in ws {
+            w.stop().await;
+        }
         c.stop().await;
     }
 }
