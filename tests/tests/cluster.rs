@@ -298,7 +298,7 @@ mod support {
                 .json(&proto::RegisterRequest {
                     name: name.into(),
                     threads: 1,
-                    render_version: proto::RENDER_VERSION,
+                    render_version: raytile_core::RENDER_VERSION,
                 })
                 .send()
                 .await
@@ -870,7 +870,7 @@ mod api {
         let dir = tempfile::tempdir().unwrap();
         let c = Coord::start(test_config(dir.path()), 0).await;
         let http = reqwest::Client::new();
-        for version in [None, Some(proto::RENDER_VERSION + 1)] {
+        for version in [None, Some(raytile_core::RENDER_VERSION + 1)] {
             let mut body = serde_json::json!({"name": "stale", "threads": 1});
             if let Some(v) = version {
                 body["render_version"] = v.into();

@@ -305,7 +305,7 @@ impl Worker {
             let body = proto::RegisterRequest {
                 name: self.cfg.name.clone(),
                 threads: self.threads as u32,
-                render_version: proto::RENDER_VERSION,
+                render_version: raytile_core::RENDER_VERSION,
             };
             let r = self
                 .client
