@@ -384,11 +384,6 @@ impl Bvh {
         &self.leaves
     }
 
-    /// Number of BVH nodes (for statistics).
-    pub fn node_count(&self) -> usize {
-        self.nodes.len()
-    }
-
     /// Bytes held by the nodes and the leaf table, for cache budgets.
     pub fn memory_bytes(&self) -> usize {
         self.nodes.capacity() * std::mem::size_of::<Node4>()

@@ -87,11 +87,6 @@ impl Camera {
             self.to_world.transform_vector3a(d).normalize(),
         )
     }
-
-    /// The camera's position in the world.
-    pub fn position(&self) -> Vec3A {
-        self.to_world.translation
-    }
 }
 
 #[cfg(test)]

@@ -144,7 +144,7 @@ fn invalid(msg: impl Into<String>) -> SceneError {
 }
 
 /// Picks the camera named or numbered `sel` (the first if `None`).
-pub fn select_camera<'a>(
+fn select_camera<'a>(
     cameras: &'a [SceneCamera],
     sel: Option<&str>,
 ) -> Result<&'a SceneCamera, SceneError> {
@@ -178,7 +178,7 @@ pub fn select_camera<'a>(
 }
 
 /// A default camera framing `bounds` from +Z, for scenes without one.
-pub fn default_camera(bounds: &Aabb) -> SceneCamera {
+fn default_camera(bounds: &Aabb) -> SceneCamera {
     let (center, radius) =
         if bounds.min.is_finite() && bounds.max.is_finite() && bounds.min.cmple(bounds.max).all() {
             (

@@ -1104,6 +1104,40 @@ mod tests {
     }
 
     #[test]
+    fn named_quadrics_are_checked_by_the_geometry() {
+        let shape = |s: &str| {
+            parse(&format!(
+                r#"{{"materials": {{"m": {{"type": "diffuse"}}}},
+                "objects": [{{"shape": {s}, "material": "m"}}]}}"#
+            ))
+        };
+        for bad in [
+            r#"{"type": "cylinder", "radius": 0, "y_min": 0, "y_max": 1}"#,
+            r#"{"type": "cone", "angle": 0, "y_min": 0, "y_max": 1}"#,
+            r#"{"type": "hyperboloid", "a": 1, "c": -1, "y_min": 0, "y_max": 1}"#,
+            r#"{"type": "paraboloid", "a": 1, "y_max": 0}"#,
+            r#"{"type": "ellipsoid", "radii": [1, 0, 1]}"#,
+            r#"{"type": "cylinder", "radius": 1, "y_min": 1, "y_max": 0}"#,
+        ] {
+            let e = shape(bad).unwrap_err();
+            assert!(e.contains("objects[0].shape"), "{bad}: {e}");
+        }
+        // What the loader stores is the geometry's own quadric.
+        let d = shape(r#"{"type": "cylinder", "radius": 0.5, "y_min": -1, "y_max": 2}"#).unwrap();
+        let expected = Quadric::cylinder(0.5, -1.0, 2.0).unwrap();
+        let ShapeDesc::Quadric {
+            q,
+            clip_min,
+            clip_max,
+        } = d.objects[0].shape
+        else {
+            panic!("a cylinder is a quadric");
+        };
+        let built = Quadric::new(q, clip_min.into(), clip_max.into()).unwrap();
+        assert_eq!(built, expected);
+    }
+
+    #[test]
     fn transforms_compose_scale_then_rotate_then_translate() {
         let t = JTransform {
             translate: Some([1.0, 2.0, 3.0]),
