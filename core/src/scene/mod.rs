@@ -229,3 +229,71 @@ impl std::fmt::Debug for Scene {
             .finish_non_exhaustive()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::desc::*;
+    use super::Scene;
+    use glam::{Mat4, Vec3};
+
+    /// A grid of `n × n` quads (2 n² triangles), once or instanced twice.
+    fn grid(n: u32, instances: usize) -> SceneDesc {
+        let mut positions = Vec::new();
+        let mut indices = Vec::new();
+        for y in 0..=n {
+            for x in 0..=n {
+                positions.push(Vec3::new(x as f32, y as f32, 0.0));
+            }
+        }
+        for y in 0..n {
+            for x in 0..n {
+                let i = y * (n + 1) + x;
+                indices.push([i, i + 1, i + n + 2]);
+                indices.push([i, i + n + 2, i + n + 1]);
+            }
+        }
+        SceneDesc {
+            meshes: vec![MeshDesc {
+                name: "grid".into(),
+                positions,
+                indices,
+                ..Default::default()
+            }],
+            materials: vec![MaterialDesc::new(
+                "m",
+                BsdfDesc::Diffuse {
+                    albedo: Vec3::ONE,
+                    texture: None,
+                },
+            )],
+            objects: (0..instances)
+                .map(|i| ObjectDesc {
+                    name: format!("g{i}"),
+                    shape: ShapeDesc::Mesh { mesh: 0 },
+                    material: 0,
+                    transform: Mat4::from_translation(Vec3::Z * i as f32),
+                })
+                .collect(),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn the_memory_estimate_follows_the_geometry() {
+        let small = Scene::build(&grid(4, 1)).unwrap();
+        let big = Scene::build(&grid(64, 1)).unwrap();
+        let added = (2 * 64 * 64 - 2 * 4 * 4) as usize;
+        // Per flattened triangle at least its BVH primitive (corners), its shading entry and
+        // its indices.
+        let per_triangle = (big.memory_bytes() - small.memory_bytes()) / added;
+        assert!(
+            per_triangle >= 48 + 16 + 12,
+            "{per_triangle} bytes per triangle"
+        );
+        assert!(per_triangle < 1024, "{per_triangle} bytes per triangle");
+        // Instanced twice, the triangles are stored once.
+        let twice = Scene::build(&grid(64, 2)).unwrap();
+        assert_eq!(twice.stats.instanced_triangles, 2 * 64 * 64);
+        assert!(twice.memory_bytes() < 2 * big.memory_bytes());
+    }
+}
