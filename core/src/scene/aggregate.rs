@@ -433,3 +433,170 @@ impl Scene {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::geometry::Ray;
+    use crate::sampling::hash_u32;
+    use crate::scene::desc::*;
+    use crate::Scene;
+    use glam::{Mat4, Vec2, Vec3, Vec3A};
+
+    fn rnd(i: u32) -> f32 {
+        (hash_u32(i) >> 8) as f32 / (1u32 << 24) as f32
+    }
+
+    /// A unit quad in the XY plane with uvs over [0, 1]².
+    fn quad(name: &str) -> MeshDesc {
+        MeshDesc {
+            name: name.into(),
+            positions: vec![
+                Vec3::new(-0.5, -0.5, 0.0),
+                Vec3::new(0.5, -0.5, 0.0),
+                Vec3::new(0.5, 0.5, 0.0),
+                Vec3::new(-0.5, 0.5, 0.0),
+            ],
+            uvs: [vec![Vec2::ZERO, Vec2::X, Vec2::ONE, Vec2::Y], vec![]],
+            indices: vec![[0, 1, 2], [0, 2, 3]],
+            ..Default::default()
+        }
+    }
+
+    /// Every kind of primitive: flattened and instanced triangles, opaque and alpha-masked
+    /// (a checkerboard of alpha 0 and 1), a sphere, a box and an unbounded plane.
+    fn scene() -> Scene {
+        let mut cutout = MaterialDesc::new(
+            "cutout",
+            BsdfDesc::Diffuse {
+                albedo: Vec3::ONE,
+                texture: Some(TextureRef::new(0)),
+            },
+        );
+        cutout.alpha_mode = AlphaMode::Mask(0.5);
+        let object = |name: &str, shape, material, transform| ObjectDesc {
+            name: name.into(),
+            shape,
+            material,
+            transform,
+        };
+        let at = |x: f32, y: f32, z: f32| Mat4::from_translation(Vec3::new(x, y, z));
+        let desc = SceneDesc {
+            textures: vec![TextureDesc {
+                name: "alpha".into(),
+                width: 2,
+                height: 2,
+                texels: vec![
+                    [1.0; 4],
+                    [1.0, 1.0, 1.0, 0.0],
+                    [1.0, 1.0, 1.0, 0.0],
+                    [1.0; 4],
+                ],
+                srgb: false,
+                wrap_u: WrapMode::Repeat,
+                wrap_v: WrapMode::Repeat,
+                bilinear: false,
+            }],
+            materials: vec![
+                MaterialDesc::new(
+                    "opaque",
+                    BsdfDesc::Diffuse {
+                        albedo: Vec3::ONE,
+                        texture: None,
+                    },
+                ),
+                cutout,
+            ],
+            meshes: vec![quad("once"), quad("shared"), quad("once-cutout")],
+            objects: vec![
+                object("flat", ShapeDesc::Mesh { mesh: 0 }, 0, at(0.0, 0.0, -1.0)),
+                object("inst-a", ShapeDesc::Mesh { mesh: 1 }, 0, at(0.7, 0.2, 0.0)),
+                object(
+                    "inst-b",
+                    ShapeDesc::Mesh { mesh: 1 },
+                    1,
+                    at(-0.6, 0.1, 0.4) * Mat4::from_rotation_y(0.8),
+                ),
+                object("cut", ShapeDesc::Mesh { mesh: 2 }, 1, at(0.1, -0.2, 0.8)),
+                object(
+                    "ball",
+                    ShapeDesc::Sphere {
+                        center: Vec3::ZERO,
+                        radius: 0.3,
+                    },
+                    0,
+                    at(0.0, 0.5, 0.0),
+                ),
+                object(
+                    "box",
+                    ShapeDesc::Box {
+                        min: Vec3::splat(-0.2),
+                        max: Vec3::splat(0.2),
+                    },
+                    0,
+                    at(-0.5, -0.5, -0.3) * Mat4::from_rotation_z(0.4),
+                ),
+                object(
+                    "floor",
+                    ShapeDesc::Plane {
+                        point: Vec3::new(0.0, -1.0, 0.0),
+                        normal: Vec3::Y,
+                    },
+                    0,
+                    Mat4::IDENTITY,
+                ),
+            ],
+            ..Default::default()
+        };
+        Scene::build(&desc).unwrap()
+    }
+
+    #[test]
+    fn closest_and_any_hit_agree_with_each_other_and_with_brute_force() {
+        let scene = scene();
+        assert!(scene.stats.flattened_triangles == 4 && scene.stats.instanced_triangles == 2);
+        let mut hits = 0;
+        for i in 0..20_000u32 {
+            let o = Vec3A::new(rnd(7 * i), rnd(7 * i + 1), rnd(7 * i + 2)) * 3.0 - 1.5;
+            let d = (Vec3A::new(rnd(7 * i + 3), rnd(7 * i + 4), rnd(7 * i + 5)) - 0.5)
+                .normalize_or(Vec3A::Z);
+            let tmax = if i % 3 == 0 {
+                f32::INFINITY
+            } else {
+                rnd(7 * i + 6) * 3.0
+            };
+            let ray = Ray::new(o, d);
+            let closest = scene.intersect(&ray, tmax);
+            assert_eq!(closest.is_some(), scene.occluded(&ray, tmax), "ray {i}");
+            let brute = scene.intersect_brute_force(&ray, tmax);
+            assert_eq!(closest.is_some(), brute.is_some(), "ray {i}");
+            if let (Some(a), Some(b)) = (closest, brute) {
+                assert!(
+                    a.t < tmax && (a.t - b.t).abs() <= 1e-5 * a.t.max(1.0),
+                    "ray {i}"
+                );
+                hits += 1;
+            }
+        }
+        assert!(hits > 5000, "{hits}");
+    }
+
+    #[test]
+    fn masked_texels_let_rays_through() {
+        let scene = scene();
+        // Straight down the z axis through the cut-out quad at (0.1, -0.2, 0.8): its texel
+        // (0, 0) is opaque, texel (1, 0) is cut out (uv (0.75, 0.25) is at x = +0.25, y = −0.25).
+        let down = |x: f32, y: f32| Ray::new(Vec3A::new(x, y, 2.0), -Vec3A::Z);
+        let solid = scene.intersect(&down(0.1 - 0.25, -0.2 - 0.25), f32::INFINITY);
+        assert_eq!(
+            solid.map(|h| scene.objects[h.object as usize].name.as_str()),
+            Some("cut")
+        );
+        let hole = scene.intersect(&down(0.1 + 0.25, -0.2 - 0.25), f32::INFINITY);
+        assert_ne!(
+            hole.map(|h| scene.objects[h.object as usize].name.as_str()),
+            Some("cut")
+        );
+        assert!(!scene.occluded(&down(0.1 + 0.25, -0.2 - 0.25), 1.5));
+        assert!(scene.occluded(&down(0.1 - 0.25, -0.2 - 0.25), 1.5));
+    }
+}

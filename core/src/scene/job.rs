@@ -200,3 +200,131 @@ fn default_camera(bounds: &Aabb) -> SceneCamera {
         },
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Ray;
+    use crate::sampling::hash_u32;
+    use crate::scene::desc::*;
+    use glam::Mat4;
+
+    fn rnd(i: u32) -> f32 {
+        (hash_u32(i) >> 8) as f32 / (1u32 << 24) as f32
+    }
+
+    /// Emitters of both kinds: a two-triangle mesh lamp, a squashed emissive sphere, and a
+    /// point light; a floor to stand on.
+    fn lit_scene() -> Scene {
+        let mut lamp = MaterialDesc::new(
+            "lamp",
+            BsdfDesc::Diffuse {
+                albedo: Vec3::ZERO,
+                texture: None,
+            },
+        );
+        lamp.emission = Vec3::new(4.0, 3.0, 2.0);
+        let mut ball = lamp.clone();
+        ball.emission = Vec3::new(1.0, 1.0, 5.0);
+        let desc = SceneDesc {
+            materials: vec![lamp, ball],
+            meshes: vec![MeshDesc {
+                name: "lamp".into(),
+                positions: vec![
+                    Vec3::new(-1.0, 2.0, -1.0),
+                    Vec3::new(1.0, 2.0, -1.0),
+                    Vec3::new(1.0, 2.0, 1.0),
+                    Vec3::new(-1.0, 2.0, 1.0),
+                ],
+                // Facing down (−Y), towards the points the test samples from.
+                indices: vec![[0, 1, 2], [0, 2, 3]],
+                ..Default::default()
+            }],
+            objects: vec![
+                ObjectDesc {
+                    name: "lamp".into(),
+                    shape: ShapeDesc::Mesh { mesh: 0 },
+                    material: 0,
+                    transform: Mat4::IDENTITY,
+                },
+                ObjectDesc {
+                    name: "ball".into(),
+                    shape: ShapeDesc::Sphere {
+                        center: Vec3::ZERO,
+                        radius: 0.3,
+                    },
+                    material: 1,
+                    transform: Mat4::from_translation(Vec3::new(1.5, 0.5, 0.0))
+                        * Mat4::from_scale(Vec3::new(1.0, 2.0, 1.0)),
+                },
+            ],
+            lights: vec![LightDesc::Point {
+                position: Vec3::new(0.0, 3.0, 0.0),
+                intensity: Vec3::ONE,
+                range: f32::INFINITY,
+            }],
+            ..Default::default()
+        };
+        Scene::build(&desc).unwrap()
+    }
+
+    #[test]
+    fn the_mis_density_of_a_hit_emitter_is_the_density_light_sampling_gave_it() {
+        let scene = lit_scene();
+        let job = RenderJob::new(&scene, &RenderSettings::default()).unwrap();
+        assert_eq!(job.lights().len(), 4, "point, two triangles, the sphere");
+        let from = Vec3A::new(0.2, -0.5, 0.3);
+        let mut checked = 0;
+        for i in 0..400 {
+            let (index, pmf) = job.lights().choose(rnd(3 * i)).unwrap();
+            let u = Vec2::new(rnd(3 * i + 1), rnd(3 * i + 2));
+            let Some(s) = job.sample_light(&scene, index, from, u) else {
+                continue;
+            };
+            if s.delta {
+                assert!(matches!(scene.lights[index], Light::Point { .. }));
+                continue;
+            }
+            // Trace towards the sampled point: the emitter hit there must give the same
+            // density (selection included) to the path tracer's MIS.
+            let ray = Ray::new(from, s.wi);
+            let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
+                panic!("light sample {i} points at nothing");
+            };
+            if (ray.at(hit.t) - s.p_light).length() > 1e-3 {
+                continue; // the sphere's far side, behind its near side
+            }
+            let it = scene.interaction(&ray, &hit);
+            let pdf = job.area_light_pdf(&scene, &it, from);
+            assert!(
+                (pdf - s.pdf * pmf).abs() <= 1e-3 * pdf,
+                "sample {i} of light {index}: {pdf} vs {}",
+                s.pdf * pmf
+            );
+            assert_eq!(scene.emitted(&it, -s.wi), s.li);
+            checked += 1;
+        }
+        assert!(checked > 200, "{checked}");
+    }
+
+    #[test]
+    fn the_environment_is_the_jobs_and_the_light_distribution_follows_it() {
+        let scene = lit_scene();
+        let settings = RenderSettings::default();
+        let job = RenderJob::new(&scene, &settings).unwrap();
+        assert!(job.environment().is_none());
+        let env = Arc::new(Environment::constant(Vec3A::splat(0.5)));
+        let job = job.with_environment(&scene, Some(env));
+        assert_eq!(job.lights().len(), 5);
+        assert_eq!(job.lights().environment(), Some(4));
+        let s = job
+            .sample_light(&scene, 4, Vec3A::ZERO, Vec2::new(0.3, 0.7))
+            .unwrap();
+        assert!(!s.delta && !s.dist.is_finite() && s.li == Vec3A::splat(0.5));
+        let job = job.with_environment(&scene, None);
+        assert_eq!(job.lights().len(), 4);
+        assert!(job
+            .sample_light(&scene, 4, Vec3A::ZERO, Vec2::ZERO)
+            .is_none());
+    }
+}
