@@ -1,9 +1,26 @@
 //! raytile-core: the path tracer behind the raytile render farm.
 //!
-//! The crate reads like the lecture it comes from: [`geometry`] (rays and shapes), [`accel`]
-//! (the bounding-volume hierarchy), [`camera`], [`sampling`], [`material`] (BSDFs), [`light`],
-//! [`integrator`] (Whitted, path tracing, debug outputs, `render_tile`), [`scene`] (descriptions,
-//! the JSON and glTF front ends, and the builder) and [`film`] (accumulation, filters, output).
+//! The crate reads like the lecture it comes from: [`geometry`] (rays, hit records and shapes),
+//! [`accel`] (the bounding-volume hierarchy), [`camera`], [`sampling`], [`material`]
+//! (materials and BSDFs), [`light`], [`integrator`] (Whitted, path tracing, debug outputs,
+//! `render_tile`), [`scene`] (descriptions, the JSON and glTF front ends, the builder, and the
+//! scene at render time) and [`film`] (accumulation, filters, output).
+//!
+//! A render is a [`Scene`], built once from a description and kept as long as wanted, and a
+//! [`RenderJob`], what one render adds (settings, camera, environment, light selection):
+//!
+//! ```no_run
+//! # fn main() -> Result<(), raytile_core::SceneError> {
+//! use raytile_core::{load_scene, render, RenderJob, RenderSettings, Scene};
+//! let scene = Scene::build(&load_scene("scene.gltf".as_ref())?)?;
+//! let job = RenderJob::new(&scene, &RenderSettings::default())?;
+//! let film = render(&scene, &job, &());
+//! # let _ = film;
+//! # Ok(())
+//! # }
+//! ```
+//!
+//! Modules import only from layers below their own (ARCHITECTURE.md; `tests/layers.rs`).
 //!
 //! Invariants: no network, no serde on the hot path, no allocation per ray; file IO only in
 //! scene loading and image output. Random numbers depend only on (pixel, sample index, seed).

@@ -8,7 +8,7 @@
 //!   falls below a threshold.
 //! - [`debug`]: normals, albedo, depth and ambient occlusion.
 //!
-//! Both path and Whitted take their direct lighting from [`direct`].
+//! Both path and Whitted take their direct lighting from `direct.rs`.
 //!
 //! Every integrator reads the [`Scene`] (geometry, materials, lights) and the [`RenderJob`]
 //! (camera, environment, light selection, settings). [`render_tile`] evaluates samples
