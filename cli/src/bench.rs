@@ -14,7 +14,7 @@ use raytile_core::accel::{Bvh, PRESETS};
 use raytile_core::geometry::triangle::{Tri4, TriangleGeom};
 use raytile_core::geometry::{Aabb, Ray};
 use raytile_core::sampling::hash_u32;
-use raytile_core::{load_scene, render, RenderSettings, Scene};
+use raytile_core::{load_scene, render, RenderJob, RenderSettings, Scene};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -64,18 +64,16 @@ pub fn run(args: BenchArgs) -> Result<()> {
         max_depth: args.max_depth,
         ..Default::default()
     };
-    let scene = Scene::build(&desc, &settings)?;
+    let scene = Scene::build(&desc)?;
+    let job = RenderJob::new(&scene, &settings)?;
     // Warm-up pass (page faults, thread start), then the measured render.
-    render(
-        &scene,
-        &RenderSettings {
-            spp: 1,
-            ..settings.clone()
-        },
-        &(),
-    );
+    let warm_up = RenderSettings {
+        spp: 1,
+        ..settings.clone()
+    };
+    render(&scene, &RenderJob::new(&scene, &warm_up)?, &());
     let t = Instant::now();
-    let film = render(&scene, &settings, &());
+    let film = render(&scene, &job, &());
     let secs = t.elapsed().as_secs_f64();
     let samples = settings.width as f64 * settings.height as f64 * settings.spp as f64;
     let m = film.mean();
@@ -88,7 +86,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
 
     // Scene ray throughput.
     let n = args.rays;
-    let cam = scene.camera();
+    let cam = &job.camera;
     let side = (n as f64).sqrt() as u32;
     let coherent: Vec<Ray> = (0..side * side)
         .map(|i| {

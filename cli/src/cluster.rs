@@ -97,8 +97,11 @@ async fn cluster(a: ClusterArgs) -> anyhow::Result<()> {
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let n = a.workers.max(1);
     let mut workers = Vec::new();
+    // One cache of built scenes for every local worker: a scene is built once per process.
+    let scene_cache = std::sync::Arc::new(raytile_worker::SceneCache::default());
     for i in 0..n {
         let mut wc = raytile_worker::Config::new(base.clone());
+        wc.scene_cache = scene_cache.clone();
         wc.token = a.token.clone().filter(|t| !t.is_empty());
         wc.threads = (total / n + usize::from(i < total % n)).max(1);
         wc.name = format!("local-{i}");

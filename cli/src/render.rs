@@ -4,7 +4,7 @@ use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use raytile_core::film::{self, OutputOptions, ToneMap};
-use raytile_core::{load_scene, RenderOverrides, RenderProgress, Scene, SettingsError};
+use raytile_core::{load_scene, RenderJob, RenderOverrides, RenderProgress, Scene, SettingsError};
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -80,7 +80,8 @@ pub fn run(args: RenderArgs) -> Result<()> {
         pool = pool.num_threads(t);
     }
     let pool = pool.build().context("starting worker threads")?;
-    let scene = pool.install(|| Scene::build(&desc, &settings))?;
+    let scene = pool.install(|| Scene::build(&desc))?;
+    let job = RenderJob::new(&scene, &settings)?;
     let total = settings.width as u64 * settings.height as u64 * settings.spp as u64;
     let bar = std::io::stderr().is_terminal().then(|| {
         let b = ProgressBar::new(total);
@@ -99,7 +100,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         last_line: Mutex::new(0),
     };
     let render_start = Instant::now();
-    let film = pool.install(|| raytile_core::render(&scene, &settings, &progress));
+    let film = pool.install(|| raytile_core::render(&scene, &job, &progress));
     let secs = render_start.elapsed().as_secs_f64();
     if let Some(b) = &progress.bar {
         b.finish_and_clear();

@@ -61,7 +61,7 @@ async fn main() -> anyhow::Result<()> {
                 .json(&proto::RegisterRequest {
                     name: format!("bench-{i}"),
                     threads: 1,
-                    render_version: proto::RENDER_VERSION,
+                    render_version: raytile_core::RENDER_VERSION,
                 })
                 .send()
                 .await?

@@ -369,7 +369,7 @@ async fn register(
     if req.name.len() > 256 {
         return Err(AppError::invalid("name", "must be at most 256 bytes"));
     }
-    if req.render_version != proto::RENDER_VERSION {
+    if req.render_version != raytile_core::RENDER_VERSION {
         // Tiles from another renderer version would not match the rest of the frame bit for
         // bit: such a worker must be upgraded (or the coordinator), not mixed in.
         tracing::warn!(name = %req.name, version = req.render_version, "worker refused: renderer version");
@@ -378,7 +378,7 @@ async fn register(
              run the same raytile release on every worker and the coordinator",
             req.name,
             req.render_version,
-            proto::RENDER_VERSION
+            raytile_core::RENDER_VERSION
         )));
     }
     let now = state.now();

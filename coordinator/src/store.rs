@@ -195,12 +195,12 @@ impl Store {
     }
 
     /// Tiles of unfinished jobs stored by a coordinator of another renderer version
-    /// ([`raytile_proto::RENDER_VERSION`]; a database without one predates the check) would mix
+    /// ([`raytile_core::RENDER_VERSION`]; a database without one predates the check) would mix
     /// two renderers' arithmetic in one frame: they are deleted and their tasks queued again.
     /// Finished jobs keep their frames (each came from one renderer). Returns how many tiles
     /// were discarded.
     fn discard_other_renderer_tiles(&mut self) -> rusqlite::Result<usize> {
-        let current = raytile_proto::RENDER_VERSION.to_string();
+        let current = raytile_core::RENDER_VERSION.to_string();
         let stored: Option<String> = self
             .conn
             .query_row(

@@ -256,7 +256,7 @@ async fn handlers_take_the_time_from_the_injected_clock() {
     let (_, job) = call(&st, post("/v1/jobs", body)).await;
     let reg = format!(
         r#"{{"name": "w", "threads": 1, "render_version": {}}}"#,
-        raytile_proto::RENDER_VERSION
+        raytile_core::RENDER_VERSION
     );
     let (code, worker) = call(&st, post("/v1/workers", reg)).await;
     assert_eq!(code, StatusCode::OK, "{worker}");

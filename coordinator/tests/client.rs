@@ -105,7 +105,7 @@ async fn the_client_speaks_every_route_it_knows() {
         .register(&RegisterRequest {
             name: "test".into(),
             threads: 1,
-            render_version: raytile_proto::RENDER_VERSION,
+            render_version: raytile_core::RENDER_VERSION,
         })
         .await
         .unwrap();

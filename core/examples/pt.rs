@@ -3,7 +3,7 @@
 //!
 //!     cargo run --release -p raytile-core --example pt -- SCENE [SPP] [RUNS]
 
-use raytile_core::{load_scene, render, RenderSettings, Scene};
+use raytile_core::{load_scene, render, RenderJob, RenderSettings, Scene};
 use std::hash::{DefaultHasher, Hasher};
 use std::time::Instant;
 
@@ -22,10 +22,11 @@ fn main() {
         max_depth: 1000,
         ..Default::default()
     };
-    let scene = Scene::build(&desc, &settings).expect("scene builds");
+    let scene = Scene::build(&desc).expect("scene builds");
+    let job = RenderJob::new(&scene, &settings).expect("settings are valid");
     for _ in 0..runs {
         let t = Instant::now();
-        let film = render(&scene, &settings, &());
+        let film = render(&scene, &job, &());
         let secs = t.elapsed().as_secs_f64();
         let mut h = DefaultHasher::new();
         for p in film.resolve() {

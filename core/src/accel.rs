@@ -214,7 +214,8 @@ impl Bvh {
         Self::build_with(bounds, params)
     }
 
-    /// Builds with explicit obvhs parameters (leaves hold at most 8 primitives).
+    /// Builds with explicit obvhs parameters (leaves hold at most 4 primitives: the triangle
+    /// packets are four wide).
     pub fn build_with(bounds: &[Aabb], mut params: BvhBuildParams) -> (Self, Vec<u32>) {
         if bounds.is_empty() {
             return (Self::default(), Vec::new());
@@ -383,9 +384,10 @@ impl Bvh {
         &self.leaves
     }
 
-    /// Number of BVH nodes (for statistics).
-    pub fn node_count(&self) -> usize {
-        self.nodes.len()
+    /// Bytes held by the nodes and the leaf table, for cache budgets.
+    pub fn memory_bytes(&self) -> usize {
+        self.nodes.capacity() * std::mem::size_of::<Node4>()
+            + self.leaves.capacity() * std::mem::size_of::<(u32, u32)>()
     }
 }
 

@@ -4,8 +4,26 @@
 
 use crate::geometry::Ray;
 use crate::sampling::warp::concentric_disk;
-use crate::scene::desc::{CameraDesc, Projection};
-use glam::{Affine3A, Vec2, Vec3A};
+use glam::{Affine3A, Mat4, Vec2, Vec3A};
+
+/// How the camera projects.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Projection {
+    /// A pinhole or thin-lens perspective camera.
+    Perspective {
+        /// Vertical field of view, radians.
+        yfov: f32,
+        /// Lens radius in metres (0 = pinhole).
+        aperture_radius: f32,
+        /// Distance to the plane in focus, metres.
+        focus_distance: f32,
+    },
+    /// A parallel projection.
+    Orthographic {
+        /// Half the height of the view, metres (glTF `ymag`).
+        half_height: f32,
+    },
+}
 
 /// A camera set up for one image size.
 #[derive(Clone, Debug)]
@@ -19,20 +37,21 @@ pub struct Camera {
 }
 
 impl Camera {
-    /// The camera `desc` rendering a `width × height` image. The image's aspect ratio wins over
-    /// the file's (vertical field of view is kept).
-    pub fn new(desc: &CameraDesc, width: u32, height: u32) -> Self {
+    /// A camera placed by `transform` (camera to world, looking down −Z) with `projection`,
+    /// rendering a `width × height` image. The image's aspect ratio wins over any the scene
+    /// file gives (the vertical field of view is kept).
+    pub fn new(transform: Mat4, projection: Projection, width: u32, height: u32) -> Self {
         let aspect = width as f32 / height as f32;
         // Keep only rotation and translation: scale on a camera node would distort rays.
-        let (_, rot, trans) = desc.transform.to_scale_rotation_translation();
+        let (_, rot, trans) = transform.to_scale_rotation_translation();
         let to_world = Affine3A::from_rotation_translation(rot.normalize(), trans);
-        let half_h = match desc.projection {
+        let half_h = match projection {
             Projection::Perspective { yfov, .. } => (yfov * 0.5).tan(),
             Projection::Orthographic { half_height } => half_height,
         };
         Self {
             to_world,
-            projection: desc.projection,
+            projection,
             half: Vec2::new(half_h * aspect, half_h),
             width: width as f32,
             height: height as f32,
@@ -68,26 +87,15 @@ impl Camera {
             self.to_world.transform_vector3a(d).normalize(),
         )
     }
-
-    /// The camera's position in the world.
-    pub fn position(&self) -> Vec3A {
-        self.to_world.translation
-    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use glam::Mat4;
 
     fn cam(projection: Projection) -> Camera {
-        let desc = CameraDesc {
-            name: "c".into(),
-            transform: Mat4::from_translation(glam::Vec3::new(0.0, 0.0, 5.0)),
-            projection,
-            aspect: None,
-        };
-        Camera::new(&desc, 200, 100)
+        let transform = Mat4::from_translation(glam::Vec3::new(0.0, 0.0, 5.0));
+        Camera::new(transform, projection, 200, 100)
     }
 
     #[test]

@@ -1,9 +1,26 @@
 //! raytile-core: the path tracer behind the raytile render farm.
 //!
-//! The crate reads like the lecture it comes from: [`geometry`] (rays and shapes), [`accel`]
-//! (the bounding-volume hierarchy), [`camera`], [`sampling`], [`material`] (BSDFs), [`light`],
-//! [`integrator`] (Whitted, path tracing, debug outputs, `render_tile`), [`scene`] (descriptions,
-//! the JSON and glTF front ends, and the builder) and [`film`] (accumulation, filters, output).
+//! The crate reads like the lecture it comes from: [`geometry`] (rays, hit records and shapes),
+//! [`accel`] (the bounding-volume hierarchy), [`camera`], [`sampling`], [`material`]
+//! (materials and BSDFs), [`light`], [`integrator`] (Whitted, path tracing, debug outputs,
+//! `render_tile`), [`scene`] (descriptions, the JSON and glTF front ends, the builder, and the
+//! scene at render time) and [`film`] (accumulation, filters, output).
+//!
+//! A render is a [`Scene`], built once from a description and kept as long as wanted, and a
+//! [`RenderJob`], what one render adds (settings, camera, environment, light selection):
+//!
+//! ```no_run
+//! # fn main() -> Result<(), raytile_core::SceneError> {
+//! use raytile_core::{load_scene, render, RenderJob, RenderSettings, Scene};
+//! let scene = Scene::build(&load_scene("scene.gltf".as_ref())?)?;
+//! let job = RenderJob::new(&scene, &RenderSettings::default())?;
+//! let film = render(&scene, &job, &());
+//! # let _ = film;
+//! # Ok(())
+//! # }
+//! ```
+//!
+//! Modules import only from layers below their own (ARCHITECTURE.md; `tests/layers.rs`).
 //!
 //! Invariants: no network, no serde on the hot path, no allocation per ray; file IO only in
 //! scene loading and image output. Random numbers depend only on (pixel, sample index, seed).
@@ -26,5 +43,16 @@ pub mod texture;
 
 pub use film::{Film, TileAccum};
 pub use integrator::{render, render_tile, RenderProgress};
-pub use scene::{load_scene, Scene, SceneError};
+pub use scene::{load_scene, RenderJob, Scene, SceneError};
 pub use settings::{IntegratorKind, RenderOverrides, RenderSettings, SettingsError, Tile};
+
+/// Version of the renderer's arithmetic: raised whenever a change to the tracer changes the
+/// bits of any image (sampling, intersection, shading). Workers send it when they register and
+/// the coordinator refuses workers whose version differs from its own, so that every tile of a
+/// frame comes from the same arithmetic and the frame stays bit-identical to a local render.
+/// The golden-image test (`core/tests/golden.rs`) fails when image bits change, as a reminder.
+///
+/// 2: one 4D Sobol set per bounce (2026-11-30).
+/// 3: shading frame about the normal alone, sin/cos by our own polynomials, flat triangles
+/// shaded from world-space data, small scenes' BVH built with the thorough preset (2026-11-30).
+pub const RENDER_VERSION: u32 = 3;

@@ -1,7 +1,31 @@
 //! Image textures: lookup with wrap modes, bilinear filtering and sRGB decoding.
 
-use crate::scene::desc::{TextureDesc, TextureRef, WrapMode};
 use glam::{Mat3, Vec2, Vec3, Vec4};
+use serde::{Deserialize, Serialize};
+
+/// Texture addressing outside [0, 1].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WrapMode {
+    /// Tile the image.
+    #[default]
+    Repeat,
+    /// Tile the image, mirroring every other copy.
+    MirroredRepeat,
+    /// Use the edge texel.
+    Clamp,
+}
+
+/// How a texture is looked up between and beyond its texels.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct TextureLookup {
+    /// Addressing outside [0, 1] along u.
+    pub wrap_u: WrapMode,
+    /// Addressing outside [0, 1] along v.
+    pub wrap_v: WrapMode,
+    /// Bilinear (true) or nearest (false) magnification.
+    pub bilinear: bool,
+}
 
 /// A texture ready for lookups: texels are linear (sRGB decoded once at build time).
 #[derive(Clone, Debug)]
@@ -35,14 +59,21 @@ pub fn linear_to_srgb(c: f32) -> f32 {
 }
 
 impl Texture {
-    /// Decodes a description. A texture with no texels becomes a single white texel.
-    pub fn new(desc: &TextureDesc) -> Self {
-        let expected = desc.width as usize * desc.height as usize;
-        let mut texels: Vec<Vec4> = desc
-            .texels
+    /// A `width × height` image from its RGBA texels, row by row from the top, decoding sRGB
+    /// colour (not alpha) to linear once here when `srgb`. Non-finite texels become zero; a
+    /// texel count that does not match the size gives a single white texel.
+    pub fn new(
+        width: u32,
+        height: u32,
+        texels: &[[f32; 4]],
+        srgb: bool,
+        lookup: TextureLookup,
+    ) -> Self {
+        let expected = width as usize * height as usize;
+        let mut texels: Vec<Vec4> = texels
             .iter()
             .map(|&[r, g, b, a]| {
-                let v = if desc.srgb {
+                let v = if srgb {
                     Vec4::new(srgb_to_linear(r), srgb_to_linear(g), srgb_to_linear(b), a)
                 } else {
                     Vec4::new(r, g, b, a)
@@ -54,7 +85,7 @@ impl Texture {
                 }
             })
             .collect();
-        let (mut width, mut height) = (desc.width, desc.height);
+        let (mut width, mut height) = (width, height);
         if expected == 0 || texels.len() != expected {
             texels = vec![Vec4::ONE];
             width = 1;
@@ -64,10 +95,15 @@ impl Texture {
             width,
             height,
             texels,
-            wrap_u: desc.wrap_u,
-            wrap_v: desc.wrap_v,
-            bilinear: desc.bilinear,
+            wrap_u: lookup.wrap_u,
+            wrap_v: lookup.wrap_v,
+            bilinear: lookup.bilinear,
         }
+    }
+
+    /// Bytes of texel memory, for cache budgets.
+    pub fn memory_bytes(&self) -> usize {
+        self.texels.capacity() * std::mem::size_of::<Vec4>()
     }
 
     /// Width in texels.
@@ -135,18 +171,18 @@ pub struct TexSlot {
     pub transform: Option<Mat3>,
 }
 
-impl From<&TextureRef> for TexSlot {
-    fn from(r: &TextureRef) -> Self {
-        let identity = r.transform.abs_diff_eq(Mat3::IDENTITY, 0.0);
+impl TexSlot {
+    /// Texture `texture` through coordinate set `texcoord` (0 or 1; higher sets read set 1)
+    /// and the uv transform `transform` (the identity is skipped at lookup).
+    pub fn new(texture: u32, texcoord: u8, transform: Mat3) -> Self {
+        let identity = transform.abs_diff_eq(Mat3::IDENTITY, 0.0);
         Self {
-            texture: r.texture as u32,
-            texcoord: r.texcoord.min(1),
-            transform: (!identity).then_some(r.transform),
+            texture,
+            texcoord: texcoord.min(1),
+            transform: (!identity).then_some(transform),
         }
     }
-}
 
-impl TexSlot {
     /// Looks the slot up given both uv sets.
     #[inline]
     pub fn lookup(&self, textures: &[Texture], uvs: &[Vec2; 2]) -> Vec4 {
@@ -164,16 +200,17 @@ mod tests {
     use super::*;
 
     fn tex(srgb: bool, wrap: WrapMode, bilinear: bool) -> Texture {
-        Texture::new(&TextureDesc {
-            name: "t".into(),
-            width: 2,
-            height: 1,
-            texels: vec![[0.0, 0.0, 0.0, 1.0], [0.5, 0.5, 0.5, 1.0]],
+        Texture::new(
+            2,
+            1,
+            &[[0.0, 0.0, 0.0, 1.0], [0.5, 0.5, 0.5, 1.0]],
             srgb,
-            wrap_u: wrap,
-            wrap_v: wrap,
-            bilinear,
-        })
+            TextureLookup {
+                wrap_u: wrap,
+                wrap_v: wrap,
+                bilinear,
+            },
+        )
     }
 
     #[test]

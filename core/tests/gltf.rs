@@ -1,25 +1,22 @@
 //! File-based glTF tests: the shared sample assets and the Cornell box load into the expected
-//! scene descriptions. Each test prints "skipped" and passes when the shared folder is absent.
+//! scene descriptions. Each test prints "skipped" and passes when the shared folder is absent,
+//! but fails in CI (`CI=true`), which must run them all.
+
+mod common;
 
 use glam::Vec3;
 use raytile_core::scene::desc::{
     BsdfDesc, LightDesc, PbrDesc, Projection, SceneDesc, ShapeDesc, WrapMode,
 };
 use raytile_core::scene::load_scene;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-const SAMPLES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/gltf-samples");
-const SCENES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/scenes");
+const SAMPLES: &str = "gltf-samples";
+const SCENES: &str = "scenes";
 
-/// The path of a shared file, or `None` (with a message) when it is missing.
+/// The path of a shared file (see [`common::shared`]).
 fn shared(base: &str, rel: &str) -> Option<PathBuf> {
-    let p = Path::new(base).join(rel);
-    if p.exists() {
-        Some(p)
-    } else {
-        println!("skipped: {} missing", p.display());
-        None
-    }
+    common::shared(&format!("{base}/{rel}"))
 }
 
 fn load(base: &str, rel: &str) -> Option<SceneDesc> {

@@ -1,21 +1,21 @@
 //! Render-level glTF checks: loaded scenes render as their authors meant, and every shared
-//! sample renders without a NaN.
+//! sample renders without a NaN. Tests on the shared assets skip when they are absent, but fail
+//! in CI (`CI=true`).
+
+mod common;
 
 use glam::Vec3;
 use raytile_core::scene::desc::{BsdfDesc, SceneDesc};
 use raytile_core::scene::load_scene;
-use raytile_core::{render, IntegratorKind, RenderSettings, Scene};
+use raytile_core::{render, IntegratorKind, RenderJob, RenderSettings, Scene};
 use std::path::Path;
 
-const SAMPLES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/gltf-samples");
-const SCENES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/scenes");
+const SAMPLES: &str = "gltf-samples";
+const SCENES: &str = "scenes";
 
+/// A shared asset, loaded (see [`common::shared`]).
 fn load(base: &str, rel: &str) -> Option<SceneDesc> {
-    let p = Path::new(base).join(rel);
-    if !p.exists() {
-        println!("skipped: {} missing", p.display());
-        return None;
-    }
+    let p = common::shared(&format!("{base}/{rel}"))?;
     Some(load_scene(&p).unwrap_or_else(|e| panic!("{e}")))
 }
 
@@ -29,8 +29,9 @@ fn render_desc(desc: &SceneDesc, size: u32, spp: u32, integrator: IntegratorKind
         integrator,
         ..Default::default()
     };
-    let scene = Scene::build(desc, &settings).unwrap_or_else(|e| panic!("{e}"));
-    let film = render(&scene, &settings, &());
+    let scene = Scene::build(desc).unwrap_or_else(|e| panic!("{e}"));
+    let job = RenderJob::new(&scene, &settings).unwrap_or_else(|e| panic!("{e}"));
+    let film = render(&scene, &job, &());
     let px: Vec<Vec3> = film.resolve().into_iter().map(Vec3::from).collect();
     assert_eq!(px.len(), (size * size) as usize);
     assert!(px.iter().all(|p| p.is_finite()), "non-finite pixel");
@@ -149,13 +150,11 @@ fn cornell_box_walls_have_their_colours() {
 /// infinite sample, with every integrator.
 #[test]
 fn every_sample_renders_without_nan() {
-    let root = Path::new(SAMPLES);
-    if !root.exists() {
-        println!("skipped: {} missing", root.display());
+    let Some(root) = common::shared(SAMPLES) else {
         return;
-    }
+    };
     let mut files = Vec::new();
-    for dir in std::fs::read_dir(root).unwrap() {
+    for dir in std::fs::read_dir(&root).unwrap() {
         let dir = dir.unwrap().path();
         if dir.is_dir() {
             for f in std::fs::read_dir(&dir).unwrap() {
@@ -183,9 +182,9 @@ fn every_sample_renders_without_nan() {
                 integrator,
                 ..Default::default()
             };
-            let scene =
-                Scene::build(&desc, &settings).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
-            let film = render(&scene, &settings, &());
+            let scene = Scene::build(&desc).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
+            let job = RenderJob::new(&scene, &settings).unwrap();
+            let film = render(&scene, &job, &());
             assert_eq!(film.bad_samples, 0, "{} {integrator:?}", f.display());
         }
     }
@@ -209,8 +208,9 @@ fn each_camera_renders_its_own_view() {
                 camera: Some(sel),
                 ..Default::default()
             };
-            let scene = Scene::build(&desc, &settings).unwrap_or_else(|e| panic!("{e}"));
-            render(&scene, &settings, &()).resolve()
+            let scene = Scene::build(&desc).unwrap_or_else(|e| panic!("{e}"));
+            let job = RenderJob::new(&scene, &settings).unwrap_or_else(|e| panic!("{e}"));
+            render(&scene, &job, &()).resolve()
         };
         let by_index = px(i.to_string());
         assert_eq!(
@@ -226,14 +226,38 @@ fn each_camera_renders_its_own_view() {
     );
 }
 
-/// Box has no light: the loader adds the default white environment, so the path tracer sees
-/// the box and the background; with `default_light` off (`--no-default-light`) the same
-/// scene renders black. A scene with its own light keeps it either way.
+/// A glTF file with one triangle facing +Z and nothing else (no light, no camera), written
+/// here: its buffer travels as a percent-encoded data URI.
+fn unlit_triangle_gltf() -> Vec<u8> {
+    let positions: [f32; 9] = [-1.0, -1.0, 0.0, 1.0, -1.0, 0.0, 0.0, 1.0, 0.0];
+    let bytes: Vec<u8> = positions.iter().flat_map(|v| v.to_le_bytes()).collect();
+    let uri: String = bytes.iter().map(|b| format!("%{b:02X}")).collect();
+    format!(
+        r#"{{"asset": {{"version": "2.0"}}, "scene": 0, "scenes": [{{"nodes": [0]}}],
+        "nodes": [{{"mesh": 0}}],
+        "meshes": [{{"primitives": [{{"attributes": {{"POSITION": 0}}}}]}}],
+        "buffers": [{{"byteLength": 36, "uri": "data:application/octet-stream,{uri}"}}],
+        "bufferViews": [{{"buffer": 0, "byteLength": 36}}],
+        "accessors": [{{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+            "min": [-1, -1, 0], "max": [1, 1, 0]}}]}}"#
+    )
+    .into_bytes()
+}
+
+/// A glTF file without light gets the default white environment from its loader, so the path
+/// tracer sees the triangle and the background; with `default_light` off
+/// (`--no-default-light`) the same scene renders black. A scene with its own light keeps it
+/// either way.
 #[test]
 fn default_light_can_be_turned_off() {
-    let Some(desc) = load(SAMPLES, "Box/Box.glb") else {
-        return;
-    };
+    use raytile_core::scene::gltf::{load_gltf_slice, GltfOptions};
+    let desc = load_gltf_slice(
+        &unlit_triangle_gltf(),
+        None,
+        "triangle.gltf",
+        &GltfOptions::default(),
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
     assert!(desc.default_environment);
     let sum = |default_light: bool, desc: &SceneDesc| {
         let settings = RenderSettings {
@@ -243,8 +267,9 @@ fn default_light_can_be_turned_off() {
             default_light,
             ..Default::default()
         };
-        let scene = Scene::build(desc, &settings).unwrap();
-        let film = render(&scene, &settings, &());
+        let scene = Scene::build(desc).unwrap();
+        let job = RenderJob::new(&scene, &settings).unwrap();
+        let film = render(&scene, &job, &());
         film.resolve()
             .into_iter()
             .map(|p| Vec3::from(p).element_sum())
@@ -252,8 +277,23 @@ fn default_light_can_be_turned_off() {
     };
     assert!(sum(true, &desc) > 0.0);
     assert_eq!(sum(false, &desc), 0.0);
-    if let Some(cornell) = load(SCENES, "cornell-box.gltf") {
-        assert!(!cornell.default_environment);
-        assert!(sum(false, &cornell) > 0.0);
+    // The same built scene serves both jobs: the default light is the job's choice.
+    let scene = Scene::build(&desc).unwrap();
+    for (default_light, lit) in [(true, true), (false, false), (true, true)] {
+        let settings = RenderSettings {
+            width: 8,
+            height: 8,
+            spp: 1,
+            default_light,
+            ..Default::default()
+        };
+        let job = RenderJob::new(&scene, &settings).unwrap();
+        assert_eq!(job.environment().is_some(), lit);
+        let mean = render(&scene, &job, &()).mean();
+        assert_eq!(mean[0] > 0.0, lit, "default_light {default_light}");
     }
+    let cornell = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-box.json");
+    let cornell = load_scene(&cornell).unwrap_or_else(|e| panic!("{e}"));
+    assert!(!cornell.default_environment);
+    assert!(sum(false, &cornell) > 0.0);
 }

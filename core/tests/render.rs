@@ -8,7 +8,7 @@ use raytile_core::film::{encode, ImageFormat, OutputOptions};
 use raytile_core::geometry::Ray;
 use raytile_core::scene::desc::*;
 use raytile_core::settings::FilterKind;
-use raytile_core::{render, IntegratorKind, RenderSettings, Scene};
+use raytile_core::{render, IntegratorKind, RenderJob, RenderSettings, Scene};
 use std::path::Path;
 
 fn repo(p: &str) -> std::path::PathBuf {
@@ -60,8 +60,9 @@ fn check_furnace(desc: &SceneDesc, integrator: IntegratorKind, spp: u32, expecte
         integrator,
         ..Default::default()
     };
-    let scene = Scene::build(desc, &settings).unwrap();
-    let film = render(&scene, &settings, &());
+    let scene = Scene::build(desc).unwrap();
+    let job = RenderJob::new(&scene, &settings).unwrap();
+    let film = render(&scene, &job, &());
     assert_eq!(film.bad_samples, 0);
     let px = film.resolve();
     let mean: f64 = px.iter().flatten().map(|&v| v as f64).sum::<f64>() / (px.len() * 3) as f64;
@@ -139,44 +140,95 @@ fn debug_integrators_give_known_values() {
         albedo: Vec3::new(0.2, 0.4, 0.6),
         texture: None,
     });
-    let settings = RenderSettings {
-        width: 16,
-        height: 16,
-        spp: 4,
-        integrator: IntegratorKind::Albedo,
-        ..Default::default()
+    let scene = Scene::build(&desc).unwrap();
+    let image = |integrator| {
+        let settings = RenderSettings {
+            width: 16,
+            height: 16,
+            spp: 4,
+            integrator,
+            ..Default::default()
+        };
+        let job = RenderJob::new(&scene, &settings).unwrap();
+        render(&scene, &job, &()).resolve()
     };
-    let scene = Scene::build(&desc, &settings).unwrap();
-    let px = render(&scene, &settings, &()).resolve();
+    let centre = 8 * 16 + 8;
     // The centre pixel sees the sphere: its albedo.
-    let c = px[8 * 16 + 8];
+    let c = image(IntegratorKind::Albedo)[centre];
     assert!(
         (c[0] - 0.2).abs() < 1e-5 && (c[2] - 0.6).abs() < 1e-5,
         "{c:?}"
     );
-    let settings = RenderSettings {
-        integrator: IntegratorKind::Depth,
-        ..settings
-    };
-    let scene = Scene::build(&desc, &settings).unwrap();
-    let px = render(&scene, &settings, &()).resolve();
+    // The camera is 1.5 from the centre of a unit sphere: the nearest point is 0.5 away.
+    let d = image(IntegratorKind::Depth)[centre];
+    assert!((d[0] - 0.5).abs() < 0.02, "depth {d:?}");
+    // Normals: the sphere faces the camera (+Z, mapped to 1) at the centre, and turns left and
+    // right (x below and above 0.5) towards the edges; up is +Y at the top rows.
+    let n = image(IntegratorKind::Normals);
     assert!(
-        (px[8 * 16 + 8][0] - 0.5).abs() < 0.02,
-        "depth {:?}",
-        px[8 * 16 + 8]
+        (n[centre][0] - 0.5).abs() < 0.05 && (n[centre][1] - 0.5).abs() < 0.05,
+        "centre normal {:?}",
+        n[centre]
     );
-    for k in [IntegratorKind::Normals, IntegratorKind::Ao] {
-        let settings = RenderSettings {
-            integrator: k,
-            ..settings.clone()
-        };
-        let scene = Scene::build(&desc, &settings).unwrap();
-        let px = render(&scene, &settings, &()).resolve();
-        assert!(
-            px.iter().flatten().all(|v| (0.0..=1.0).contains(v)),
-            "{k:?}"
-        );
-    }
+    assert!(n[centre][2] > 0.95, "centre normal {:?}", n[centre]);
+    // (The sphere fills the view: at the image's edge the normal is about 0.18 off the axis.)
+    let (left, right, top) = (n[8 * 16 + 1], n[8 * 16 + 14], n[16 + 8]);
+    assert!(left[0] < 0.45 && right[0] > 0.55, "{left:?} {right:?}");
+    assert!(
+        (left[0] + right[0] - 1.0).abs() < 0.02,
+        "{left:?} {right:?}"
+    );
+    assert!(top[1] > 0.55, "{top:?}");
+    // Ambient occlusion: nothing but the sphere, which is convex, so no occlusion ray from its
+    // surface can hit anything: exactly 1 everywhere (a self-hit would show as 0).
+    let ao = image(IntegratorKind::Ao);
+    assert!(
+        ao.iter().flatten().all(|&v| v == 1.0),
+        "occlusion on a lone convex sphere: {:?}",
+        ao.iter().flatten().fold(f32::INFINITY, |a, &b| a.min(b))
+    );
+}
+
+#[test]
+fn ambient_occlusion_darkens_a_corner() {
+    // A sphere resting on a floor: the floor next to the contact point is occluded by the
+    // sphere, the floor far away is not.
+    let mut desc = furnace(BsdfDesc::Diffuse {
+        albedo: Vec3::ONE,
+        texture: None,
+    });
+    desc.objects.push(ObjectDesc {
+        name: "floor".into(),
+        shape: ShapeDesc::Plane {
+            point: Vec3::new(0.0, -1.0, 0.0),
+            normal: Vec3::Y,
+        },
+        material: 0,
+        transform: Mat4::IDENTITY,
+    });
+    // Looking straight down at the floor from above, the sphere in the middle.
+    desc.cameras = vec![CameraDesc {
+        name: "top".into(),
+        transform: Mat4::from_translation(Vec3::new(0.0, 4.0, 0.0))
+            * Mat4::from_rotation_x(-std::f32::consts::FRAC_PI_2),
+        projection: Projection::Orthographic { half_height: 2.0 },
+        aspect: None,
+    }];
+    let settings = RenderSettings {
+        width: 32,
+        height: 32,
+        spp: 64,
+        integrator: IntegratorKind::Ao,
+        ..Default::default()
+    };
+    let scene = Scene::build(&desc).unwrap();
+    let job = RenderJob::new(&scene, &settings).unwrap();
+    let px = render(&scene, &job, &()).resolve();
+    // Pixel columns 0..32 span x ∈ [−2, 2]: column 24 is x ≈ 1.06, just outside the sphere's
+    // outline, where the floor sees the sphere over much of its sky; column 31 is x ≈ 1.94.
+    let near = px[16 * 32 + 24][0];
+    let far = px[16 * 32 + 31][0];
+    assert!(near < 0.9 && near < far, "near {near}, far {far}");
 }
 
 fn cornell() -> Option<SceneDesc> {
@@ -190,9 +242,10 @@ fn exr(desc: &SceneDesc, settings: &RenderSettings, threads: usize) -> Vec<u8> {
         .build()
         .unwrap();
     pool.install(|| {
-        let scene = Scene::build(desc, settings).unwrap();
+        let scene = Scene::build(desc).unwrap();
+        let job = RenderJob::new(&scene, settings).unwrap();
         encode(
-            &render(&scene, settings, &()),
+            &render(&scene, &job, &()),
             ImageFormat::Exr,
             &OutputOptions::default(),
         )
@@ -298,8 +351,7 @@ fn bvh_agrees_with_brute_force_on_whole_scenes() {
         material: 0,
         transform: Mat4::from_rotation_y(0.7),
     });
-    let settings = RenderSettings::default();
-    let scene = Scene::build(&desc, &settings).unwrap();
+    let scene = Scene::build(&desc).unwrap();
     assert!(scene.stats.instanced_triangles > 0);
     let rnd = |i: u32| (raytile_core::sampling::hash_u32(i) >> 8) as f32 / (1 << 24) as f32;
     let mut hits = 0;
@@ -354,8 +406,9 @@ fn cornell_box_is_lit_and_finite() {
         max_depth: 64,
         ..Default::default()
     };
-    let scene = Scene::build(&desc, &settings).unwrap();
-    let film = render(&scene, &settings, &());
+    let scene = Scene::build(&desc).unwrap();
+    let job = RenderJob::new(&scene, &settings).unwrap();
+    let film = render(&scene, &job, &());
     assert_eq!(film.bad_samples, 0);
     let m = film.mean();
     // Red wall on the left, green on the right: colour bleeding shows in the channel means.
@@ -380,9 +433,9 @@ fn every_example_scene_loads_and_renders() {
                 integrator,
                 ..Default::default()
             };
-            let scene = Scene::build(&desc, &settings)
-                .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-            let film = render(&scene, &settings, &());
+            let scene = Scene::build(&desc).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            let job = RenderJob::new(&scene, &settings).unwrap();
+            let film = render(&scene, &job, &());
             assert_eq!(film.bad_samples, 0, "{} {integrator:?}", path.display());
         }
         n += 1;
@@ -392,13 +445,12 @@ fn every_example_scene_loads_and_renders() {
 
 #[test]
 fn bad_scenes_are_errors_not_panics() {
-    let settings = RenderSettings::default();
     let mut desc = furnace(BsdfDesc::Diffuse {
         albedo: Vec3::ONE,
         texture: None,
     });
     desc.objects[0].material = 5;
-    assert!(Scene::build(&desc, &settings)
+    assert!(Scene::build(&desc)
         .unwrap_err()
         .to_string()
         .contains("material index 5"));
@@ -410,13 +462,13 @@ fn bad_scenes_are_errors_not_panics() {
         center: Vec3::NAN,
         radius: 1.0,
     };
-    assert!(Scene::build(&desc, &settings).is_err());
+    assert!(Scene::build(&desc).is_err());
     let mut desc = furnace(BsdfDesc::Diffuse {
         albedo: Vec3::ONE,
         texture: None,
     });
     desc.objects[0].transform = Mat4::ZERO;
-    assert!(Scene::build(&desc, &settings)
+    assert!(Scene::build(&desc)
         .unwrap_err()
         .to_string()
         .contains("singular"));
@@ -431,19 +483,21 @@ fn bad_scenes_are_errors_not_panics() {
         ..Default::default()
     });
     desc.objects[0].shape = ShapeDesc::Mesh { mesh: 0 };
-    assert!(Scene::build(&desc, &settings)
+    assert!(Scene::build(&desc)
         .unwrap_err()
         .to_string()
         .contains("out of range"));
+    // What is wrong with the job, not the scene, is the job's error.
     let desc = furnace(BsdfDesc::Diffuse {
         albedo: Vec3::ONE,
         texture: None,
     });
+    let scene = Scene::build(&desc).unwrap();
     let s = RenderSettings {
         camera: Some("nope".into()),
         ..Default::default()
     };
-    assert!(Scene::build(&desc, &s)
+    assert!(RenderJob::new(&scene, &s)
         .unwrap_err()
         .to_string()
         .contains("nope"));
@@ -451,5 +505,8 @@ fn bad_scenes_are_errors_not_panics() {
         spp: 0,
         ..Default::default()
     };
-    assert!(Scene::build(&desc, &s).is_err());
+    assert!(RenderJob::new(&scene, &s)
+        .unwrap_err()
+        .to_string()
+        .contains("spp"));
 }

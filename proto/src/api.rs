@@ -212,15 +212,6 @@ pub struct JobList {
     pub jobs: Vec<JobStatus>,
 }
 
-/// Version of the renderer's output: raised whenever a change to the tracer changes the bits
-/// of any image (sampling, intersection, shading). Workers send it when they register and the
-/// coordinator refuses workers whose version differs from its own, so that every tile of a
-/// frame comes from the same arithmetic and the frame stays bit-identical to a local render.
-/// 2: one 4D Sobol set per bounce (2026-11-30).
-/// 3: shading frame about the normal alone, sin/cos by our own polynomials, flat triangles
-/// shaded from world-space data, small scenes' BVH built with the thorough preset (2026-11-30).
-pub const RENDER_VERSION: u32 = 3;
-
 /// Body of `POST /v1/workers`.
 #[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
 pub struct RegisterRequest {
@@ -228,7 +219,9 @@ pub struct RegisterRequest {
     pub name: String,
     /// Render threads.
     pub threads: u32,
-    /// The worker's [`RENDER_VERSION`] (missing: 0, a worker older than the check).
+    /// The version of the worker's renderer arithmetic (`raytile_core::RENDER_VERSION`;
+    /// missing: 0, a worker older than the check). The coordinator takes workers of its own
+    /// version only.
     #[serde(default)]
     pub render_version: u32,
 }

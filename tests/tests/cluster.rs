@@ -94,7 +94,20 @@ mod support {
     impl Worker {
         /// Starts a worker for `base` with `threads` threads.
         pub fn start(base: &str, threads: usize, cache: &std::path::Path, name: &str) -> Worker {
+            Self::start_with(base, threads, cache, name, Default::default())
+        }
+
+        /// Starts a worker that keeps built scenes in `scenes` (shared, as `raytile cluster`
+        /// shares one among its workers).
+        pub fn start_with(
+            base: &str,
+            threads: usize,
+            cache: &std::path::Path,
+            name: &str,
+            scenes: Arc<raytile_worker::SceneCache>,
+        ) -> Worker {
             let mut c = raytile_worker::Config::new(base);
+            c.scene_cache = scenes;
             c.threads = threads;
             c.name = name.into();
             c.cache_dir = cache.join(name);
@@ -229,8 +242,9 @@ mod support {
     /// The EXR of the same job rendered locally.
     pub fn local_exr(scene: &std::path::Path, s: &RenderSettings) -> Vec<u8> {
         let desc = raytile_core::load_scene(scene).unwrap();
-        let built = raytile_core::Scene::build(&desc, s).unwrap();
-        let film = raytile_core::render(&built, s, &());
+        let built = raytile_core::Scene::build(&desc).unwrap();
+        let job = raytile_core::RenderJob::new(&built, s).unwrap();
+        let film = raytile_core::render(&built, &job, &());
         raytile_coordinator::compose::encode(&film, ImageFormat::Exr).unwrap()
     }
 
@@ -275,7 +289,7 @@ mod support {
                 .json(&proto::RegisterRequest {
                     name: name.into(),
                     threads: 1,
-                    render_version: proto::RENDER_VERSION,
+                    render_version: raytile_core::RENDER_VERSION,
                 })
                 .send()
                 .await
@@ -889,7 +903,7 @@ mod api {
         let dir = tempfile::tempdir().unwrap();
         let c = Coord::start(test_config(dir.path()), 0).await;
         let http = reqwest::Client::new();
-        for version in [None, Some(proto::RENDER_VERSION + 1)] {
+        for version in [None, Some(raytile_core::RENDER_VERSION + 1)] {
             let mut body = serde_json::json!({"name": "stale", "threads": 1});
             if let Some(v) = version {
                 body["render_version"] = v.into();
@@ -1053,5 +1067,52 @@ mod store_faults {
         }
         c.stop().await;
         drop(fs);
+    }
+}
+
+/// Built scenes are kept between jobs: a second job on a scene does not build it again.
+/// (Needs the core.)
+mod scene_cache {
+    use super::*;
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_second_job_on_a_scene_reuses_the_built_scene() {
+        let scene = PathBuf::from(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../scenes/cornell-box.json"
+        ));
+        let dir = tempfile::tempdir().unwrap();
+        let c = Coord::start(test_config(&dir.path().join("data")), 0).await;
+        // Two workers sharing one cache, as `raytile cluster` runs them.
+        let scenes = Arc::new(raytile_worker::SceneCache::default());
+        let ws: Vec<Worker> = (0..2)
+            .map(|i| Worker::start_with(&c.base, 1, dir.path(), &format!("w{i}"), scenes.clone()))
+            .collect();
+        let id = upload(&c.base, std::fs::read(&scene).unwrap()).await;
+        let builds = || -> u64 {
+            ws.iter()
+                .map(|w| w.stats.scene_builds.load(Ordering::Relaxed))
+                .sum()
+        };
+        for (n, seed) in [(1, 1), (2, 2)] {
+            let mut req = job(&id, 32);
+            req.overrides.seed = Some(seed);
+            req.overrides.spp = Some(2);
+            let j = submit(&c.base, &req).await;
+            let done = wait_for(&c.base, &j.id, 120, |s| s.state.is_final()).await;
+            assert_eq!(done.state, JobState::Done, "job {n}: {:?}", done.error);
+            assert_eq!(
+                image(&c.base, &j.id, "exr").await,
+                local_exr(&scene, &done.settings),
+                "job {n}"
+            );
+            assert_eq!(builds(), 1, "after job {n}: the scene is built once");
+        }
+        assert_eq!(scenes.builds(), 1);
+        assert!(scenes.memory_bytes() > 0);
+        for w in ws {
+            w.stop().await;
+        }
+        c.stop().await;
     }
 }

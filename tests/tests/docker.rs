@@ -351,8 +351,9 @@ fn local_exr(scene: &Path, s: &RenderSettings) -> Vec<u8> {
         return v.clone();
     }
     let desc = raytile_core::load_scene(scene).unwrap();
-    let built = raytile_core::Scene::build(&desc, s).unwrap();
-    let film = raytile_core::render(&built, s, &());
+    let built = raytile_core::Scene::build(&desc).unwrap();
+    let job = raytile_core::RenderJob::new(&built, s).unwrap();
+    let film = raytile_core::render(&built, &job, &());
     let exr = raytile_coordinator::compose::encode(&film, ImageFormat::Exr).unwrap();
     cache.push((key, exr.clone()));
     exr

@@ -2,11 +2,18 @@
 //! with the core on its own rayon pool (inside `spawn_blocking`, never on the async threads),
 //! heartbeats while rendering, and uploads the binary result.
 //!
+//! Built scenes are kept between jobs in a [`SceneCache`] (by scene id, bounded in bytes), so a
+//! second job on a scene starts rendering at once.
+//!
 //! [`run`] takes a shutdown future, so tests run workers in-process; dropping or aborting the
 //! task that runs it is how tests "kill" a worker.
 
+mod cache;
+
+pub use cache::{SceneCache, DEFAULT_BUDGET as DEFAULT_SCENE_CACHE};
+
 use anyhow::{anyhow, Context};
-use raytile_core::{RenderSettings, Scene, TileAccum};
+use raytile_core::{RenderJob, Scene, TileAccum};
 use raytile_proto::client::{Client, ClientError, StatusCode};
 use raytile_proto::{self as proto, scene as pkg};
 use std::collections::{HashMap, HashSet};
@@ -27,6 +34,8 @@ pub struct Stats {
     pub duplicates: AtomicU64,
     /// Failures reported.
     pub failures: AtomicU64,
+    /// Scenes this worker loaded and built (a scene already in the cache is not built again).
+    pub scene_builds: AtomicU64,
 }
 
 /// How a worker runs.
@@ -42,6 +51,8 @@ pub struct Config {
     pub name: String,
     /// Where downloaded scenes are kept, by id.
     pub cache_dir: PathBuf,
+    /// Built scenes kept between jobs; workers in one process may share one.
+    pub scene_cache: Arc<SceneCache>,
     /// How long one lease request waits for work.
     pub long_poll: Duration,
     /// Longest pause between retries when the coordinator is unreachable.
@@ -59,6 +70,7 @@ impl Config {
             threads: 0,
             name: default_name(),
             cache_dir: std::env::temp_dir().join("raytile-worker-cache"),
+            scene_cache: Arc::new(SceneCache::default()),
             long_poll: Duration::from_secs(20),
             max_backoff: Duration::from_secs(30),
             stats: Arc::new(Stats::default()),
@@ -148,7 +160,7 @@ pub async fn run(config: Config, shutdown: impl Future<Output = ()> + Send) -> a
         threads,
         worker_id: None,
         heartbeat: Duration::from_secs(5),
-        scenes: HashMap::new(),
+        jobs: HashMap::new(),
         verified: HashSet::new(),
         backoff: Backoff::new(Duration::from_secs(30)),
         uploads: tokio::task::JoinSet::new(),
@@ -190,8 +202,8 @@ struct Worker {
     threads: usize,
     worker_id: Option<String>,
     heartbeat: Duration,
-    /// Built scenes by job id (the build depends on the job's camera and aspect).
-    scenes: HashMap<String, Arc<Scene>>,
+    /// What each recent job adds to its scene (camera, lights), by job id.
+    jobs: HashMap<String, Arc<RenderJob>>,
     verified: HashSet<String>,
     backoff: Backoff,
     /// The result being uploaded while the next task renders (at most one). Dropping the
@@ -222,7 +234,7 @@ impl Worker {
             let body = proto::RegisterRequest {
                 name: self.cfg.name.clone(),
                 threads: self.threads as u32,
-                render_version: proto::RENDER_VERSION,
+                render_version: raytile_core::RENDER_VERSION,
             };
             match self.client.register(&body).await {
                 Ok(reg) => {
@@ -351,22 +363,31 @@ impl Worker {
         Ok(entry)
     }
 
+    /// The built scene of `lease`: from the scene cache, or downloaded and built on the
+    /// render pool (off the async threads).
     async fn scene(&mut self, lease: &proto::Lease) -> Result<Arc<Scene>, anyhow::Error> {
-        if let Some(s) = self.scenes.get(&lease.job) {
-            return Ok(s.clone());
-        }
-        let file = self.scene_file(lease).await?;
-        let settings = lease.settings.clone();
-        let scene = tokio::task::spawn_blocking(move || load_and_build(&file, &settings))
+        // The entry matters too: one archive may hold several scenes.
+        let key = format!("{}/{}", lease.scene, lease.scene_entry);
+        let cache = self.cfg.scene_cache.clone();
+        cache
+            .get_or_build(&key, || async {
+                let file = self.scene_file(lease).await?;
+                let pool = self.pool.clone();
+                let t = std::time::Instant::now();
+                let scene =
+                    tokio::task::spawn_blocking(move || pool.install(|| load_and_build(&file)))
+                        .await
+                        .map_err(|e| anyhow!("scene build task: {e}"))??;
+                self.cfg.stats.scene_builds.fetch_add(1, Ordering::Relaxed);
+                tracing::info!(
+                    scene = %lease.scene,
+                    secs = t.elapsed().as_secs_f64(),
+                    mib = scene.memory_bytes() >> 20,
+                    "scene built"
+                );
+                Ok(scene)
+            })
             .await
-            .map_err(|e| anyhow!("scene build task: {e}"))??;
-        let scene = Arc::new(scene);
-        // Keep a few jobs' scenes: jobs interleave by priority.
-        if self.scenes.len() >= 4 {
-            self.scenes.clear();
-        }
-        self.scenes.insert(lease.job.clone(), scene.clone());
-        Ok(scene)
     }
 
     async fn process(
@@ -397,15 +418,24 @@ impl Worker {
             lease.tile,
             lease.sample_start..lease.sample_end,
         );
+        let job = self.jobs.get(&lease.job).cloned();
         let mut render = tokio::task::spawn_blocking(move || {
             pool.install(|| {
                 std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                    raytile_core::render_tile(&scene, &settings, tile, samples)
+                    let job = match job {
+                        Some(j) => j,
+                        None => Arc::new(
+                            RenderJob::new(&scene, &settings).map_err(|e| format!("job: {e}"))?,
+                        ),
+                    };
+                    let accum = raytile_core::render_tile(&scene, &job, tile, samples);
+                    Ok::<_, String>((accum, job))
                 }))
             })
-            .map_err(panic_message)
+            .map_err(|p| format!("render panicked: {}", panic_message(p)))
+            .and_then(|r| r)
         });
-        let accum: TileAccum = loop {
+        let (accum, job): (TileAccum, Arc<RenderJob>) = loop {
             tokio::select! {
                 biased;
                 _ = &mut *shutdown => {
@@ -417,7 +447,7 @@ impl Worker {
                 r = &mut render => match r {
                     Ok(Ok(acc)) => break acc,
                     Ok(Err(msg)) => {
-                        self.report_failure(&lease, format!("render panicked: {msg}")).await;
+                        self.report_failure(&lease, msg).await;
                         return Flow::Continue;
                     }
                     Err(e) => {
@@ -440,6 +470,13 @@ impl Worker {
             }
         };
         self.cfg.stats.renders.fetch_add(1, Ordering::Relaxed);
+        // Keep a few jobs' camera and light selection: jobs interleave by priority.
+        if !self.jobs.contains_key(&lease.job) {
+            if self.jobs.len() >= 8 {
+                self.jobs.clear();
+            }
+            self.jobs.insert(lease.job.clone(), job);
+        }
         let bytes = proto::tile::encode(&accum, lease.pass);
         let target = ResultTarget {
             job: lease.job.clone(),
@@ -541,12 +578,11 @@ struct ResultTarget {
 }
 
 /// Loads and builds a scene, turning panics into errors.
-fn load_and_build(file: &Path, settings: &RenderSettings) -> anyhow::Result<Scene> {
+fn load_and_build(file: &Path) -> anyhow::Result<Scene> {
     let f = file.to_path_buf();
-    let s = settings.clone();
     match std::panic::catch_unwind(move || -> Result<Scene, raytile_core::SceneError> {
         let desc = raytile_core::load_scene(&f)?;
-        Scene::build(&desc, &s)
+        Scene::build(&desc)
     }) {
         Ok(Ok(scene)) => Ok(scene),
         Ok(Err(e)) => Err(anyhow!("scene: {e}")),

@@ -22,6 +22,11 @@ struct Args {
     /// Scene cache folder.
     #[arg(long, env = "RAYTILE_CACHE_DIR")]
     cache_dir: Option<PathBuf>,
+    /// Memory for built scenes kept between jobs, in MiB: a second job on a scene starts at
+    /// once. Beyond it, the least recently used scenes are dropped (the scene in use is kept,
+    /// however large).
+    #[arg(long, env = "RAYTILE_SCENE_CACHE_MB", default_value_t = (raytile_worker::DEFAULT_SCENE_CACHE >> 20) as u64)]
+    scene_cache_mb: u64,
 }
 
 #[tokio::main]
@@ -42,6 +47,8 @@ async fn main() {
     if let Some(d) = a.cache_dir {
         cfg.cache_dir = d;
     }
+    let budget = usize::try_from(a.scene_cache_mb.saturating_mul(1 << 20)).unwrap_or(usize::MAX);
+    cfg.scene_cache = std::sync::Arc::new(raytile_worker::SceneCache::new(budget));
     if let Err(e) = raytile_worker::run(cfg, raytile_proto::shutdown_signal()).await {
         eprintln!("raytile-worker: {e:#}");
         std::process::exit(1);

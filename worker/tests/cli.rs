@@ -17,6 +17,7 @@ fn help_lists_the_flags() {
         "--threads",
         "--name",
         "--cache-dir",
+        "--scene-cache-mb",
     ] {
         assert!(text.contains(flag), "{flag} missing from:\n{text}");
     }

@@ -1,4 +1,4 @@
-//! Rays, bounds and shapes.
+//! Rays, bounds, hit records and shapes.
 //!
 //! Analytic shapes live in their own object space; a [`crate::scene::Scene`] object carries the
 //! transform, and the ray is transformed into object space before the shape sees it. So a shape's
@@ -6,6 +6,7 @@
 //! that direction (the same `t` as in world space).
 
 pub mod aabox;
+pub mod interaction;
 pub mod plane;
 pub mod polygon;
 pub mod quadric;
@@ -15,6 +16,7 @@ pub mod sphere;
 mod testutil;
 pub mod triangle;
 
+pub use interaction::{Hit, Interaction};
 pub use ray::{offset_ray_origin, Ray};
 
 use glam::{Vec2, Vec3A};

@@ -52,6 +52,15 @@ pub struct Polygon {
 }
 
 impl Polygon {
+    /// Bytes held by the vertex, projection and triangulation tables.
+    pub fn memory_bytes(&self) -> usize {
+        use std::mem::size_of;
+        (self.vertices.capacity() + self.lifted.capacity()) * size_of::<Vec3A>()
+            + self.flat.capacity() * size_of::<Vec2>()
+            + self.triangles.capacity() * size_of::<[u32; 3]>()
+            + self.cdf.capacity() * size_of::<f32>()
+    }
+
     /// Checks the vertices and precomputes the plane, the projection and a triangulation.
     ///
     /// Errors: fewer than three vertices, a non-finite vertex, (nearly) zero area, a vertex

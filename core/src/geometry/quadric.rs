@@ -65,6 +65,10 @@ impl Quadric {
         })
     }
 
+    // The named quadrics below are what the JSON format's shapes of the same names mean. Their
+    // clip boxes reach 0.1 % beyond the surface (the clip test's slack alone would do; the
+    // margin is kept because images rendered with it must keep their bits).
+
     /// The ellipsoid x²/a² + y²/b² + z²/c² − 1 = 0 with radii (a, b, c), clipped to its bounds.
     pub fn ellipsoid(radii: Vec3A) -> Result<Self, String> {
         if !(radii.cmpgt(Vec3A::ZERO).all() && radii.is_finite()) {
@@ -72,21 +76,23 @@ impl Quadric {
                 "ellipsoid radii must be positive and finite, got {radii}"
             ));
         }
-        let inv2 = (radii * radii).recip();
-        let q = Mat4::from_diagonal(Vec4::new(inv2.x, inv2.y, inv2.z, -1.0));
-        Self::new(q, -radii, radii)
+        let inv = Vec3A::ONE / (radii * radii);
+        let q = Mat4::from_diagonal(Vec4::new(inv.x, inv.y, inv.z, -1.0));
+        Self::new(q, -radii * 1.001, radii * 1.001)
     }
 
-    /// The cylinder x² + z² − r² = 0 about the Y axis, for y ∈ [y_min, y_max] (open: no caps).
+    /// The cylinder x²/r² + z²/r² − 1 = 0 about the Y axis, for y ∈ [y_min, y_max] (open: no
+    /// caps).
     pub fn cylinder(radius: f32, y_min: f32, y_max: f32) -> Result<Self, String> {
         if !(radius > 0.0 && radius.is_finite()) {
             return Err(format!(
                 "cylinder radius must be positive and finite, got {radius}"
             ));
         }
-        let q = Mat4::from_diagonal(Vec4::new(1.0, 0.0, 1.0, -radius * radius));
-        let r = radius;
-        Self::new(q, Vec3A::new(-r, y_min, -r), Vec3A::new(r, y_max, r))
+        let r2 = radius * radius;
+        let m = radius * 1.001;
+        let q = Mat4::from_diagonal(Vec4::new(1.0 / r2, 0.0, 1.0 / r2, -1.0));
+        Self::new(q, Vec3A::new(-m, y_min, -m), Vec3A::new(m, y_max, m))
     }
 
     /// The double cone x² + z² − (s·y)² = 0 with apex at the origin, axis Y and slope
@@ -99,8 +105,8 @@ impl Quadric {
             ));
         }
         let q = Mat4::from_diagonal(Vec4::new(1.0, -slope * slope, 1.0, 0.0));
-        let r = slope * y_min.abs().max(y_max.abs());
-        Self::new(q, Vec3A::new(-r, y_min, -r), Vec3A::new(r, y_max, r))
+        let m = slope * y_min.abs().max(y_max.abs()) * 1.001;
+        Self::new(q, Vec3A::new(-m, y_min, -m), Vec3A::new(m, y_max, m))
     }
 
     /// The paraboloid y = k·(x² + z²), i.e. k·x² + k·z² − y = 0, opening towards +Y for k > 0,
@@ -115,8 +121,8 @@ impl Quadric {
         // −y = 2·Q[y][w]·y.
         q.y_axis.w = -0.5;
         q.w_axis.y = -0.5;
-        let r = (height / k).sqrt();
-        Self::new(q, Vec3A::new(-r, 0.0, -r), Vec3A::new(r, height, r))
+        let m = (height / k).sqrt() * 1.001;
+        Self::new(q, Vec3A::new(-m, -1e-3, -m), Vec3A::new(m, height, m))
     }
 
     /// The hyperboloid of one sheet x²/a² + z²/a² − y²/c² − 1 = 0 about the Y axis (waist radius
@@ -127,11 +133,25 @@ impl Quadric {
                 "hyperboloid needs a > 0 and c > 0, got a = {a}, c = {c}"
             ));
         }
-        let (ia, ic) = (1.0 / (a * a), 1.0 / (c * c));
-        let q = Mat4::from_diagonal(Vec4::new(ia, -ic, ia, -1.0));
+        let q = Mat4::from_diagonal(Vec4::new(
+            1.0 / (a * a),
+            -1.0 / (c * c),
+            1.0 / (a * a),
+            -1.0,
+        ));
         let y = y_min.abs().max(y_max.abs());
-        let r = a * (1.0 + y * y * ic).sqrt();
-        Self::new(q, Vec3A::new(-r, y_min, -r), Vec3A::new(r, y_max, r))
+        let m = a * (1.0 + y * y / (c * c)).sqrt() * 1.001;
+        Self::new(q, Vec3A::new(-m, y_min, -m), Vec3A::new(m, y_max, m))
+    }
+
+    /// The clip box's minimum corner.
+    pub fn clip_min(&self) -> Vec3A {
+        self.clip_min
+    }
+
+    /// The clip box's maximum corner.
+    pub fn clip_max(&self) -> Vec3A {
+        self.clip_max
     }
 
     /// The symmetric matrix Q.
@@ -433,7 +453,8 @@ mod tests {
         );
         assert!(cyl.area().is_nan());
         assert_eq!(cyl.sample(Vec2::splat(0.5)), None);
-        assert_eq!(cyl.bounds().unwrap().min, Vec3A::new(-0.5, -1.0, -0.5));
+        let m = 0.5 * 1.001;
+        assert_eq!(cyl.bounds().unwrap().min, Vec3A::new(-m, -1.0, -m));
     }
 
     #[test]

@@ -20,6 +20,22 @@ pub struct Mesh {
 }
 
 impl Mesh {
+    /// Texture coordinates (sets 0 and 1) at barycentrics (b1, b2) of triangle `tri`; a set
+    /// the mesh lacks gives (b1, b2) themselves.
+    #[inline]
+    pub fn uvs_at(&self, tri: u32, b1: f32, b2: f32) -> [Vec2; 2] {
+        let [a, b, c] = self.indices[tri as usize];
+        let b0 = 1.0 - b1 - b2;
+        let get = |set: &Vec<Vec2>| {
+            if set.is_empty() {
+                Vec2::new(b1, b2)
+            } else {
+                set[a as usize] * b0 + set[b as usize] * b1 + set[c as usize] * b2
+            }
+        };
+        [get(&self.uvs[0]), get(&self.uvs[1])]
+    }
+
     /// The three corners of triangle `i`.
     #[inline]
     pub fn corners(&self, i: usize) -> [Vec3A; 3] {

@@ -1,21 +1,23 @@
 //! Debug and auxiliary outputs: shading normals, albedo, depth and ambient occlusion.
 //! Fast previews, and the buffers a denoiser needs.
 
-use super::spawn_ray;
 use crate::geometry::Ray;
 use crate::sampling::warp::{cosine_hemisphere, Frame};
 use crate::sampling::Sampler;
-use crate::{IntegratorKind, Scene};
+use crate::{IntegratorKind, RenderJob, Scene};
 use glam::Vec3A;
 
 /// Value of debug integrator `kind` along `ray`.
-pub fn li(scene: &Scene, ray: Ray, sampler: &mut Sampler, kind: IntegratorKind) -> Vec3A {
+pub fn li(
+    scene: &Scene,
+    job: &RenderJob,
+    ray: Ray,
+    sampler: &mut Sampler,
+    kind: IntegratorKind,
+) -> Vec3A {
     let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
         return match kind {
-            IntegratorKind::Albedo => scene
-                .environment
-                .as_ref()
-                .map_or(Vec3A::ZERO, |e| e.radiance(ray.d)),
+            IntegratorKind::Albedo => job.environment().map_or(Vec3A::ZERO, |e| e.radiance(ray.d)),
             _ => Vec3A::ZERO,
         };
     };
@@ -43,7 +45,7 @@ pub fn li(scene: &Scene, ray: Ray, sampler: &mut Sampler, kind: IntegratorKind) 
                 it.ns
             };
             let d = Frame::from_z(n).to_world(cosine_hemisphere(sampler.next_2d()));
-            if scene.occluded(&spawn_ray(&it, d), radius) {
+            if scene.occluded(&it.spawn_ray(d), radius) {
                 Vec3A::ZERO
             } else {
                 Vec3A::ONE

@@ -7,105 +7,20 @@
 //! and unbiased. Each bounce draws a fixed number of sample dimensions, so the Sobol
 //! dimensions line up across samples.
 
-use super::{power_heuristic, spawn_ray, spawn_ray_to};
-use crate::geometry::Ray;
-use crate::light::Light;
-use crate::material::Bsdf;
-use crate::sampling::warp::Frame;
-use crate::sampling::Sampler;
-use crate::scene::build::Interaction;
-use crate::Scene;
+use super::direct::sample_one_light;
+use crate::geometry::{Interaction, Ray};
+use crate::sampling::{power_heuristic, Sampler};
+use crate::{RenderJob, Scene};
 use glam::Vec3A;
 
-/// Direct light from one light chosen by `u_select`, MIS-weighted. Returns the contribution
-/// (to be multiplied by the path throughput).
-#[inline]
-pub(crate) fn sample_one_light(
-    scene: &Scene,
-    it: &Interaction,
-    bsdf: &Bsdf,
-    frame: &Frame,
-    wo: Vec3A,
-    u_select: f32,
-    u: glam::Vec2,
-) -> Vec3A {
-    let Some((li_index, pmf, _)) = scene.lights.choose(u_select) else {
-        return Vec3A::ZERO;
-    };
-    light_contribution(scene, it, bsdf, frame, wo, li_index, u, true) / pmf
-}
-
-/// Contribution of light `index` sampled once with `u` (without the selection probability).
-/// With `mis`, weighted by the power heuristic against BSDF sampling (the path tracer also
-/// finds emitters by BSDF sampling); without, the full estimate (Whitted finds them only here).
-#[inline]
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn light_contribution(
-    scene: &Scene,
-    it: &Interaction,
-    bsdf: &Bsdf,
-    frame: &Frame,
-    wo: Vec3A,
-    index: usize,
-    u: glam::Vec2,
-    mis: bool,
-) -> Vec3A {
-    let light = &scene.lights.lights[index];
-    let (wi, li, pdf, delta, shadow) = match *light {
-        Light::Area { object, prim, .. } => {
-            let Some((p, n, le, pdf)) = scene.sample_area(object, prim, it.p, u) else {
-                return Vec3A::ZERO;
-            };
-            if le == Vec3A::ZERO {
-                return Vec3A::ZERO;
-            }
-            let (ray, tmax) = spawn_ray_to(it, p, n);
-            ((p - it.p).normalize(), le, pdf, false, (ray, tmax))
-        }
-        Light::Environment => {
-            let Some(env) = scene.environment.as_ref() else {
-                return Vec3A::ZERO;
-            };
-            let Some((wi, le, pdf)) = env.sample(u) else {
-                return Vec3A::ZERO;
-            };
-            (wi, le, pdf, false, (spawn_ray(it, wi), f32::INFINITY))
-        }
-        _ => {
-            let Some(s) = light.sample_delta(it.p) else {
-                return Vec3A::ZERO;
-            };
-            let shadow = if s.dist.is_finite() {
-                spawn_ray_to(it, s.p_light, s.n_light)
-            } else {
-                (spawn_ray(it, s.wi), f32::INFINITY)
-            };
-            (s.wi, s.li, 1.0, true, shadow)
-        }
-    };
-    if !(pdf > 0.0) {
-        return Vec3A::ZERO;
-    }
-    let wi_local = frame.to_local(wi);
-    let (f, bsdf_pdf) = bsdf.eval_pdf(wo, wi_local);
-    let f = f * wi_local.z.abs();
-    if f.max_element() <= 0.0 {
-        return Vec3A::ZERO;
-    }
-    if scene.occluded(&shadow.0, shadow.1) {
-        return Vec3A::ZERO;
-    }
-    if delta || !mis {
-        f * li / pdf
-    } else {
-        let pmf = scene.lights.pmf(index);
-        let w = power_heuristic(pdf * pmf, bsdf_pdf);
-        f * li * (w / pdf)
-    }
-}
-
 /// Radiance along `ray`.
-pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, max_depth: u32) -> Vec3A {
+pub fn li(
+    scene: &Scene,
+    job: &RenderJob,
+    mut ray: Ray,
+    sampler: &mut Sampler,
+    max_depth: u32,
+) -> Vec3A {
     let mut l = Vec3A::ZERO;
     let mut beta = Vec3A::ONE;
     let mut specular = true;
@@ -115,13 +30,13 @@ pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, max_depth: u32) ->
     let mut depth = 0u32;
     loop {
         let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
-            if let Some(env) = scene.environment.as_ref() {
+            if let Some(env) = job.environment() {
                 let le = env.radiance(ray.d);
                 if specular || prev_it.is_none() {
                     l += beta * le;
                 } else {
-                    let env_index = scene.lights.environment.map_or(0, |i| i as usize);
-                    let light_pdf = scene.lights.pmf(env_index) * env.pdf(ray.d);
+                    let env_index = job.lights().environment().unwrap_or(0);
+                    let light_pdf = job.lights().pmf(env_index) * env.pdf(ray.d);
                     l += beta * le * power_heuristic(prev_pdf, light_pdf);
                 }
             }
@@ -141,7 +56,7 @@ pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, max_depth: u32) ->
             if specular {
                 l += beta * le;
             } else if let Some(prev) = prev_it {
-                let light_pdf = scene.area_light_pdf(&it, prev.p);
+                let light_pdf = job.area_light_pdf(scene, &it, prev.p);
                 l += beta * le * power_heuristic(prev_pdf, light_pdf);
             }
         }
@@ -162,7 +77,7 @@ pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, max_depth: u32) ->
         let u_dir = sampler.next_2d();
 
         if !bsdf.is_delta() {
-            l += beta * sample_one_light(scene, &it, &bsdf, &frame, wo, u_light, u_light2);
+            l += beta * sample_one_light(scene, job, &it, &bsdf, &frame, wo, u_light, u_light2);
         }
         let Some(bs) = bsdf.sample(wo, u_lobe, u_dir) else {
             break;
@@ -181,7 +96,7 @@ pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, max_depth: u32) ->
             eta_scale *= bs.eta * bs.eta;
         }
         let wi = frame.to_world(bs.wi).normalize();
-        ray = spawn_ray(&it, wi);
+        ray = it.spawn_ray(wi);
         prev_it = Some(it);
         depth += 1;
         // Russian roulette on the throughput without radiance scaling at refraction (pbrt-v4).

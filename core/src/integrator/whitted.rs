@@ -6,24 +6,30 @@
 //! Area and environment lights are sampled once per light per camera sample (so soft shadows
 //! converge with more samples); point, spot and directional lights give hard shadows.
 
-use super::path::light_contribution;
-use super::spawn_ray;
+use super::direct::light_contribution;
 use crate::geometry::Ray;
-use crate::material::{fresnel_dielectric, Bsdf};
+use crate::material::{fresnel_dielectric, refract, Bsdf};
 use crate::sampling::Sampler;
-use crate::Scene;
+use crate::{RenderJob, Scene};
 use glam::Vec3A;
 
 /// Contributions below this (per channel, relative to the camera ray) are not traced further.
 pub const DAMPING: f32 = 1e-3;
 
 /// Radiance along `ray`.
-pub fn li(scene: &Scene, ray: Ray, sampler: &mut Sampler, max_depth: u32) -> Vec3A {
-    trace(scene, ray, sampler, max_depth, 0, Vec3A::ONE)
+pub fn li(
+    scene: &Scene,
+    job: &RenderJob,
+    ray: Ray,
+    sampler: &mut Sampler,
+    max_depth: u32,
+) -> Vec3A {
+    trace(scene, job, ray, sampler, max_depth, 0, Vec3A::ONE)
 }
 
 fn trace(
     scene: &Scene,
+    job: &RenderJob,
     ray: Ray,
     sampler: &mut Sampler,
     max_depth: u32,
@@ -31,10 +37,7 @@ fn trace(
     weight: Vec3A,
 ) -> Vec3A {
     let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
-        return scene
-            .environment
-            .as_ref()
-            .map_or(Vec3A::ZERO, |e| e.radiance(ray.d));
+        return job.environment().map_or(Vec3A::ZERO, |e| e.radiance(ray.d));
     };
     let it = scene.interaction(&ray, &hit);
     let wo_world = -ray.d;
@@ -52,9 +55,9 @@ fn trace(
 
     // Local illumination: a shadow ray to every light.
     if !bsdf.is_delta() {
-        for i in 0..scene.lights.lights.len() {
+        for i in 0..job.lights().len() {
             let u = sampler.next_2d();
-            l += light_contribution(scene, &it, &bsdf, &frame, wo, i, u, false);
+            l += light_contribution(scene, job, &it, &bsdf, &frame, wo, i, u, false);
         }
     }
     if depth >= max_depth {
@@ -66,7 +69,16 @@ fn trace(
             return Vec3A::ZERO;
         }
         let d = frame.to_world(dir_local).normalize();
-        factor * trace(scene, spawn_ray(&it, d), sampler, max_depth, depth + 1, w)
+        factor
+            * trace(
+                scene,
+                job,
+                it.spawn_ray(d),
+                sampler,
+                max_depth,
+                depth + 1,
+                w,
+            )
     };
     match bsdf {
         Bsdf::Mirror(m) => {
@@ -79,9 +91,9 @@ fn trace(
             let r = Vec3A::new(-wo.x, -wo.y, wo.z);
             l += recurse(r, Vec3A::splat(f), sampler);
             if f < 1.0 {
-                if let Some(t) = refract(wo, d.eta) {
+                if let Some((t, eta_rel)) = refract(wo, Vec3A::Z, d.eta) {
                     // Radiance scales by 1/η² crossing into the denser side.
-                    let eta_rel = if wo.z > 0.0 { d.eta } else { 1.0 / d.eta };
+                    let t = t.normalize();
                     l += recurse(
                         t,
                         d.transmittance * ((1.0 - f) / (eta_rel * eta_rel)),
@@ -104,38 +116,4 @@ fn trace(
         _ => {}
     }
     l * transmittance
-}
-
-/// Refraction of `wo` (local frame, +Z outside) through an interface with relative index `eta`
-/// (inside/outside); `None` under total internal reflection.
-pub fn refract(wo: Vec3A, eta: f32) -> Option<Vec3A> {
-    let (n, eta) = if wo.z > 0.0 {
-        (Vec3A::Z, eta)
-    } else {
-        (-Vec3A::Z, 1.0 / eta)
-    };
-    let cos_i = wo.dot(n);
-    let sin2_t = (1.0 - cos_i * cos_i).max(0.0) / (eta * eta);
-    if sin2_t >= 1.0 {
-        return None;
-    }
-    let cos_t = (1.0 - sin2_t).sqrt();
-    Some((-wo / eta + n * (cos_i / eta - cos_t)).normalize())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn snell_law_holds() {
-        let wo = Vec3A::new(0.5, 0.0, 0.75f32.sqrt());
-        let t = refract(wo, 1.5).unwrap();
-        assert!(t.z < 0.0);
-        let sin_i = 0.5;
-        let sin_t = (1.0 - t.z * t.z).sqrt();
-        assert!((sin_i - 1.5 * sin_t).abs() < 1e-5);
-        // From inside at a grazing angle: total internal reflection.
-        assert!(refract(Vec3A::new(0.9, 0.0, -(1.0f32 - 0.81).sqrt()), 1.5).is_none());
-    }
 }

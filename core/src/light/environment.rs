@@ -5,7 +5,6 @@
 
 use crate::sampling::distrib::Distribution2D;
 use crate::sampling::warp::{uniform_sphere, UNIFORM_SPHERE_PDF};
-use crate::scene::desc::EnvironmentDesc;
 use crate::texture::Texture;
 use glam::{Vec2, Vec3A};
 use std::f32::consts::PI;
@@ -31,37 +30,43 @@ pub enum Environment {
 }
 
 impl Environment {
-    /// Builds from a description.
-    pub fn new(desc: &EnvironmentDesc) -> Self {
-        match desc {
-            EnvironmentDesc::Constant { radiance } => Environment::Constant(Vec3A::from(*radiance)),
-            EnvironmentDesc::Map {
-                texture,
-                scale,
-                rotation_y,
-            } => {
-                let tex = Texture::new(texture);
-                let (w, h) = (tex.width() as usize, tex.height() as usize);
-                let mut weights = Vec::with_capacity(w * h);
-                let mut total = 0.0f64;
-                for y in 0..h {
-                    let sin_t = (PI * (y as f32 + 0.5) / h as f32).sin();
-                    for x in 0..w {
-                        let c = tex.texel(x as i64, y as i64);
-                        let l = super::luminance(Vec3A::new(c.x, c.y, c.z)).max(0.0);
-                        total += (l * sin_t) as f64;
-                        weights.push(l * sin_t);
-                    }
-                }
-                let average = (total / (w * h) as f64) as f32 * scale.max(0.0);
-                Environment::Map {
-                    distrib: Distribution2D::new(&weights, w, h),
-                    texture: tex,
-                    scale: scale.max(0.0),
-                    rotation: *rotation_y,
-                    average,
-                }
+    /// The same radiance from every direction.
+    pub fn constant(radiance: Vec3A) -> Self {
+        Environment::Constant(radiance)
+    }
+
+    /// An equirectangular map (linear RGB) times `scale`, turned by `rotation_y` radians about
+    /// +Y, with its sampling distribution ∝ luminance × sin θ.
+    pub fn map(texture: Texture, scale: f32, rotation_y: f32) -> Self {
+        let (w, h) = (texture.width() as usize, texture.height() as usize);
+        let mut weights = Vec::with_capacity(w * h);
+        let mut total = 0.0f64;
+        for y in 0..h {
+            let sin_t = (PI * (y as f32 + 0.5) / h as f32).sin();
+            for x in 0..w {
+                let c = texture.texel(x as i64, y as i64);
+                let l = super::luminance(Vec3A::new(c.x, c.y, c.z)).max(0.0);
+                total += (l * sin_t) as f64;
+                weights.push(l * sin_t);
             }
+        }
+        let average = (total / (w * h) as f64) as f32 * scale.max(0.0);
+        Environment::Map {
+            distrib: Distribution2D::new(&weights, w, h),
+            texture,
+            scale: scale.max(0.0),
+            rotation: rotation_y,
+            average,
+        }
+    }
+
+    /// Bytes held (the map and its sampling tables), for cache budgets.
+    pub fn memory_bytes(&self) -> usize {
+        match self {
+            Environment::Constant(_) => 0,
+            Environment::Map {
+                texture, distrib, ..
+            } => texture.memory_bytes() + distrib.memory_bytes(),
         }
     }
 
@@ -155,7 +160,7 @@ fn uv_to_dir(uv: Vec2, rotation: f32) -> (Vec3A, f32) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scene::desc::{TextureDesc, WrapMode};
+    use crate::texture::{TextureLookup, WrapMode};
 
     #[test]
     fn uv_and_direction_round_trip() {
@@ -174,20 +179,13 @@ mod tests {
             let v = if i % 7 == 0 { 20.0 } else { 0.5 };
             [v, v * 0.5, v, 1.0]
         });
-        let env = Environment::new(&EnvironmentDesc::Map {
-            texture: TextureDesc {
-                name: "sky".into(),
-                width: w,
-                height: h,
-                texels: texels.collect(),
-                srgb: false,
-                wrap_u: WrapMode::Repeat,
-                wrap_v: WrapMode::Clamp,
-                bilinear: false,
-            },
-            scale: 1.0,
-            rotation_y: 0.0,
-        });
+        let texels: Vec<[f32; 4]> = texels.collect();
+        let lookup = TextureLookup {
+            wrap_u: WrapMode::Repeat,
+            wrap_v: WrapMode::Clamp,
+            bilinear: false,
+        };
+        let env = Environment::map(Texture::new(w, h, &texels, false, lookup), 1.0, 0.0);
         // ∫ pdf dω over the sphere = 1 (midpoint rule in (φ, cos θ)).
         let n = 200;
         let mut sum = 0.0;

@@ -1,12 +1,17 @@
-//! Lights: point, spot, directional, area (emissive triangles and shapes) and environment.
+//! Lights: point, spot, directional, area (emissive triangles and shapes, in [`area`]) and
+//! environment (in [`environment`]).
 //!
-//! A light is chosen for next-event estimation in proportion to its (estimated) power, then a
-//! point or direction is sampled on it. Everything a light needs from the scene (emitting
-//! objects, the scene's bounding sphere) is passed in at build time, so sampling is a pure
-//! function of the light and the random numbers.
+//! A light is chosen for next-event estimation in proportion to its (estimated) power by a
+//! [`LightSet`] (pbrt-v4's light sampler), then a point or direction is sampled on it. The
+//! scene owns its lights; a render job owns the environment and the light set, since both
+//! depend on the job (an environment of its own, the default light or none). Everything a
+//! light needs (its geometry, the scene's bounding sphere) is given to it when it is made, so
+//! sampling is a pure function of the light and the random numbers.
 
+pub mod area;
 pub mod environment;
 
+pub use area::AreaLight;
 pub use environment::Environment;
 
 use crate::sampling::distrib::Distribution1D;
@@ -53,36 +58,36 @@ pub enum Light {
         /// Irradiance on a surface facing the light (W/m²).
         irradiance: Vec3A,
     },
-    /// An emissive surface: triangle `prim` of a mesh object, or a whole analytic object.
+    /// Triangle `prim` of an emitting mesh, or a whole emitting shape (`prim` 0).
     Area {
-        /// The emitting object.
-        object: u32,
+        /// Index of the [`AreaLight`] in the scene.
+        light: u32,
         /// Triangle index within its mesh (0 for analytic shapes).
         prim: u32,
         /// Emitted power estimate, for selection.
         power: f32,
     },
-    /// The environment (infinitely far away).
-    Environment,
 }
 
-/// A sampled light: incident direction at the shading point, radiance arriving along it,
-/// density (solid angle, or 1 for delta lights), and the distance to the light for shadow rays.
+/// A sampled light: incident direction at the shading point, radiance arriving along it, its
+/// density, and where the shadow ray must stop.
 #[derive(Clone, Copy, Debug)]
 pub struct LightSample {
     /// Unit direction from the shading point towards the light.
     pub wi: Vec3A,
     /// Radiance (or, for delta lights, intensity/distance² or irradiance) arriving along `wi`.
     pub li: Vec3A,
-    /// Solid-angle density; for delta lights the value 1 and `delta` set.
+    /// Solid-angle density of `wi`; 1 for delta lights, whose estimate is `li` itself.
     pub pdf: f32,
-    /// Distance to the sampled point (infinite for directional and environment lights).
+    /// Distance to the sampled point (infinite for directional and environment lights: the
+    /// shadow ray then goes along `wi` without end).
     pub dist: f32,
-    /// Whether the light is a delta distribution (no MIS with BSDF sampling).
+    /// Whether the light is a delta distribution (point, spot, directional: no MIS with BSDF
+    /// sampling, which can never find it).
     pub delta: bool,
-    /// The point on the light (for area lights), to spawn the shadow ray towards.
+    /// The point on the light, to spawn the shadow ray towards (when `dist` is finite).
     pub p_light: Vec3A,
-    /// Front normal at the point on the light (area lights).
+    /// Front normal at the point on the light, zero for a point in space (point and spot).
     pub n_light: Vec3A,
 }
 
@@ -111,8 +116,8 @@ pub fn range_window(dist: f32, range: f32) -> f32 {
 }
 
 impl Light {
-    /// Samples the delta lights (point, spot, directional) from `p`; other lights are sampled
-    /// by the scene, which knows their geometry.
+    /// Samples the delta lights (point, spot, directional) from `p`; area lights sample
+    /// themselves ([`AreaLight::sample`]).
     #[inline]
     pub fn sample_delta(&self, p: Vec3A) -> Option<LightSample> {
         match *self {
@@ -184,8 +189,8 @@ impl Light {
         }
     }
 
-    /// Power estimate used to choose lights (`scene_radius` sizes infinite lights).
-    pub fn power(&self, scene_radius: f32, env_power: f32) -> f32 {
+    /// Power estimate used to choose lights (`scene_radius` sizes directional lights).
+    pub fn power(&self, scene_radius: f32) -> f32 {
         match *self {
             Light::Point { intensity, .. } => 4.0 * PI * luminance(intensity),
             Light::Spot {
@@ -198,28 +203,30 @@ impl Light {
                 PI * scene_radius * scene_radius * luminance(irradiance)
             }
             Light::Area { power, .. } => power,
-            Light::Environment => env_power,
         }
     }
 }
 
-/// The lights of a scene with the distribution used to pick one.
+/// The distribution that picks a light for next-event estimation, ∝ power: over a scene's
+/// lights (by index) and then, if there is one, the job's environment (the last index).
 #[derive(Clone, Debug, Default)]
 pub struct LightSet {
-    /// Every light.
-    pub lights: Vec<Light>,
-    /// Selection probabilities (∝ power).
-    pub select: Distribution1D,
-    /// Index of the environment light in `lights`, if any.
-    pub environment: Option<u32>,
+    /// Selection probabilities.
+    select: Distribution1D,
+    /// Number of lights, the environment included.
+    len: usize,
+    /// Index of the environment, if any: `lights.len()`.
+    environment: Option<usize>,
 }
 
 impl LightSet {
-    /// Builds the selection distribution.
-    pub fn new(lights: Vec<Light>, scene_radius: f32, env_power: f32) -> Self {
+    /// The selection distribution for `lights` and, with `environment_power`, an environment
+    /// of that power after them; `scene_radius` sizes directional lights.
+    pub fn new(lights: &[Light], scene_radius: f32, environment_power: Option<f32>) -> Self {
         let powers: Vec<f32> = lights
             .iter()
-            .map(|l| l.power(scene_radius, env_power))
+            .map(|l| l.power(scene_radius))
+            .chain(environment_power)
             .collect();
         // A light with zero estimated power can still matter (a tiny but bright emitter):
         // keep every light selectable with a small floor.
@@ -229,30 +236,45 @@ impl LightSet {
             .iter()
             .map(|&p| if p.is_finite() { p.max(floor) } else { floor })
             .collect();
-        let environment = lights
-            .iter()
-            .position(|l| matches!(l, Light::Environment))
-            .map(|i| i as u32);
         Self {
             select: Distribution1D::new(&weights),
-            lights,
-            environment,
+            len: powers.len(),
+            environment: environment_power.map(|_| lights.len()),
         }
+    }
+
+    /// Number of lights, the environment included.
+    #[inline]
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether there is no light at all.
+    #[inline]
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// The environment's index, if there is one.
+    #[inline]
+    pub fn environment(&self) -> Option<usize> {
+        self.environment
     }
 
     /// Picks a light: (index, probability).
     #[inline]
-    pub fn choose(&self, u: f32) -> Option<(usize, f32, f32)> {
-        if self.lights.is_empty() {
+    pub fn choose(&self, u: f32) -> Option<(usize, f32)> {
+        if self.len == 0 {
             return None;
         }
-        Some(self.select.sample_discrete(u))
+        let (i, p, _) = self.select.sample_discrete(u);
+        Some((i, p))
     }
 
     /// Probability that [`LightSet::choose`] picks light `i`.
     #[inline]
     pub fn pmf(&self, i: usize) -> f32 {
-        if self.lights.is_empty() {
+        if self.len == 0 {
             0.0
         } else {
             self.select.discrete_pdf(i)
@@ -283,6 +305,7 @@ mod tests {
         };
         let s = l.sample_delta(Vec3A::ZERO).unwrap();
         assert!((s.li.x - 2.0).abs() < 1e-6 && s.delta && (s.wi - Vec3A::Y).length() < 1e-6);
+        assert_eq!((s.pdf, s.dist, s.n_light), (1.0, 2.0, Vec3A::ZERO));
     }
 
     #[test]
@@ -297,7 +320,7 @@ mod tests {
     #[test]
     fn selection_follows_power() {
         let set = LightSet::new(
-            vec![
+            &[
                 Light::Point {
                     position: Vec3A::ZERO,
                     intensity: Vec3A::ONE,
@@ -310,8 +333,21 @@ mod tests {
                 },
             ],
             1.0,
-            0.0,
+            None,
         );
         assert!((set.pmf(0) - 0.25).abs() < 1e-5 && (set.pmf(1) - 0.75).abs() < 1e-5);
+        assert_eq!((set.len(), set.environment()), (2, None));
+        // An environment comes last, chosen by its power too.
+        let point = Light::Point {
+            position: Vec3A::ZERO,
+            intensity: Vec3A::ONE,
+            range: f32::INFINITY,
+        };
+        let p = point.power(1.0);
+        let set = LightSet::new(&[point], 1.0, Some(3.0 * p));
+        assert_eq!((set.len(), set.environment()), (2, Some(1)));
+        assert!((set.pmf(1) - 0.75).abs() < 1e-5);
+        assert_eq!(set.choose(0.9).map(|c| c.0), Some(1));
+        assert!(LightSet::new(&[], 1.0, None).choose(0.5).is_none());
     }
 }

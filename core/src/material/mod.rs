@@ -1,4 +1,5 @@
-//! BSDFs: how surfaces scatter light.
+//! Materials and BSDFs: how surfaces scatter light. [`surface`] holds the material a scene
+//! object has (a model and its textures); evaluated at a point it gives one of the BSDFs here.
 //!
 //! Every BSDF works in the local shading frame: the shading normal is +Z. `wo` points towards
 //! the viewer (the direction light leaves along), `wi` towards the light (the direction light
@@ -14,8 +15,8 @@
 //! - Transmissive BSDFs: `eta` is the index inside relative to outside; the outside is +Z.
 //! - Energy is conserved: the directional albedo is ≤ 1 for every wo.
 //!
-//! A [`Bsdf`] is a small `Copy` value made per hit by the scene (textures already looked up), so
-//! there is no allocation and no dynamic dispatch per ray.
+//! A [`Bsdf`] is a small `Copy` value made per hit by [`Material::bsdf`] (textures already looked
+//! up), so there is no allocation and no dynamic dispatch per ray.
 
 pub mod conductor;
 pub mod dielectric;
@@ -24,8 +25,11 @@ pub mod microfacet;
 pub mod mirror;
 pub mod pbr;
 pub mod rough_dielectric;
+pub mod surface;
 #[cfg(test)]
 mod tests;
+
+pub use surface::{AlphaMode, Emission, Material, MaterialSlots, Model, PbrParams};
 
 use glam::{Vec2, Vec3A};
 

@@ -873,6 +873,12 @@ fn fresnel_normal_incidence_and_total_internal_reflection() {
         let sin_o = (1.0 - wo.z * wo.z).sqrt();
         let sin_t = (1.0 - wt.z * wt.z).sqrt();
         assert!((sin_o - eta * sin_t).abs() < 1e-5 && etap == eta && wt.z < 0.0);
+        // From inside, the other way: the relative index crossed is 1/η; past the critical
+        // angle, total internal reflection.
+        let (back, etap) = refract(wt, Vec3A::Z, eta).unwrap();
+        assert!((back - wo).length() < 1e-5 && etap == 1.0 / eta);
+        let grazing_inside = Vec3A::new(0.9, 0.0, -(1.0f32 - 0.81).sqrt());
+        assert!(refract(grazing_inside, Vec3A::Z, 1.5).is_none());
     }
     // A conductor without absorption is a dielectric; k > 0 stays in [0, 1]; grazing is 1.
     for cos in [0.1f32, 0.5, 0.9, 1.0] {

@@ -66,6 +66,11 @@ impl Distribution1D {
         self.integral
     }
 
+    /// Bytes held by the tables, for cache budgets.
+    pub fn memory_bytes(&self) -> usize {
+        (self.func.capacity() + self.cdf.capacity()) * std::mem::size_of::<f32>()
+    }
+
     /// Picks bin `i` with probability weight_i / Σ weight; returns (i, probability, u remapped
     /// to [0, 1) within the bin for reuse).
     #[inline]
@@ -137,6 +142,16 @@ pub struct Distribution2D {
 }
 
 impl Distribution2D {
+    /// Bytes held by the tables, for cache budgets.
+    pub fn memory_bytes(&self) -> usize {
+        self.marginal.memory_bytes()
+            + self
+                .conditional
+                .iter()
+                .map(|d| d.memory_bytes() + std::mem::size_of::<Distribution1D>())
+                .sum::<usize>()
+    }
+
     /// From a row-major `width × height` table of non-negative weights.
     pub fn new(weights: &[f32], width: usize, height: usize) -> Self {
         let conditional: Vec<_> = weights

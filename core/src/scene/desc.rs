@@ -11,6 +11,13 @@ use crate::settings::{FilterKind, IntegratorKind, RenderOverrides, RenderSetting
 use glam::{Mat4, Vec2, Vec3};
 use serde::{Deserialize, Serialize};
 
+// Plain parameters the runtime takes as they are: defined beside the code that uses them (the
+// runtime never imports this module), named here too so that front ends find every part of a
+// description in one place.
+pub use crate::camera::Projection;
+pub use crate::material::AlphaMode;
+pub use crate::texture::WrapMode;
+
 /// A complete scene description: geometry, materials, lights, cameras and render defaults.
 #[derive(Clone, Debug, Default)]
 pub struct SceneDesc {
@@ -79,19 +86,6 @@ pub struct TextureDesc {
     pub bilinear: bool,
 }
 
-/// Texture addressing mode.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum WrapMode {
-    /// Tile the image.
-    #[default]
-    Repeat,
-    /// Tile the image, mirroring every other copy.
-    MirroredRepeat,
-    /// Use the edge texel.
-    Clamp,
-}
-
 /// A reference from a material slot to a texture.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TextureRef {
@@ -112,18 +106,6 @@ impl TextureRef {
             transform: glam::Mat3::IDENTITY,
         }
     }
-}
-
-/// How a material treats alpha (glTF `alphaMode`).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub enum AlphaMode {
-    /// Alpha is ignored.
-    #[default]
-    Opaque,
-    /// Surface is absent where alpha < cutoff.
-    Mask(f32),
-    /// Surface is present with probability alpha (stochastic transparency).
-    Blend,
 }
 
 /// A surface material: a BSDF plus emission, alpha and normal mapping.
@@ -394,25 +376,6 @@ pub enum EnvironmentDesc {
         scale: f32,
         /// World-to-map rotation about +Y, radians.
         rotation_y: f32,
-    },
-}
-
-/// How the camera projects.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Projection {
-    /// A pinhole or thin-lens perspective camera.
-    Perspective {
-        /// Vertical field of view, radians.
-        yfov: f32,
-        /// Lens radius in metres (0 = pinhole).
-        aperture_radius: f32,
-        /// Distance to the plane in focus, metres.
-        focus_distance: f32,
-    },
-    /// A parallel projection.
-    Orthographic {
-        /// Half the height of the view, metres (glTF `ymag`).
-        half_height: f32,
     },
 }
 

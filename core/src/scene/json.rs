@@ -7,7 +7,8 @@
 
 use super::desc::*;
 use super::SceneError;
-use glam::{EulerRot, Mat3, Mat4, Quat, Vec2, Vec3};
+use crate::geometry::quadric::Quadric;
+use glam::{EulerRot, Mat3, Mat4, Quat, Vec2, Vec3, Vec3A};
 use serde::Deserialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -778,6 +779,15 @@ impl Converter<'_> {
 
     fn shape(&mut self, s: &JShape, name: &str, at: &str) -> Result<ShapeDesc, SceneError> {
         let q = |rows: [[f32; 4]; 4]| Mat4::from_cols_array_2d(&rows).transpose();
+        // A named quadric, built (and checked) by the geometry's own constructor.
+        let quadric = |r: Result<Quadric, String>, this: &Self, kind: &str| {
+            r.map(|q| ShapeDesc::Quadric {
+                q: q.q(),
+                clip_min: q.clip_min().into(),
+                clip_max: q.clip_max().into(),
+            })
+            .map_err(|e| this.err(&format!("{at}.shape"), e, &format!("\"{kind}\"")))
+        };
         Ok(match s {
             JShape::Sphere { center, radius } => ShapeDesc::Sphere {
                 center: v3(*center),
@@ -821,82 +831,33 @@ impl Converter<'_> {
                 clip_min: v3(*clip_min),
                 clip_max: v3(*clip_max),
             },
-            JShape::Ellipsoid { radii } => {
-                let r = v3(*radii);
-                if r.min_element() <= 0.0 {
-                    return Err(self.err(
-                        &format!("{at}.shape.radii"),
-                        "radii must be positive",
-                        "\"radii\"",
-                    ));
-                }
-                let inv = Vec3::ONE / (r * r);
-                ShapeDesc::Quadric {
-                    q: Mat4::from_diagonal(inv.extend(-1.0)),
-                    clip_min: -r * 1.001,
-                    clip_max: r * 1.001,
-                }
-            }
+            JShape::Ellipsoid { radii } => quadric(
+                Quadric::ellipsoid(Vec3A::from(v3(*radii))),
+                self,
+                "ellipsoid",
+            )?,
             JShape::Cylinder {
                 radius,
                 y_min,
                 y_max,
-            } => {
-                let r2 = radius * radius;
-                let m = radius * 1.001;
-                ShapeDesc::Quadric {
-                    q: Mat4::from_diagonal(glam::Vec4::new(1.0 / r2, 0.0, 1.0 / r2, -1.0)),
-                    clip_min: Vec3::new(-m, *y_min, -m),
-                    clip_max: Vec3::new(m, *y_max, m),
-                }
-            }
+            } => quadric(Quadric::cylinder(*radius, *y_min, *y_max), self, "cylinder")?,
             JShape::Cone {
                 angle,
                 y_min,
                 y_max,
-            } => {
-                let t = angle.to_radians().tan();
-                let m = t * y_min.abs().max(y_max.abs()) * 1.001;
-                ShapeDesc::Quadric {
-                    q: Mat4::from_diagonal(glam::Vec4::new(1.0, -t * t, 1.0, 0.0)),
-                    clip_min: Vec3::new(-m, *y_min, -m),
-                    clip_max: Vec3::new(m, *y_max, m),
-                }
-            }
+            } => quadric(
+                Quadric::cone(angle.to_radians().tan(), *y_min, *y_max),
+                self,
+                "cone",
+            )?,
             JShape::Paraboloid { a, y_max } => {
-                if !(*a > 0.0 && *y_max > 0.0) {
-                    return Err(self.err(
-                        &format!("{at}.shape"),
-                        "paraboloid needs a > 0 and y_max > 0",
-                        "\"paraboloid\"",
-                    ));
-                }
-                let m = (y_max / a).sqrt() * 1.001;
-                ShapeDesc::Quadric {
-                    q: q([
-                        [*a, 0.0, 0.0, 0.0],
-                        [0.0, 0.0, 0.0, -0.5],
-                        [0.0, 0.0, *a, 0.0],
-                        [0.0, -0.5, 0.0, 0.0],
-                    ]),
-                    clip_min: Vec3::new(-m, -1e-3, -m),
-                    clip_max: Vec3::new(m, *y_max, m),
-                }
+                quadric(Quadric::paraboloid(*a, *y_max), self, "paraboloid")?
             }
-            JShape::Hyperboloid { a, c, y_min, y_max } => {
-                let ymax = y_min.abs().max(y_max.abs());
-                let m = a * (1.0 + ymax * ymax / (c * c)).sqrt() * 1.001;
-                ShapeDesc::Quadric {
-                    q: Mat4::from_diagonal(glam::Vec4::new(
-                        1.0 / (a * a),
-                        -1.0 / (c * c),
-                        1.0 / (a * a),
-                        -1.0,
-                    )),
-                    clip_min: Vec3::new(-m, *y_min, -m),
-                    clip_max: Vec3::new(m, *y_max, m),
-                }
-            }
+            JShape::Hyperboloid { a, c, y_min, y_max } => quadric(
+                Quadric::hyperboloid(*a, *c, *y_min, *y_max),
+                self,
+                "hyperboloid",
+            )?,
             JShape::Mesh {
                 positions,
                 indices,
@@ -1064,27 +1025,15 @@ fn transform(t: &JTransform) -> Result<Mat4, String> {
     ))
 }
 
-/// Decodes an image file (PNG, JPEG, Radiance HDR, OpenEXR) into a texture description.
+/// Decodes an image file (PNG, JPEG, Radiance HDR, OpenEXR; see [`super::image`] for the
+/// limits) into a texture description: sRGB colour, repeated, bilinear.
 pub fn load_image(path: &Path) -> Result<TextureDesc, String> {
-    let mut reader =
-        image::ImageReader::open(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let mut limits = image::Limits::default();
-    limits.max_image_width = Some(16384);
-    limits.max_image_height = Some(16384);
-    limits.max_alloc = Some(2 << 30);
-    reader.limits(limits);
-    let img = reader
-        .with_guessed_format()
-        .map_err(|e| format!("{}: {e}", path.display()))?;
-    let img = img
-        .decode()
-        .map_err(|e| format!("{}: {e}", path.display()))?
-        .into_rgba32f();
+    let img = super::image::read_image(path)?;
     Ok(TextureDesc {
         name: path.display().to_string(),
-        width: img.width(),
-        height: img.height(),
-        texels: img.pixels().map(|p| p.0).collect(),
+        width: img.width,
+        height: img.height,
+        texels: img.texels,
         srgb: true,
         wrap_u: WrapMode::Repeat,
         wrap_v: WrapMode::Repeat,
@@ -1167,6 +1116,40 @@ mod tests {
         assert!(e.contains("unknown field"), "{e}");
         assert!(parse("{").is_err());
         assert!(parse("{\"objects\": [{\"shape\": {\"type\": \"sphere\", \"radius\": 1e999}, \"material\": \"m\"}]}").is_err());
+    }
+
+    #[test]
+    fn named_quadrics_are_checked_by_the_geometry() {
+        let shape = |s: &str| {
+            parse(&format!(
+                r#"{{"materials": {{"m": {{"type": "diffuse"}}}},
+                "objects": [{{"shape": {s}, "material": "m"}}]}}"#
+            ))
+        };
+        for bad in [
+            r#"{"type": "cylinder", "radius": 0, "y_min": 0, "y_max": 1}"#,
+            r#"{"type": "cone", "angle": 0, "y_min": 0, "y_max": 1}"#,
+            r#"{"type": "hyperboloid", "a": 1, "c": -1, "y_min": 0, "y_max": 1}"#,
+            r#"{"type": "paraboloid", "a": 1, "y_max": 0}"#,
+            r#"{"type": "ellipsoid", "radii": [1, 0, 1]}"#,
+            r#"{"type": "cylinder", "radius": 1, "y_min": 1, "y_max": 0}"#,
+        ] {
+            let e = shape(bad).unwrap_err();
+            assert!(e.contains("objects[0].shape"), "{bad}: {e}");
+        }
+        // What the loader stores is the geometry's own quadric.
+        let d = shape(r#"{"type": "cylinder", "radius": 0.5, "y_min": -1, "y_max": 2}"#).unwrap();
+        let expected = Quadric::cylinder(0.5, -1.0, 2.0).unwrap();
+        let ShapeDesc::Quadric {
+            q,
+            clip_min,
+            clip_max,
+        } = d.objects[0].shape
+        else {
+            panic!("a cylinder is a quadric");
+        };
+        let built = Quadric::new(q, clip_min.into(), clip_max.into()).unwrap();
+        assert_eq!(built, expected);
     }
 
     #[test]

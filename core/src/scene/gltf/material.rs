@@ -8,19 +8,7 @@ use glam::{Mat3, Vec3};
 use serde_json::Value;
 use std::rc::Rc;
 
-/// Largest accepted image side, in pixels.
-pub(super) const MAX_IMAGE_SIDE: u32 = 16384;
-/// Largest accepted image area, in pixels (8192², 1 GiB as f32 RGBA).
-pub(super) const MAX_IMAGE_PIXELS: u64 = 1 << 26;
-/// Largest external image file read.
-const MAX_IMAGE_FILE: u64 = 1 << 30;
-
-/// A decoded image, shared by every texture that uses it.
-pub(super) struct Decoded {
-    width: u32,
-    height: u32,
-    texels: Vec<[f32; 4]>,
-}
+use crate::scene::image::{self as img, DecodedImage};
 
 /// A number from raw extension JSON, or `default` when absent.
 fn num(obj: Option<&Value>, key: &str, default: f32, what: &str) -> Result<f32, String> {
@@ -356,7 +344,7 @@ impl Loader<'_> {
     }
 
     /// Decodes an image once, with size limits.
-    fn image(&mut self, image: &gltf::Image) -> Result<Rc<Decoded>, String> {
+    fn image(&mut self, image: &gltf::Image) -> Result<Rc<DecodedImage>, String> {
         if let Some(d) = self.image_cache.get(&image.index()) {
             return Ok(d.clone());
         }
@@ -364,44 +352,14 @@ impl Loader<'_> {
         let bytes: Vec<u8> = match image.source() {
             gltf::image::Source::View { view, .. } => self.view_bytes(&view, &what)?.to_vec(),
             gltf::image::Source::Uri { uri, .. } => {
-                container::load_uri(uri, self.base_dir, &what, MAX_IMAGE_FILE)?
+                container::load_uri(uri, self.base_dir, &what, img::MAX_IMAGE_FILE)?
             }
         };
-        let mut reader = image::ImageReader::new(std::io::Cursor::new(&bytes))
-            .with_guessed_format()
-            .map_err(|e| format!("{what}: {e}"))?;
-        let mut limits = image::Limits::default();
-        limits.max_image_width = Some(MAX_IMAGE_SIDE);
-        limits.max_image_height = Some(MAX_IMAGE_SIDE);
-        limits.max_alloc = Some(1 << 30);
-        reader.limits(limits);
-        let (w, h) = reader
-            .into_dimensions()
-            .map_err(|e| format!("{what}: cannot decode: {e}"))?;
-        if (w as u64) * (h as u64) > MAX_IMAGE_PIXELS || w == 0 || h == 0 {
-            return Err(format!(
-                "{what}: {w}×{h} pixels is empty or more than the {MAX_IMAGE_PIXELS} allowed"
-            ));
-        }
+        // The size first: the memory budget is charged before anything is decoded.
+        let (w, h) = img::image_size(&bytes).map_err(|e| format!("{what}: {e}"))?;
         self.charge((w as usize) * (h as usize) * 16, &what)?;
-        let mut reader = image::ImageReader::new(std::io::Cursor::new(&bytes))
-            .with_guessed_format()
-            .map_err(|e| format!("{what}: {e}"))?;
-        let mut limits = image::Limits::default();
-        limits.max_image_width = Some(MAX_IMAGE_SIDE);
-        limits.max_image_height = Some(MAX_IMAGE_SIDE);
-        limits.max_alloc = Some(1 << 30);
-        reader.limits(limits);
-        let img = reader
-            .decode()
-            .map_err(|e| format!("{what}: cannot decode: {e}"))?;
         // Values stay as stored (sRGB-encoded for colour); only scaled to [0, 1].
-        let rgba = img.to_rgba32f();
-        let decoded = Rc::new(Decoded {
-            width: rgba.width(),
-            height: rgba.height(),
-            texels: rgba.pixels().map(|p| p.0).collect(),
-        });
+        let decoded = Rc::new(img::decode_image(&bytes).map_err(|e| format!("{what}: {e}"))?);
         self.image_cache.insert(image.index(), decoded.clone());
         Ok(decoded)
     }

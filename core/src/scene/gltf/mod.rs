@@ -128,7 +128,7 @@ pub(super) struct Loader<'a> {
     mesh_cache: HashMap<(usize, usize), Option<usize>>,
     material_cache: HashMap<Option<usize>, usize>,
     texture_cache: HashMap<(usize, bool), usize>,
-    image_cache: HashMap<usize, Rc<material::Decoded>>,
+    image_cache: HashMap<usize, Rc<crate::scene::image::DecodedImage>>,
 }
 
 impl Loader<'_> {

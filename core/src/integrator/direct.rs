@@ -1,0 +1,75 @@
+//! Direct lighting: the light a surface point receives straight from the lights, estimated by
+//! sampling a point or direction on a light and tracing a shadow ray. Shared by the path tracer
+//! (one light chosen by power, weighted by multiple importance sampling against BSDF sampling)
+//! and Whitted's tracer (every light, full weight).
+
+use crate::geometry::Interaction;
+use crate::material::Bsdf;
+use crate::sampling::power_heuristic;
+use crate::sampling::warp::Frame;
+use crate::{RenderJob, Scene};
+use glam::{Vec2, Vec3A};
+
+/// Direct light from one light chosen by `u_select`, MIS-weighted. Returns the contribution
+/// (to be multiplied by the path throughput).
+#[inline]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn sample_one_light(
+    scene: &Scene,
+    job: &RenderJob,
+    it: &Interaction,
+    bsdf: &Bsdf,
+    frame: &Frame,
+    wo: Vec3A,
+    u_select: f32,
+    u: Vec2,
+) -> Vec3A {
+    let Some((index, pmf)) = job.lights().choose(u_select) else {
+        return Vec3A::ZERO;
+    };
+    light_contribution(scene, job, it, bsdf, frame, wo, index, u, true) / pmf
+}
+
+/// Contribution of light `index` sampled once with `u` (without the selection probability).
+/// With `mis`, weighted by the power heuristic against BSDF sampling (the path tracer also
+/// finds emitters by BSDF sampling); without, the full estimate (Whitted finds them only here).
+#[inline]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn light_contribution(
+    scene: &Scene,
+    job: &RenderJob,
+    it: &Interaction,
+    bsdf: &Bsdf,
+    frame: &Frame,
+    wo: Vec3A,
+    index: usize,
+    u: Vec2,
+    mis: bool,
+) -> Vec3A {
+    let Some(s) = job.sample_light(scene, index, it.p, u) else {
+        return Vec3A::ZERO;
+    };
+    if s.li == Vec3A::ZERO || !(s.pdf > 0.0) {
+        return Vec3A::ZERO;
+    }
+    let wi_local = frame.to_local(s.wi);
+    let (f, bsdf_pdf) = bsdf.eval_pdf(wo, wi_local);
+    let f = f * wi_local.z.abs();
+    if f.max_element() <= 0.0 {
+        return Vec3A::ZERO;
+    }
+    let (shadow, tmax) = if s.dist.is_finite() {
+        it.spawn_ray_to(s.p_light, s.n_light)
+    } else {
+        (it.spawn_ray(s.wi), f32::INFINITY)
+    };
+    if scene.occluded(&shadow, tmax) {
+        return Vec3A::ZERO;
+    }
+    if s.delta || !mis {
+        f * s.li / s.pdf
+    } else {
+        let w = power_heuristic(s.pdf * job.lights().pmf(index), bsdf_pdf);
+        f * s.li * (w / s.pdf)
+    }
+}

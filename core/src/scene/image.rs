@@ -1,0 +1,162 @@
+//! Image files for the scene front ends: one decoder with one set of limits, for the textures
+//! and environment maps of JSON scenes and the images of glTF files (PNG, JPEG, Radiance HDR,
+//! OpenEXR, the format found from the bytes).
+//!
+//! Limits: at most [`MAX_IMAGE_SIDE`] pixels on a side and [`MAX_IMAGE_PIXELS`] in all (the
+//! texels are kept as f32 RGBA, 16 bytes each: 1 GiB at the limit), the decoder's allocations
+//! capped likewise, files read up to [`MAX_IMAGE_FILE`]. A larger image is an error, never an
+//! allocation failure.
+
+use std::io::Read;
+use std::path::Path;
+
+/// Largest accepted image side, in pixels.
+pub const MAX_IMAGE_SIDE: u32 = 16384;
+/// Largest accepted image area, in pixels (8192², or 16384 × 4096): 1 GiB of f32 RGBA texels.
+pub const MAX_IMAGE_PIXELS: u64 = 1 << 26;
+/// Largest image file read, in bytes.
+pub const MAX_IMAGE_FILE: u64 = 1 << 30;
+/// Largest allocation the decoder may make, in bytes.
+const MAX_DECODE_ALLOC: u64 = 1 << 30;
+
+/// A decoded image: RGBA texels row by row from the top, values as stored (sRGB-encoded colour
+/// stays encoded), scaled to [0, 1] for integer formats.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DecodedImage {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// The texels.
+    pub texels: Vec<[f32; 4]>,
+}
+
+/// A reader of `bytes`, its decoder's allocations limited.
+fn reader(bytes: &[u8]) -> Result<image::ImageReader<std::io::Cursor<&[u8]>>, String> {
+    let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| format!("cannot read: {e}"))?;
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(MAX_IMAGE_SIDE);
+    limits.max_image_height = Some(MAX_IMAGE_SIDE);
+    limits.max_alloc = Some(MAX_DECODE_ALLOC);
+    reader.limits(limits);
+    Ok(reader)
+}
+
+/// The size of the image in `bytes` without decoding it, within the limits.
+pub fn image_size(bytes: &[u8]) -> Result<(u32, u32), String> {
+    // Reading the header allocates little: no limits, so that the error below names the size.
+    let (w, h) = image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| format!("cannot read: {e}"))?
+        .into_dimensions()
+        .map_err(|e| format!("cannot decode: {e}"))?;
+    if w > MAX_IMAGE_SIDE || h > MAX_IMAGE_SIDE {
+        return Err(format!(
+            "{w}×{h} pixels: more than the {MAX_IMAGE_SIDE} allowed on a side"
+        ));
+    }
+    if (w as u64) * (h as u64) > MAX_IMAGE_PIXELS || w == 0 || h == 0 {
+        return Err(format!(
+            "{w}×{h} pixels is empty or more than the {MAX_IMAGE_PIXELS} allowed"
+        ));
+    }
+    Ok((w, h))
+}
+
+/// Decodes the image in `bytes`, within the limits.
+pub fn decode_image(bytes: &[u8]) -> Result<DecodedImage, String> {
+    image_size(bytes)?;
+    let img = reader(bytes)?
+        .decode()
+        .map_err(|e| format!("cannot decode: {e}"))?
+        .into_rgba32f();
+    Ok(DecodedImage {
+        width: img.width(),
+        height: img.height(),
+        texels: img.pixels().map(|p| p.0).collect(),
+    })
+}
+
+/// Reads and decodes an image file; errors name the file.
+pub fn read_image(path: &Path) -> Result<DecodedImage, String> {
+    let at = |e: String| format!("{}: {e}", path.display());
+    let file = std::fs::File::open(path).map_err(|e| at(e.to_string()))?;
+    let mut bytes = Vec::new();
+    file.take(MAX_IMAGE_FILE + 1)
+        .read_to_end(&mut bytes)
+        .map_err(|e| at(e.to_string()))?;
+    if bytes.len() as u64 > MAX_IMAGE_FILE {
+        return Err(at(format!("larger than {MAX_IMAGE_FILE} bytes")));
+    }
+    decode_image(&bytes).map_err(at)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn png(w: u32, h: u32) -> Vec<u8> {
+        let img =
+            image::RgbaImage::from_fn(w, h, |x, _| image::Rgba([x.min(1) as u8 * 255, 0, 51, 255]));
+        let mut out = Vec::new();
+        img.write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png)
+            .unwrap();
+        out
+    }
+
+    /// A PNG file claiming `w × h` pixels without their data: enough to read its size.
+    fn png_header(w: u32, h: u32) -> Vec<u8> {
+        fn crc32(bytes: &[u8]) -> u32 {
+            let mut c = !0u32;
+            for &b in bytes {
+                c ^= b as u32;
+                for _ in 0..8 {
+                    c = if c & 1 != 0 {
+                        0xEDB8_8320 ^ (c >> 1)
+                    } else {
+                        c >> 1
+                    };
+                }
+            }
+            !c
+        }
+        let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
+        let mut chunk = |kind: &[u8], data: &[u8]| {
+            let body = [kind, data].concat();
+            out.extend((data.len() as u32).to_be_bytes());
+            out.extend(&body);
+            out.extend(crc32(&body).to_be_bytes());
+        };
+        let ihdr = [&w.to_be_bytes()[..], &h.to_be_bytes(), &[8, 6, 0, 0, 0]].concat();
+        chunk(b"IHDR", &ihdr);
+        // An empty image data chunk: decoders read the header up to the first one.
+        chunk(b"IDAT", &[]);
+        chunk(b"IEND", &[]);
+        out
+    }
+
+    #[test]
+    fn decodes_as_stored_and_refuses_what_is_too_big_or_not_an_image() {
+        let d = decode_image(&png(2, 1)).unwrap();
+        assert_eq!((d.width, d.height), (2, 1));
+        assert_eq!(d.texels, vec![[0.0, 0.0, 0.2, 1.0], [1.0, 0.0, 0.2, 1.0]]);
+        assert_eq!(image_size(&png(3, 5)).unwrap(), (3, 5));
+        // Sizes are refused from the header, before any texel is decoded.
+        assert_eq!(image_size(&png_header(300, 200)).unwrap(), (300, 200));
+        let e = decode_image(&png_header(MAX_IMAGE_SIDE + 1, 1)).unwrap_err();
+        assert!(e.contains("on a side"), "{e}");
+        let e = decode_image(&png_header(MAX_IMAGE_SIDE, 4097)).unwrap_err();
+        assert!(e.contains("allowed"), "{e}");
+        assert!(decode_image(b"not an image").is_err());
+        let dir = std::env::temp_dir().join(format!("raytile-image-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let f = dir.join("t.png");
+        std::fs::write(&f, png(2, 2)).unwrap();
+        assert_eq!(read_image(&f).unwrap().width, 2);
+        let e = read_image(&dir.join("missing.png")).unwrap_err();
+        assert!(e.contains("missing.png"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

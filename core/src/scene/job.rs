@@ -1,0 +1,330 @@
+//! What one render adds to a built [`Scene`]: the settings, the camera set up for the image
+//! size, the environment (the scene's own, none, or one the job brings) and the distribution
+//! that picks lights, which depends on that environment. Cheap to make (the light distribution
+//! is linear in the number of lights), so a scene built once serves every job on it.
+
+use super::{ObjectKind, Scene, SceneCamera, SceneError};
+use crate::camera::{Camera, Projection};
+use crate::film::FilterSampler;
+use crate::geometry::{Aabb, Interaction};
+use crate::light::{Environment, Light, LightSample, LightSet};
+use crate::RenderSettings;
+use glam::{Mat4, Vec2, Vec3, Vec3A};
+use std::sync::Arc;
+
+/// A render of a [`Scene`] with given settings: everything that depends on the job rather than
+/// on the scene's bytes. [`crate::render`], [`crate::render_tile`] and the integrators take it
+/// beside the scene.
+#[derive(Clone, Debug)]
+pub struct RenderJob {
+    /// The settings, validated.
+    pub settings: RenderSettings,
+    /// The camera, for the settings' image size.
+    pub camera: Camera,
+    /// Draws pixel-filter offsets.
+    pub(crate) filter: FilterSampler,
+    /// The light arriving from infinitely far away, if any.
+    environment: Option<Arc<Environment>>,
+    /// Chooses among the scene's lights and the environment.
+    lights: LightSet,
+}
+
+impl RenderJob {
+    /// The job rendering `scene` with `settings`: the camera the settings name (the scene's
+    /// first, or one framing the scene if it has none) and the scene's environment, but for
+    /// the default light a loader added when [`RenderSettings::default_light`] is off.
+    pub fn new(scene: &Scene, settings: &RenderSettings) -> Result<RenderJob, SceneError> {
+        settings
+            .validate()
+            .map_err(|e| SceneError::Invalid(format!("render setting {e}")))?;
+        let camera = if scene.cameras.is_empty() && settings.camera.is_none() {
+            default_camera(&scene.bounds)
+        } else {
+            select_camera(&scene.cameras, settings.camera.as_deref())?.clone()
+        };
+        let camera = Camera::new(
+            camera.transform,
+            camera.projection,
+            settings.width,
+            settings.height,
+        );
+        let environment = if scene.default_environment && !settings.default_light {
+            None
+        } else {
+            scene.environment.clone()
+        };
+        let job = RenderJob {
+            settings: settings.clone(),
+            camera,
+            filter: FilterSampler::new(settings.filter),
+            environment: None,
+            lights: LightSet::default(),
+        };
+        Ok(job.with_environment(scene, environment))
+    }
+
+    /// This job with `environment` in place of the one it had (`None`: no environment), and
+    /// the light distribution that goes with it: how a job brings an environment of its own.
+    pub fn with_environment(
+        mut self,
+        scene: &Scene,
+        environment: Option<Arc<Environment>>,
+    ) -> Self {
+        let power = environment.as_ref().map(|e| e.power(scene.radius));
+        self.lights = LightSet::new(&scene.lights, scene.radius, power);
+        self.environment = environment;
+        self
+    }
+
+    /// The environment, if any.
+    #[inline]
+    pub fn environment(&self) -> Option<&Environment> {
+        self.environment.as_deref()
+    }
+
+    /// The light distribution: the scene's lights by index, then the environment.
+    #[inline]
+    pub fn lights(&self) -> &LightSet {
+        &self.lights
+    }
+
+    /// Samples light `index` of [`RenderJob::lights`] from the point `p` with `u`.
+    #[inline]
+    pub(crate) fn sample_light(
+        &self,
+        scene: &Scene,
+        index: usize,
+        p: Vec3A,
+        u: Vec2,
+    ) -> Option<LightSample> {
+        match scene.lights.get(index) {
+            Some(&Light::Area { light, prim, .. }) => {
+                scene.area_lights[light as usize].sample(prim, p, u, &scene.textures)
+            }
+            Some(l) => l.sample_delta(p),
+            None => {
+                let (wi, li, pdf) = self.environment.as_ref()?.sample(u)?;
+                Some(LightSample {
+                    wi,
+                    li,
+                    pdf,
+                    dist: f32::INFINITY,
+                    delta: false,
+                    p_light: p + wi,
+                    n_light: Vec3A::ZERO,
+                })
+            }
+        }
+    }
+
+    /// Solid-angle density with which light sampling (selection included) would have produced
+    /// the point `it` on an emitter, seen from `from`.
+    #[inline]
+    pub(crate) fn area_light_pdf(&self, scene: &Scene, it: &Interaction, from: Vec3A) -> f32 {
+        let o = &scene.objects[it.object as usize];
+        if o.light_base == u32::MAX {
+            return 0.0;
+        }
+        let li = o.light_base
+            + if matches!(o.kind, ObjectKind::Mesh { .. }) {
+                it.prim
+            } else {
+                0
+            };
+        let pmf = self.lights.pmf(li as usize);
+        let Some(&Light::Area { light, prim, .. }) = scene.lights.get(li as usize) else {
+            return 0.0;
+        };
+        pmf * scene.area_lights[light as usize].pdf(prim, it.p, it.ng, from)
+    }
+}
+
+fn invalid(msg: impl Into<String>) -> SceneError {
+    SceneError::Invalid(msg.into())
+}
+
+/// Picks the camera named or numbered `sel` (the first if `None`).
+fn select_camera<'a>(
+    cameras: &'a [SceneCamera],
+    sel: Option<&str>,
+) -> Result<&'a SceneCamera, SceneError> {
+    let names = || {
+        cameras
+            .iter()
+            .enumerate()
+            .map(|(i, c)| format!("{i}:{}", c.name))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    match sel {
+        None => cameras
+            .first()
+            .ok_or_else(|| invalid("the scene has no camera")),
+        Some(s) => {
+            if let Some(c) = cameras.iter().find(|c| c.name == s) {
+                return Ok(c);
+            }
+            if let Ok(i) = s.parse::<usize>() {
+                if let Some(c) = cameras.get(i) {
+                    return Ok(c);
+                }
+            }
+            Err(invalid(format!(
+                "no camera named or numbered '{s}' (cameras: {})",
+                names()
+            )))
+        }
+    }
+}
+
+/// A default camera framing `bounds` from +Z, for scenes without one.
+fn default_camera(bounds: &Aabb) -> SceneCamera {
+    let (center, radius) =
+        if bounds.min.is_finite() && bounds.max.is_finite() && bounds.min.cmple(bounds.max).all() {
+            (
+                bounds.center(),
+                (bounds.diagonal().length() * 0.5).max(1e-3),
+            )
+        } else {
+            (Vec3A::ZERO, 1.0)
+        };
+    let yfov = 45f32.to_radians();
+    let dist = radius / (yfov * 0.5).sin();
+    SceneCamera {
+        name: "default".into(),
+        transform: Mat4::from_translation(Vec3::from(center + Vec3A::Z * dist)),
+        projection: Projection::Perspective {
+            yfov,
+            aperture_radius: 0.0,
+            focus_distance: dist,
+        },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Ray;
+    use crate::sampling::hash_u32;
+    use crate::scene::desc::*;
+    use glam::Mat4;
+
+    fn rnd(i: u32) -> f32 {
+        (hash_u32(i) >> 8) as f32 / (1u32 << 24) as f32
+    }
+
+    /// Emitters of both kinds: a two-triangle mesh lamp, a squashed emissive sphere, and a
+    /// point light; a floor to stand on.
+    fn lit_scene() -> Scene {
+        let mut lamp = MaterialDesc::new(
+            "lamp",
+            BsdfDesc::Diffuse {
+                albedo: Vec3::ZERO,
+                texture: None,
+            },
+        );
+        lamp.emission = Vec3::new(4.0, 3.0, 2.0);
+        let mut ball = lamp.clone();
+        ball.emission = Vec3::new(1.0, 1.0, 5.0);
+        let desc = SceneDesc {
+            materials: vec![lamp, ball],
+            meshes: vec![MeshDesc {
+                name: "lamp".into(),
+                positions: vec![
+                    Vec3::new(-1.0, 2.0, -1.0),
+                    Vec3::new(1.0, 2.0, -1.0),
+                    Vec3::new(1.0, 2.0, 1.0),
+                    Vec3::new(-1.0, 2.0, 1.0),
+                ],
+                // Facing down (−Y), towards the points the test samples from.
+                indices: vec![[0, 1, 2], [0, 2, 3]],
+                ..Default::default()
+            }],
+            objects: vec![
+                ObjectDesc {
+                    name: "lamp".into(),
+                    shape: ShapeDesc::Mesh { mesh: 0 },
+                    material: 0,
+                    transform: Mat4::IDENTITY,
+                },
+                ObjectDesc {
+                    name: "ball".into(),
+                    shape: ShapeDesc::Sphere {
+                        center: Vec3::ZERO,
+                        radius: 0.3,
+                    },
+                    material: 1,
+                    transform: Mat4::from_translation(Vec3::new(1.5, 0.5, 0.0))
+                        * Mat4::from_scale(Vec3::new(1.0, 2.0, 1.0)),
+                },
+            ],
+            lights: vec![LightDesc::Point {
+                position: Vec3::new(0.0, 3.0, 0.0),
+                intensity: Vec3::ONE,
+                range: f32::INFINITY,
+            }],
+            ..Default::default()
+        };
+        Scene::build(&desc).unwrap()
+    }
+
+    #[test]
+    fn the_mis_density_of_a_hit_emitter_is_the_density_light_sampling_gave_it() {
+        let scene = lit_scene();
+        let job = RenderJob::new(&scene, &RenderSettings::default()).unwrap();
+        assert_eq!(job.lights().len(), 4, "point, two triangles, the sphere");
+        let from = Vec3A::new(0.2, -0.5, 0.3);
+        let mut checked = 0;
+        for i in 0..400 {
+            let (index, pmf) = job.lights().choose(rnd(3 * i)).unwrap();
+            let u = Vec2::new(rnd(3 * i + 1), rnd(3 * i + 2));
+            let Some(s) = job.sample_light(&scene, index, from, u) else {
+                continue;
+            };
+            if s.delta {
+                assert!(matches!(scene.lights[index], Light::Point { .. }));
+                continue;
+            }
+            // Trace towards the sampled point: the emitter hit there must give the same
+            // density (selection included) to the path tracer's MIS.
+            let ray = Ray::new(from, s.wi);
+            let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
+                panic!("light sample {i} points at nothing");
+            };
+            if (ray.at(hit.t) - s.p_light).length() > 1e-3 {
+                continue; // the sphere's far side, behind its near side
+            }
+            let it = scene.interaction(&ray, &hit);
+            let pdf = job.area_light_pdf(&scene, &it, from);
+            assert!(
+                (pdf - s.pdf * pmf).abs() <= 1e-3 * pdf,
+                "sample {i} of light {index}: {pdf} vs {}",
+                s.pdf * pmf
+            );
+            assert_eq!(scene.emitted(&it, -s.wi), s.li);
+            checked += 1;
+        }
+        assert!(checked > 200, "{checked}");
+    }
+
+    #[test]
+    fn the_environment_is_the_jobs_and_the_light_distribution_follows_it() {
+        let scene = lit_scene();
+        let settings = RenderSettings::default();
+        let job = RenderJob::new(&scene, &settings).unwrap();
+        assert!(job.environment().is_none());
+        let env = Arc::new(Environment::constant(Vec3A::splat(0.5)));
+        let job = job.with_environment(&scene, Some(env));
+        assert_eq!(job.lights().len(), 5);
+        assert_eq!(job.lights().environment(), Some(4));
+        let s = job
+            .sample_light(&scene, 4, Vec3A::ZERO, Vec2::new(0.3, 0.7))
+            .unwrap();
+        assert!(!s.delta && !s.dist.is_finite() && s.li == Vec3A::splat(0.5));
+        let job = job.with_environment(&scene, None);
+        assert_eq!(job.lights().len(), 4);
+        assert!(job
+            .sample_light(&scene, 4, Vec3A::ZERO, Vec2::ZERO)
+            .is_none());
+    }
+}
