@@ -62,10 +62,12 @@ pub fn compose_by_pass<E>(
             if work.pass as usize != pass || acc.tile != work.tile || !open[t] || seen[t] {
                 return;
             }
-            seen[t] = true;
             // The core's own film operations, so the coordinator and a local render share
-            // every bit.
-            film.add_tile(&acc);
+            // every bit. A tile the film refuses counts as missing.
+            match film.add_tile(&acc) {
+                Ok(()) => seen[t] = true,
+                Err(e) => tracing::error!(task = idx, "stored result left out: {e}"),
+            }
         })?;
         for (o, s) in open.iter_mut().zip(&seen) {
             *o &= *s;
@@ -123,7 +125,7 @@ mod tests {
         let mut want = Film::new(40, 24);
         for p in 0..3 {
             for t in &s.tiles() {
-                want.add_tile(&fake(*t, p));
+                want.add_tile(&fake(*t, p)).unwrap();
             }
         }
         let mut results = results(&layout);

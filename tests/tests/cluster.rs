@@ -1116,3 +1116,50 @@ mod scene_cache {
         c.stop().await;
     }
 }
+
+/// Cancel: a worker rendering a long tile of a cancelled job stops within about a second (its
+/// next heartbeat, then the render's next look at its cancel flag) and takes the next job.
+/// (Needs the core.)
+mod cancel {
+    use super::*;
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_cancel_frees_the_worker_within_a_second() {
+        let scene = cornell();
+        let dir = tempfile::tempdir().unwrap();
+        let c = Coord::start(test_config(&dir.path().join("data")), 0).await;
+        let w = Worker::start(&c.base, 1, dir.path(), "w");
+        let id = upload(&c.base, std::fs::read(&scene).unwrap()).await;
+        // One 64×64 tile of 2^20 samples per pixel: hours of work unless cancelled.
+        let mut long = job(&id, 64);
+        long.overrides.spp = Some(1 << 20);
+        long.overrides.passes = Some(1);
+        let j = submit(&c.base, &long).await;
+        wait_for(&c.base, &j.id, 60, |s| s.tasks_leased == 1).await;
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        let r = reqwest::Client::new()
+            .delete(format!("{}/v1/jobs/{}", c.base, j.id))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 200);
+        let cancelled = tokio::time::Instant::now();
+        while w.stats.cancelled.load(Ordering::Relaxed) == 0 {
+            assert!(
+                cancelled.elapsed() < Duration::from_secs(10),
+                "the worker is still rendering the cancelled tile"
+            );
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        let took = cancelled.elapsed();
+        assert!(took < Duration::from_millis(1500), "freed after {took:?}");
+        assert_eq!(w.stats.renders.load(Ordering::Relaxed), 0);
+        // Free: the next job is rendered.
+        let next = submit(&c.base, &job(&id, 32)).await;
+        let done = wait_for(&c.base, &next.id, 120, |s| s.state.is_final()).await;
+        assert_eq!(done.state, JobState::Done);
+        eprintln!("the worker stopped rendering {took:?} after the cancel");
+        w.stop().await;
+        c.stop().await;
+    }
+}

@@ -36,6 +36,8 @@ pub struct Stats {
     pub failures: AtomicU64,
     /// Scenes this worker loaded and built (a scene already in the cache is not built again).
     pub scene_builds: AtomicU64,
+    /// Tile passes stopped part-way: the job was cancelled, or the lease was lost.
+    pub cancelled: AtomicU64,
 }
 
 /// How a worker runs.
@@ -419,6 +421,10 @@ impl Worker {
             lease.sample_start..lease.sample_end,
         );
         let job = self.jobs.get(&lease.job).cloned();
+        // Set when the coordinator says stop: the render returns within a fraction of a
+        // second instead of keeping the render threads busy to the end of the tile.
+        let cancel = Arc::new(raytile_core::Cancel::new());
+        let watched = cancel.clone();
         let mut render = tokio::task::spawn_blocking(move || {
             pool.install(|| {
                 std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
@@ -428,7 +434,7 @@ impl Worker {
                             RenderJob::new(&scene, &settings).map_err(|e| format!("job: {e}"))?,
                         ),
                     };
-                    let accum = raytile_core::render_tile(&scene, &job, tile, samples);
+                    let accum = raytile_core::render_tile(&scene, &job, tile, samples, &watched);
                     Ok::<_, String>((accum, job))
                 }))
             })
@@ -439,13 +445,18 @@ impl Worker {
             tokio::select! {
                 biased;
                 _ = &mut *shutdown => {
-                    // Rendering cannot be interrupted; hand the lease back so another worker
-                    // takes the tile at once, and let the thread finish on its own.
+                    // Hand the lease back so another worker takes the tile at once; the render
+                    // stops at its next look at the flag.
+                    cancel.cancel();
                     self.release(&lease).await;
                     return Flow::Exit;
                 }
                 r = &mut render => match r {
-                    Ok(Ok(acc)) => break acc,
+                    Ok(Ok((Ok(acc), job))) => break (acc, job),
+                    Ok(Ok((Err(raytile_core::Cancelled), _))) => {
+                        self.cfg.stats.cancelled.fetch_add(1, Ordering::Relaxed);
+                        return Flow::Continue;
+                    }
                     Ok(Err(msg)) => {
                         self.report_failure(&lease, msg).await;
                         return Flow::Continue;
@@ -461,6 +472,11 @@ impl Worker {
                         if reply.cancelled {
                             tracing::info!(job = %lease.job, task = lease.task,
                                 reason = reply.reason.as_deref().unwrap_or(""), "stopping task");
+                            // Stop the render and wait for it, so the render threads are free
+                            // for the next task.
+                            cancel.cancel();
+                            let _ = (&mut render).await;
+                            self.cfg.stats.cancelled.fetch_add(1, Ordering::Relaxed);
                             return Flow::Continue;
                         }
                     }
