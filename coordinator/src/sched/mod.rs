@@ -588,6 +588,11 @@ impl Sched {
             tracing::info!(job = %job_id, task = i, "lease expired; task re-queued");
         }
         self.counters.expired += n as u64;
+        // Leases of jobs that ended or were purged stop nothing any more: forget them (memory
+        // only; a heartbeat on one is told to stop all the same).
+        let jobs = &self.jobs;
+        self.leases
+            .retain(|_, (j, _)| jobs.get(j.as_str()).is_some_and(|j| !j.is_final()));
         // Jobs every live worker is blocked from (the last one blocked may have gone since).
         let block = self.cfg.block_worker_after;
         let error = format!(

@@ -658,3 +658,19 @@ fn creating_the_largest_allowed_job_stores_one_row() {
     eprintln!("creating a job of 2^18 tasks held the scheduler for {took:?}");
     assert!(took < Duration::from_secs(2), "{took:?}");
 }
+
+#[test]
+fn leases_of_cancelled_jobs_are_forgotten_at_the_next_expiry_tick() {
+    let dir = tempfile::tempdir().unwrap();
+    let now = t0();
+    let mut s = open(dir.path(), now);
+    let w = s.register("w", 1, now).unwrap();
+    let job = s.new_job("s".into(), small(1), 0, now).unwrap().id;
+    let g = s.lease(&w, now).unwrap().unwrap();
+    s.cancel(&job, now).unwrap();
+    assert_eq!(s.leases.len(), 1);
+    assert_eq!(s.expire(now).unwrap(), 0);
+    assert!(s.leases.is_empty());
+    assert!(matches!(s.heartbeat(&g.lease, now), Heartbeat::Stop { .. }));
+    assert!(!s.fail(&g.lease, "late", now).unwrap());
+}
