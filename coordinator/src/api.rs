@@ -1,68 +1,95 @@
-//! HTTP handlers and the router. Every route is listed in [`ROUTES`], which the OpenAPI
-//! document and its test check against.
+//! HTTP handlers and the router. [`routes`] lists what the router serves, read from the same
+//! code that builds it, so the OpenAPI test checks the real router, not a copy.
 
 use crate::compose;
-use crate::error::{AppError, Json};
+use crate::error::{AppError, Json, Path, Query};
 use crate::scenes::{self, UploadQuery};
-use crate::sched::{Delivery, Heartbeat, ResultOutcome};
+use crate::sched::{Delivery, Heartbeat, ResultOutcome, TaskLayout};
 use crate::AppState;
 use axum::body::Body;
-use axum::extract::{DefaultBodyLimit, Path, Query, Request, State};
-use axum::http::{header, HeaderMap, StatusCode};
+use axum::extract::{DefaultBodyLimit, Request, State};
+use axum::http::{header, HeaderMap, Method, StatusCode};
 use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
-use axum::routing::{get, post, put};
+use axum::routing::{on, MethodFilter, MethodRouter};
 use axum::Router;
 use futures_util::StreamExt;
 use raytile_core::film::ImageFormat;
 use raytile_proto::{self as proto, JobRequest};
 use serde::Deserialize;
 use std::fmt::Write as _;
+use std::sync::Arc;
 use std::time::Duration;
 use tokio::time::Instant;
 
-/// Every route: (method, path) as in the router and the OpenAPI document.
-pub const ROUTES: &[(&str, &str)] = &[
-    ("get", "/healthz"),
-    ("get", "/metrics"),
-    ("get", "/v1/openapi.json"),
-    ("post", "/v1/scenes"),
-    ("get", "/v1/scenes/{id}"),
-    ("post", "/v1/jobs"),
-    ("get", "/v1/jobs"),
-    ("get", "/v1/jobs/{id}"),
-    ("delete", "/v1/jobs/{id}"),
-    ("get", "/v1/jobs/{id}/image"),
-    ("put", "/v1/jobs/{id}/tasks/{task}/result"),
-    ("post", "/v1/workers"),
-    ("get", "/v1/workers"),
-    ("post", "/v1/workers/{id}/lease"),
-    ("post", "/v1/leases/{lease}/heartbeat"),
-    ("post", "/v1/leases/{lease}/failure"),
-    ("post", "/v1/leases/{lease}/release"),
-];
+/// Largest JSON request body, in bytes; more is answered 413. (Uploads stream their `Body`
+/// and enforce their own limits.)
+pub const JSON_BODY_LIMIT: usize = 1 << 20;
 
-/// The router with every route, the auth layer and the JSON body limit.
+/// The router being built, and every (method, path) it routes.
+struct Routes {
+    router: Router<AppState>,
+    list: Vec<(Method, &'static str)>,
+}
+
+impl Routes {
+    fn add<H, T>(mut self, method: Method, path: &'static str, handler: H) -> Routes
+    where
+        H: axum::handler::Handler<T, AppState>,
+        T: 'static,
+    {
+        let filter = MethodFilter::try_from(method.clone()).expect("a method axum routes");
+        let route: MethodRouter<AppState> = on(filter, handler);
+        self.router = self.router.route(path, route);
+        self.list.push((method, path));
+        self
+    }
+}
+
+/// Every route, built once for the router and once for [`routes`].
+fn build() -> Routes {
+    let r = Routes {
+        router: Router::new(),
+        list: Vec::new(),
+    };
+    r.add(Method::GET, "/healthz", healthz)
+        .add(Method::GET, "/metrics", metrics)
+        .add(Method::GET, "/v1/openapi.json", openapi)
+        .add(Method::POST, "/v1/scenes", upload_scene)
+        .add(Method::GET, "/v1/scenes/{id}", download_scene)
+        .add(Method::POST, "/v1/jobs", create_job)
+        .add(Method::GET, "/v1/jobs", list_jobs)
+        .add(Method::GET, "/v1/jobs/{id}", get_job)
+        .add(Method::DELETE, "/v1/jobs/{id}", cancel_job)
+        .add(Method::GET, "/v1/jobs/{id}/image", job_image)
+        .add(
+            Method::PUT,
+            "/v1/jobs/{id}/tasks/{task}/result",
+            upload_result,
+        )
+        .add(Method::POST, "/v1/workers", register)
+        .add(Method::GET, "/v1/workers", list_workers)
+        .add(Method::POST, "/v1/workers/{id}/lease", lease)
+        .add(Method::POST, "/v1/leases/{lease}/heartbeat", heartbeat)
+        .add(Method::POST, "/v1/leases/{lease}/failure", failure)
+        .add(Method::POST, "/v1/leases/{lease}/release", release)
+}
+
+/// Every (method, path) the router serves, as the router was built.
+pub fn routes() -> Vec<(Method, &'static str)> {
+    build().list
+}
+
+/// The router with every route, the auth layer and the JSON body limit. Unknown paths (404),
+/// known paths with another method (405) and every extractor's rejection answer the API's
+/// JSON error body.
 pub fn app(state: AppState) -> Router {
-    Router::new()
-        .route("/healthz", get(healthz))
-        .route("/metrics", get(metrics))
-        .route("/v1/openapi.json", get(openapi))
-        .route("/v1/scenes", post(upload_scene))
-        .route("/v1/scenes/{id}", get(download_scene))
-        .route("/v1/jobs", post(create_job).get(list_jobs))
-        .route("/v1/jobs/{id}", get(get_job).delete(cancel_job))
-        .route("/v1/jobs/{id}/image", get(job_image))
-        .route("/v1/jobs/{id}/tasks/{task}/result", put(upload_result))
-        .route("/v1/workers", post(register).get(list_workers))
-        .route("/v1/workers/{id}/lease", post(lease))
-        .route("/v1/leases/{lease}/heartbeat", post(heartbeat))
-        .route("/v1/leases/{lease}/failure", post(failure))
-        .route("/v1/leases/{lease}/release", post(release))
+    build()
+        .router
         .fallback(|| async { AppError::NotFound("no such endpoint".into()) })
+        .method_not_allowed_fallback(|| async { AppError::MethodNotAllowed })
         .layer(middleware::from_fn_with_state(state.clone(), auth))
-        // JSON bodies are small; uploads stream `Body` and enforce their own limits.
-        .layer(DefaultBodyLimit::max(1 << 20))
+        .layer(DefaultBodyLimit::max(JSON_BODY_LIMIT))
         .with_state(state)
 }
 
@@ -212,21 +239,16 @@ async fn create_job(
         .resolve(&req.overrides)
         .map_err(|e| AppError::invalid(e.field, e.message))?;
     let lim = &state.cfg.limits;
-    if u64::from(settings.width) * u64::from(settings.height) > lim.max_pixels {
-        return Err(AppError::invalid(
-            "width",
-            format!(
-                "width × height must be at most {} pixels on this coordinator",
-                lim.max_pixels
-            ),
-        ));
-    }
-    if settings.spp > lim.max_spp {
-        return Err(AppError::invalid(
-            "spp",
-            format!("must be at most {} on this coordinator", lim.max_spp),
-        ));
-    }
+    lim.check_job(&settings)
+        .map_err(|e| AppError::invalid(e.field, e.message))?;
+    // The layout (every tile, ordered centre-out) is the costly part of a large job: made here,
+    // outside the scheduler's lock, which then only stores one row.
+    let layout = {
+        let s = settings.clone();
+        tokio::task::spawn_blocking(move || Arc::new(TaskLayout::new(&s)))
+            .await
+            .map_err(AppError::internal)?
+    };
     let status = {
         let mut s = state.sched();
         if s.unfinished_jobs() >= lim.max_queued_jobs {
@@ -236,9 +258,18 @@ async fn create_job(
                 lim.max_queued_jobs
             )));
         }
+        let queued = s.unfinished_tasks();
+        if queued + layout.task_count() as u64 > lim.max_queued_tasks {
+            return Err(AppError::TooMany(format!(
+                "unfinished jobs hold {queued} tasks already; this job's {} would pass the limit of {}",
+                layout.task_count(),
+                lim.max_queued_tasks
+            )));
+        }
         s.create_job(
             req.scene.clone(),
             settings,
+            layout,
             req.priority.unwrap_or(0),
             state.now(),
         )?
@@ -309,16 +340,17 @@ async fn job_image(
         (layout, s.reader().map_err(AppError::internal)?)
     };
     let job_id = id.clone();
+    // Pass by pass, one stored tile decoded at a time: the frame and one tile in memory.
     let bytes = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, AppError> {
-        let mut results = Vec::new();
-        crate::store::for_each_result(&conn, &job_id, |idx, data| {
-            match proto::tile::decode(data) {
-                Ok((acc, _)) => results.push((idx, acc)),
-                Err(e) => tracing::error!(job = %job_id, idx, "stored result unreadable: {e}"),
-            }
+        let film = compose::compose_by_pass(&layout, |tasks, add| {
+            crate::store::for_each_result(&conn, &job_id, tasks, |idx, data| {
+                match proto::tile::decode(data) {
+                    Ok((acc, _)) => add(idx, acc),
+                    Err(e) => tracing::error!(job = %job_id, idx, "stored result unreadable: {e}"),
+                }
+            })
         })
         .map_err(AppError::internal)?;
-        let film = compose::compose(&layout, results);
         compose::encode(&film, format).map_err(AppError::internal)
     })
     .await
@@ -465,6 +497,13 @@ async fn release(
     Ok(StatusCode::NO_CONTENT)
 }
 
+/// Path parameters of a result upload (by name, so that a bad one is named in the answer).
+#[derive(Deserialize)]
+struct TaskPath {
+    id: String,
+    task: u32,
+}
+
 #[derive(Deserialize)]
 struct ResultQuery {
     /// Worker id, for the per-worker share.
@@ -473,7 +512,7 @@ struct ResultQuery {
 
 async fn upload_result(
     State(state): State<AppState>,
-    Path((job, task)): Path<(String, u32)>,
+    Path(TaskPath { id: job, task }): Path<TaskPath>,
     Query(q): Query<ResultQuery>,
     headers: HeaderMap,
     body: Body,

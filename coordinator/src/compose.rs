@@ -7,6 +7,7 @@
 use crate::sched::TaskLayout;
 use raytile_core::film::{ImageFormat, OutputOptions};
 use raytile_core::{Film, TileAccum};
+use std::ops::Range;
 
 /// The MIME type of an image format the API serves.
 pub fn content_type(format: ImageFormat) -> &'static str {
@@ -19,28 +20,60 @@ pub fn content_type(format: ImageFormat) -> &'static str {
 
 /// Builds the frame from `(task index, decoded result)` pairs given in any order.
 pub fn compose(layout: &TaskLayout, results: Vec<(u32, TileAccum)>) -> Film {
-    // slot[pass][tile]
-    let mut slots: Vec<Vec<Option<TileAccum>>> = (0..layout.pass_count())
-        .map(|_| (0..layout.tile_count()).map(|_| None).collect())
-        .collect();
+    let mut by_task: Vec<Option<TileAccum>> = (0..layout.task_count()).map(|_| None).collect();
     for (idx, acc) in results {
-        let Some(work) = layout.task(idx as usize) else {
-            continue;
-        };
-        slots[work.pass as usize][work.tile_index as usize] = Some(acc);
-    }
-    // The core's own film operations, so the coordinator and a local render share every bit.
-    let mut film = Film::new(layout.width(), layout.height());
-    let mut open = vec![true; layout.tile_count()];
-    for pass in slots {
-        for (tile, acc) in pass.into_iter().enumerate() {
-            match acc {
-                Some(acc) if open[tile] => film.add_tile(&acc),
-                _ => open[tile] = false,
-            }
+        if let Some(slot) = by_task.get_mut(idx as usize) {
+            *slot = Some(acc);
         }
     }
-    film
+    let read = |tasks: Range<usize>, add: &mut dyn FnMut(u32, TileAccum)| {
+        for i in tasks {
+            if let Some(acc) = by_task[i].take() {
+                add(i as u32, acc);
+            }
+        }
+        Ok::<(), std::convert::Infallible>(())
+    };
+    match compose_by_pass(layout, read) {
+        Ok(film) => film,
+        Err(never) => match never {},
+    }
+}
+
+/// Builds the frame pass by pass: `read_pass(tasks, add)` hands every stored result among the
+/// task indices `tasks` (one pass's) to `add`, one at a time, so that the frame and one tile
+/// are all that is held. A tile takes the passes before its first missing one, added in pass
+/// order, as a local render adds them; a result that is not the task's tile is left out.
+pub fn compose_by_pass<E>(
+    layout: &TaskLayout,
+    mut read_pass: impl FnMut(Range<usize>, &mut dyn FnMut(u32, TileAccum)) -> Result<(), E>,
+) -> Result<Film, E> {
+    let mut film = Film::new(layout.width(), layout.height());
+    // Tiles whose passes so far are all present.
+    let mut open = vec![true; layout.tile_count()];
+    let mut seen = vec![false; layout.tile_count()];
+    for pass in 0..layout.pass_count() {
+        seen.fill(false);
+        read_pass(layout.pass_tasks(pass), &mut |idx, acc| {
+            let Some(work) = layout.task(idx as usize) else {
+                return;
+            };
+            let t = work.tile_index as usize;
+            if work.pass as usize != pass || acc.tile != work.tile || !open[t] || seen[t] {
+                return;
+            }
+            // The core's own film operations, so the coordinator and a local render share
+            // every bit. A tile the film refuses counts as missing.
+            match film.add_tile(&acc) {
+                Ok(()) => seen[t] = true,
+                Err(e) => tracing::error!(task = idx, "stored result left out: {e}"),
+            }
+        })?;
+        for (o, s) in open.iter_mut().zip(&seen) {
+            *o &= *s;
+        }
+    }
+    Ok(film)
 }
 
 /// Encodes the film with the core's encoder and default output options.
@@ -92,7 +125,7 @@ mod tests {
         let mut want = Film::new(40, 24);
         for p in 0..3 {
             for t in &s.tiles() {
-                want.add_tile(&fake(*t, p));
+                want.add_tile(&fake(*t, p)).unwrap();
             }
         }
         let mut results = results(&layout);

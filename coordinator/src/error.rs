@@ -1,5 +1,10 @@
-//! The one error type of the HTTP API and its JSON body.
+//! The one error type of the HTTP API and its JSON body, and the extractors ([`Json`],
+//! [`Query`], [`Path`]) whose rejections use it: no answer of the coordinator is axum's plain
+//! text.
 
+use axum::extract::rejection::{JsonRejection, PathRejection};
+use axum::extract::FromRequestParts;
+use axum::http::request::Parts;
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use raytile_proto::{ErrorBody, ErrorDetail};
@@ -24,9 +29,15 @@ pub enum AppError {
     /// 409: the request conflicts with the object's state.
     #[error("{0}")]
     Conflict(String),
+    /// 405: the path exists, the method does not.
+    #[error("method not allowed here")]
+    MethodNotAllowed,
     /// 413: the body is over the limit.
     #[error("request body over the limit of {0} bytes")]
     TooLarge(u64),
+    /// 415: a JSON body without `Content-Type: application/json`.
+    #[error("{0}")]
+    UnsupportedMediaType(String),
     /// 422: well-formed but invalid (settings, scene content).
     #[error("{message}")]
     Invalid {
@@ -38,9 +49,15 @@ pub enum AppError {
     /// 429: too many queued jobs.
     #[error("{0}")]
     TooMany(String),
-    /// 503: shutting down.
+    /// 503: shutting down (retryable: another coordinator, or this one restarted, answers).
     #[error("shutting down")]
     Unavailable,
+    /// 503: the store could not be written (disk full, read-only...): nothing changed, and
+    /// the same request may succeed later. Logged in full, answered briefly.
+    #[error(
+        "the coordinator cannot write its database at the moment; nothing was changed: retry later"
+    )]
+    StoreUnavailable(#[source] rusqlite::Error),
     /// 500: anything else; logged in full, answered briefly.
     #[error("internal error")]
     Internal(#[from] anyhow::Error),
@@ -75,31 +92,54 @@ impl From<crate::sched::SchedError> for AppError {
         match e {
             S::NoJob(_) | S::NoTask(..) | S::NoWorker(_) => AppError::NotFound(e.to_string()),
             S::Mismatch(m) => AppError::invalid("body", m),
-            S::Store(e) => AppError::Internal(e.into()),
+            S::Store(e) => AppError::StoreUnavailable(e),
+        }
+    }
+}
+
+impl AppError {
+    /// The status, the machine-readable code and the field of the answer.
+    fn parts(&self) -> (StatusCode, &'static str, Option<String>) {
+        match self {
+            AppError::BadRequest { field, .. } => {
+                (StatusCode::BAD_REQUEST, "bad_request", field.clone())
+            }
+            AppError::Unauthorized => (StatusCode::UNAUTHORIZED, "unauthorized", None),
+            AppError::NotFound(_) => (StatusCode::NOT_FOUND, "not_found", None),
+            AppError::MethodNotAllowed => {
+                (StatusCode::METHOD_NOT_ALLOWED, "method_not_allowed", None)
+            }
+            AppError::Conflict(_) => (StatusCode::CONFLICT, "conflict", None),
+            AppError::TooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, "too_large", None),
+            AppError::UnsupportedMediaType(_) => (
+                StatusCode::UNSUPPORTED_MEDIA_TYPE,
+                "unsupported_media_type",
+                Some("body".into()),
+            ),
+            AppError::Invalid { field, .. } => {
+                (StatusCode::UNPROCESSABLE_ENTITY, "invalid", field.clone())
+            }
+            AppError::TooMany(_) => (StatusCode::TOO_MANY_REQUESTS, "too_many", None),
+            AppError::Unavailable => (StatusCode::SERVICE_UNAVAILABLE, "unavailable", None),
+            AppError::StoreUnavailable(_) => {
+                (StatusCode::SERVICE_UNAVAILABLE, "store_unavailable", None)
+            }
+            AppError::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal", None),
         }
     }
 }
 
 impl IntoResponse for AppError {
     fn into_response(self) -> Response {
-        let (status, code, field) = match &self {
-            AppError::BadRequest { field, .. } => {
-                (StatusCode::BAD_REQUEST, "bad_request", field.clone())
+        let (status, code, field) = self.parts();
+        match &self {
+            AppError::Internal(e) => tracing::error!("internal error: {e:#}"),
+            AppError::StoreUnavailable(e) => {
+                tracing::error!("store write failed, answered 503: {e}")
             }
-            AppError::Unauthorized => (StatusCode::UNAUTHORIZED, "unauthorized", None),
-            AppError::NotFound(_) => (StatusCode::NOT_FOUND, "not_found", None),
-            AppError::Conflict(_) => (StatusCode::CONFLICT, "conflict", None),
-            AppError::TooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, "too_large", None),
-            AppError::Invalid { field, .. } => {
-                (StatusCode::UNPROCESSABLE_ENTITY, "invalid", field.clone())
-            }
-            AppError::TooMany(_) => (StatusCode::TOO_MANY_REQUESTS, "too_many", None),
-            AppError::Unavailable => (StatusCode::SERVICE_UNAVAILABLE, "unavailable", None),
-            AppError::Internal(e) => {
-                tracing::error!("internal error: {e:#}");
-                (StatusCode::INTERNAL_SERVER_ERROR, "internal", None)
-            }
-        };
+            _ => {}
+        }
+        let retryable = matches!(self, AppError::Unavailable | AppError::StoreUnavailable(_));
         let mut message = self.to_string();
         if let Some(f) = &field {
             if !message.starts_with(f.as_str()) {
@@ -111,13 +151,21 @@ impl IntoResponse for AppError {
                 code: code.into(),
                 message,
                 field,
+                retryable,
             },
         };
         let mut resp = (status, axum::Json(body)).into_response();
+        let headers = resp.headers_mut();
         if status == StatusCode::UNAUTHORIZED {
-            resp.headers_mut().insert(
+            headers.insert(
                 axum::http::header::WWW_AUTHENTICATE,
                 axum::http::HeaderValue::from_static("Bearer"),
+            );
+        }
+        if retryable {
+            headers.insert(
+                axum::http::header::RETRY_AFTER,
+                axum::http::HeaderValue::from_static("1"),
             );
         }
         resp
@@ -135,25 +183,104 @@ impl<T: serde::Serialize> IntoResponse for Json<T> {
     }
 }
 
-impl From<axum::extract::rejection::JsonRejection> for AppError {
-    fn from(r: axum::extract::rejection::JsonRejection) -> Self {
+impl From<JsonRejection> for AppError {
+    fn from(r: JsonRejection) -> Self {
         use axum::extract::rejection::JsonRejection as J;
         let text = r.body_text();
+        if r.status() == StatusCode::PAYLOAD_TOO_LARGE {
+            return AppError::TooLarge(crate::api::JSON_BODY_LIMIT as u64);
+        }
         // serde's messages start with the JSON path of the offending field ("width: ...").
         let field = text
             .split_once(": ")
             .and_then(|(_, rest)| rest.split_once(": "))
             .map(|(f, _)| f.to_string())
-            .filter(|f| !f.contains(' '));
+            .filter(|f| {
+                f.starts_with(|c: char| c.is_ascii_alphabetic())
+                    && f.chars()
+                        .all(|c| c.is_ascii_alphanumeric() || "_.".contains(c))
+            });
         match r {
+            // A body of the wrong shape altogether (an array, a string) names the body.
             J::JsonDataError(_) => AppError::Invalid {
-                field,
+                field: field.or_else(|| Some("body".into())),
                 message: text,
             },
+            J::MissingJsonContentType(_) => AppError::UnsupportedMediaType(
+                "expected a JSON body with Content-Type: application/json".into(),
+            ),
             _ => AppError::BadRequest {
                 field: Some("body".into()),
                 message: text,
             },
         }
+    }
+}
+
+/// Query string extractor: a value of the wrong type (`?purge=x`), a parameter given twice
+/// (`?format=a&format=b`) or bytes that are not UTF-8 are a 400 naming the parameter.
+#[derive(Debug)]
+pub struct Query<T>(pub T);
+
+impl<T: serde::de::DeserializeOwned, S: Send + Sync> FromRequestParts<S> for Query<T> {
+    type Rejection = AppError;
+
+    async fn from_request_parts(parts: &mut Parts, _: &S) -> Result<Self, AppError> {
+        let q = parts.uri.query().unwrap_or_default();
+        let de = serde_urlencoded::Deserializer::new(form_urlencoded::parse(q.as_bytes()));
+        serde_path_to_error::deserialize(de).map(Query).map_err(
+            |e: serde_path_to_error::Error<_>| {
+                let inner = e.inner().to_string();
+                let path = e.path().to_string();
+                // A duplicate names its field in the message, not in the path.
+                let field = if path == "." {
+                    inner.split('`').nth(1).unwrap_or("query").to_string()
+                } else {
+                    path
+                };
+                AppError::bad(field, format!("query string: {inner}"))
+            },
+        )
+    }
+}
+
+/// Path parameter extractor: a parameter that does not parse (a task index that is not a
+/// number, bytes that are not UTF-8) is a 400 naming the parameter.
+#[derive(Debug)]
+pub struct Path<T>(pub T);
+
+impl<T, S> FromRequestParts<S> for Path<T>
+where
+    T: serde::de::DeserializeOwned + Send,
+    S: Send + Sync,
+{
+    type Rejection = AppError;
+
+    async fn from_request_parts(parts: &mut Parts, state: &S) -> Result<Self, AppError> {
+        match axum::extract::Path::<T>::from_request_parts(parts, state).await {
+            Ok(axum::extract::Path(v)) => Ok(Path(v)),
+            Err(r) => Err(path_rejection(r)),
+        }
+    }
+}
+
+fn path_rejection(r: PathRejection) -> AppError {
+    use axum::extract::path::ErrorKind as K;
+    let message = r.body_text();
+    let field = match &r {
+        PathRejection::FailedToDeserializePathParams(e) => match e.kind() {
+            K::ParseErrorAtKey { key, .. }
+            | K::InvalidUtf8InPathParam { key }
+            | K::DeserializeError { key, .. } => Some(key.clone()),
+            _ => None,
+        },
+        _ => None,
+    };
+    match field {
+        Some(f) => AppError::bad(f, message),
+        None => AppError::BadRequest {
+            field: None,
+            message,
+        },
     }
 }

@@ -35,7 +35,8 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::sync::{watch, Notify};
 
-/// Limits on what clients may ask for.
+/// Limits on what clients may ask for. Every job limit is checked by arithmetic on the
+/// settings alone, before anything of the job is allocated (see [`Limits::check_job`]).
 #[derive(Clone, Debug)]
 pub struct Limits {
     /// Largest upload (scene) in bytes; more is answered 413.
@@ -46,8 +47,18 @@ pub struct Limits {
     pub max_pixels: u64,
     /// Largest samples per pixel of a job.
     pub max_spp: u32,
+    /// Most progressive passes of a job.
+    pub max_passes: u32,
+    /// Smallest tile edge of a job, in pixels: tiny tiles cost more in requests than in
+    /// rendering.
+    pub min_tile_size: u32,
+    /// Most tasks (tiles × passes) of one job: the coordinator keeps every task in memory.
+    pub max_tasks_per_job: u64,
     /// Most unfinished jobs at once; more is answered 429.
     pub max_queued_jobs: usize,
+    /// Most tasks of all unfinished jobs together; a job that would go over is answered 429.
+    /// With `max_queued_jobs`, bounds the memory that queued work takes.
+    pub max_queued_tasks: u64,
 }
 
 impl Default for Limits {
@@ -57,8 +68,89 @@ impl Default for Limits {
             max_unpacked_bytes: 2 << 30,
             max_pixels: raytile_core::settings::MAX_PIXELS,
             max_spp: raytile_core::settings::MAX_SPP,
+            max_passes: 256,
+            min_tile_size: 16,
+            max_tasks_per_job: 1 << 18,
             max_queued_jobs: 1000,
+            max_queued_tasks: 1 << 22,
         }
+    }
+}
+
+/// A job setting over a limit: the field (as the API names it) and why.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct OverLimit {
+    /// The offending field: `width`, `spp`, `passes`, `tile_size`.
+    pub field: &'static str,
+    /// What is allowed, and what the job asked for.
+    pub message: String,
+}
+
+impl Limits {
+    /// Checks valid settings against this coordinator's limits, by arithmetic alone (nothing
+    /// is allocated, so a job of billions of tasks is refused as fast as any other).
+    pub fn check_job(&self, s: &raytile_core::RenderSettings) -> Result<(), OverLimit> {
+        let over = |field, message| Err(OverLimit { field, message });
+        let pixels = u64::from(s.width) * u64::from(s.height);
+        if pixels > self.max_pixels {
+            return over(
+                "width",
+                format!(
+                    "width × height must be at most {} pixels on this coordinator, got {pixels}",
+                    self.max_pixels
+                ),
+            );
+        }
+        if s.spp > self.max_spp {
+            return over(
+                "spp",
+                format!(
+                    "must be at most {} on this coordinator, got {}",
+                    self.max_spp, s.spp
+                ),
+            );
+        }
+        if s.passes > self.max_passes {
+            return over(
+                "passes",
+                format!(
+                    "must be at most {} on this coordinator, got {}",
+                    self.max_passes, s.passes
+                ),
+            );
+        }
+        if s.tile_size < self.min_tile_size {
+            return over(
+                "tile_size",
+                format!(
+                    "must be at least {} on this coordinator, got {}",
+                    self.min_tile_size, s.tile_size
+                ),
+            );
+        }
+        // As `RenderSettings::tiles` and `pass_ranges` count them.
+        let ts = u64::from(s.tile_size.max(1));
+        let tiles = u64::from(s.width).div_ceil(ts) * u64::from(s.height).div_ceil(ts);
+        let passes = u64::from(s.passes.clamp(1, s.spp.max(1)));
+        let max = self.max_tasks_per_job;
+        if tiles > max {
+            return over(
+                "tile_size",
+                format!(
+                    "tiles of {ts} pixels cut the frame into {tiles} tiles, more than the {max} tasks a job may have on this coordinator: use larger tiles"
+                ),
+            );
+        }
+        if tiles * passes > max {
+            return over(
+                "passes",
+                format!(
+                    "{tiles} tiles × {passes} passes make {} tasks, more than the {max} a job may have on this coordinator: use fewer passes or larger tiles",
+                    tiles * passes
+                ),
+            );
+        }
+        Ok(())
     }
 }
 

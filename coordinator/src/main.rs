@@ -1,7 +1,7 @@
 //! `raytile-coordinator`: serves the farm's HTTP API.
 
 use clap::Parser;
-use raytile_coordinator::{run, Config};
+use raytile_coordinator::{run, Config, Limits};
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -33,9 +33,30 @@ struct Args {
     /// Largest upload in bytes.
     #[arg(long, default_value_t = 512 << 20)]
     max_upload_bytes: u64,
-    /// Most unfinished jobs at once.
-    #[arg(long, default_value_t = 1000)]
+    /// Most unfinished jobs at once (more: 429).
+    #[arg(long, default_value_t = Limits::default().max_queued_jobs)]
     max_queued_jobs: usize,
+    /// Most tasks of all unfinished jobs together (a job that would go over: 429).
+    #[arg(long, default_value_t = Limits::default().max_queued_tasks)]
+    max_queued_tasks: u64,
+    /// Largest width × height of a job (more: 422 naming width).
+    #[arg(long, default_value_t = Limits::default().max_pixels)]
+    max_pixels: u64,
+    /// Largest samples per pixel of a job (more: 422 naming spp).
+    #[arg(long, default_value_t = Limits::default().max_spp)]
+    max_spp: u32,
+    /// Most progressive passes of a job (more: 422 naming passes).
+    #[arg(long, default_value_t = Limits::default().max_passes)]
+    max_passes: u32,
+    /// Smallest tile edge of a job, in pixels (less: 422 naming tile_size).
+    #[arg(long, default_value_t = Limits::default().min_tile_size)]
+    min_tile_size: u32,
+    /// Most tasks (tiles × passes) of one job (more: 422 naming tile_size or passes).
+    #[arg(long, default_value_t = Limits::default().max_tasks_per_job)]
+    max_tasks_per_job: u64,
+    /// Longest a worker's lease request waits for work, in seconds.
+    #[arg(long, default_value_t = 30.0)]
+    long_poll_max: f64,
     /// Do not serve: ask the coordinator listening on --listen for /healthz and exit 0 when
     /// it answers 200 (a container health check; images have no curl).
     #[arg(long)]
@@ -80,6 +101,13 @@ async fn real_main(a: Args) -> anyhow::Result<()> {
     cfg.max_task_failures = a.max_task_failures;
     cfg.limits.max_upload_bytes = a.max_upload_bytes;
     cfg.limits.max_queued_jobs = a.max_queued_jobs;
+    cfg.limits.max_queued_tasks = a.max_queued_tasks;
+    cfg.limits.max_pixels = a.max_pixels;
+    cfg.limits.max_spp = a.max_spp;
+    cfg.limits.max_passes = a.max_passes;
+    cfg.limits.min_tile_size = a.min_tile_size;
+    cfg.limits.max_tasks_per_job = a.max_tasks_per_job;
+    cfg.long_poll_max = secs(a.long_poll_max, "long-poll-max")?;
     let addr: std::net::SocketAddr = a
         .listen
         .parse()

@@ -1,11 +1,22 @@
 //! The OpenAPI 3 description of the API, written by hand (the API is small and this keeps
-//! a derive-macro dependency out). A test checks it lists every route of the router.
+//! a derive-macro dependency out). It is checked against the real router and its real answers:
+//! a test walks [`crate::api::routes`] (read from the code that builds the router) and sends
+//! bad paths, queries and bodies to every route, and every status it gets must be listed here;
+//! `scripts/api-fuzz.sh` runs schemathesis against a running coordinator with the same rule.
+//!
+//! Each operation lists every status its handler, its extractors and the auth layer can
+//! answer: 401 on everything but `/healthz`; 400 where a path parameter or a query string can
+//! fail to parse; 400, 413, 415 and 422 where a JSON body is read; 503 where the handler writes
+//! the store (a failed write changes nothing and may be retried).
 
+use raytile_proto::settings::{MAX_DEPTH, MAX_EDGE, MAX_SPP, MAX_TILE_EDGE};
 use raytile_proto::{FilterKind, IntegratorKind, JobState};
-use serde_json::{json, Value};
+use serde_json::{json, Map, Value};
+
+const ERROR: &str = "#/components/schemas/Error";
 
 fn err(desc: &str) -> Value {
-    json!({"description": desc, "content": {"application/json": {"schema": {"$ref": "#/components/schemas/Error"}}}})
+    json!({"description": desc, "content": {"application/json": {"schema": {"$ref": ERROR}}}})
 }
 
 fn ok_json(desc: &str, schema: &str) -> Value {
@@ -16,96 +27,208 @@ fn path_param(name: &str, desc: &str) -> Value {
     json!({"name": name, "in": "path", "required": true, "description": desc, "schema": {"type": "string"}})
 }
 
+fn json_body(schema: &str) -> Value {
+    json!({"required": true, "content": {"application/json": {"schema": {"$ref": format!("#/components/schemas/{schema}")}}}})
+}
+
+fn binary_body() -> Value {
+    json!({"required": true, "content": {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}})
+}
+
+/// An operation with a request body.
+fn with_body(body: Value, mut op: Value) -> Value {
+    op["requestBody"] = body;
+    op
+}
+
+/// What an operation's inputs can get wrong, and so which error statuses it lists.
+#[derive(Clone, Copy, Default)]
+struct Inputs {
+    /// Path parameters or a query string (400 when one does not parse).
+    params: bool,
+    /// A JSON body (400 not JSON, 413 over the limit, 415 not declared JSON, 422 wrong shape).
+    json: bool,
+    /// Writes the store (503 when the write fails).
+    writes: bool,
+}
+
+/// One operation: `responses` are its own answers; the ones its inputs imply are added.
+fn op(summary: &str, parameters: Value, inputs: Inputs, responses: Value) -> Value {
+    let mut r: Map<String, Value> = responses.as_object().cloned().unwrap_or_default();
+    let mut add = |code: &str, v: Value| {
+        r.entry(code.to_string()).or_insert(v);
+    };
+    add("401", err("Missing or wrong bearer token."));
+    if inputs.params || inputs.json {
+        add(
+            "400",
+            err("A path parameter, the query string or the body does not parse (field named)."),
+        );
+    }
+    if inputs.json {
+        add("413", err("Body over the JSON limit (1 MiB)."));
+        add("415", err("Body not declared as application/json."));
+        add(
+            "422",
+            err("Well-formed JSON of the wrong shape (field named)."),
+        );
+    }
+    if inputs.writes {
+        add(
+            "503",
+            err("The coordinator could not write its database: nothing changed, retry later (retryable: true, Retry-After)."),
+        );
+    }
+    let mut o = json!({"summary": summary, "responses": r});
+    if parameters.as_array().is_some_and(|p| !p.is_empty()) {
+        o["parameters"] = parameters;
+    }
+    o
+}
+
+fn settings_schema() -> Value {
+    json!({"type": "object", "properties": {
+        "width": {"type": "integer"}, "height": {"type": "integer"}, "spp": {"type": "integer"},
+        "max_depth": {"type": "integer"},
+        "integrator": {"type": "string", "enum": IntegratorKind::ALL.map(IntegratorKind::name)},
+        "seed": {"type": "integer"}, "camera": {"type": "string", "nullable": true},
+        "filter": {"type": "string", "enum": FilterKind::ALL.map(FilterKind::name)},
+        "tile_size": {"type": "integer"}, "passes": {"type": "integer"},
+        "default_light": {"type": "boolean"}}})
+}
+
+fn schemas() -> Value {
+    let u32_in = |lo: u32, hi: u32| json!({"type": "integer", "minimum": lo, "maximum": hi});
+    json!({
+        "Error": {"type": "object", "required": ["error"], "additionalProperties": false, "properties": {"error": {
+            "type": "object", "required": ["code", "message"], "additionalProperties": false, "properties": {
+                "code": {"type": "string"}, "message": {"type": "string"}, "field": {"type": "string"},
+                "retryable": {"type": "boolean"}}}}},
+        "Health": {"type": "object", "required": ["status"], "properties": {"status": {"type": "string"}}},
+        "SceneCreated": {"type": "object", "required": ["id", "format", "entry", "existed"], "properties": {
+            "id": {"type": "string"}, "format": {"type": "string"}, "entry": {"type": "string"},
+            "existed": {"type": "boolean"}, "warnings": {"type": "array", "items": {"type": "string"}}}},
+        "JobRequest": {"type": "object", "required": ["scene"], "additionalProperties": false, "properties": {
+            "scene": {"type": "string"},
+            "width": u32_in(1, MAX_EDGE), "height": u32_in(1, MAX_EDGE), "spp": u32_in(1, MAX_SPP),
+            "max_depth": u32_in(0, MAX_DEPTH),
+            "integrator": {"type": "string", "enum": IntegratorKind::ALL.map(IntegratorKind::name)},
+            "seed": u32_in(0, u32::MAX), "camera": {"type": "string"},
+            "filter": {"type": "string", "enum": FilterKind::ALL.map(FilterKind::name)},
+            "tile_size": u32_in(1, MAX_TILE_EDGE), "passes": u32_in(1, MAX_SPP),
+            "priority": {"type": "integer", "minimum": i32::MIN, "maximum": i32::MAX},
+            "default_light": {"type": "boolean"}}},
+        "RenderSettings": settings_schema(),
+        "JobStatus": {"type": "object", "required": ["id", "scene", "state", "settings", "tasks_total", "tasks_done"], "properties": {
+            "id": {"type": "string"}, "scene": {"type": "string"}, "state": {"type": "string", "enum": JobState::ALL.map(JobState::name)},
+            "priority": {"type": "integer"}, "settings": {"$ref": "#/components/schemas/RenderSettings"},
+            "tiles_total": {"type": "integer"}, "tiles_done": {"type": "integer"},
+            "passes": {"type": "integer"}, "passes_done": {"type": "integer"}, "tasks_total": {"type": "integer"}, "tasks_done": {"type": "integer"},
+            "tasks_leased": {"type": "integer"}, "samples_done": {"type": "integer"}, "samples_total": {"type": "integer"},
+            "workers": {"type": "object", "additionalProperties": {"type": "object", "properties": {"tasks": {"type": "integer"}, "samples": {"type": "integer"}}}},
+            "created_ms": {"type": "integer"}, "started_ms": {"type": "integer", "nullable": true}, "finished_ms": {"type": "integer", "nullable": true},
+            "error": {"type": "string", "nullable": true}}},
+        "JobList": {"type": "object", "required": ["jobs"], "properties": {"jobs": {"type": "array", "items": {"$ref": "#/components/schemas/JobStatus"}}}},
+        "RegisterRequest": {"type": "object", "required": ["name", "threads"], "properties": {
+            "name": {"type": "string", "maxLength": 256}, "threads": u32_in(0, u32::MAX),
+            "render_version": {"description": "the worker's renderer version; a mismatch with the coordinator's is refused with 409", "type": "integer", "minimum": 0, "maximum": u32::MAX, "example": raytile_core::RENDER_VERSION}}},
+        "Registered": {"type": "object", "required": ["worker_id", "lease_timeout_ms", "heartbeat_ms"], "properties": {
+            "worker_id": {"type": "string"}, "lease_timeout_ms": {"type": "integer"}, "heartbeat_ms": {"type": "integer"}}},
+        "WorkerInfo": {"type": "object", "required": ["id", "name"], "properties": {
+            "id": {"type": "string"}, "name": {"type": "string"}, "threads": {"type": "integer"},
+            "registered_ms": {"type": "integer"}, "last_seen_ms": {"type": "integer"}, "leased": {"type": "integer"},
+            "tasks_done": {"type": "integer"}, "failures": {"type": "integer"}}},
+        "WorkerList": {"type": "object", "required": ["workers"], "properties": {"workers": {"type": "array", "items": {"$ref": "#/components/schemas/WorkerInfo"}}}},
+        "Lease": {"type": "object", "required": ["lease_id", "job", "task", "scene", "settings", "tile", "pass", "sample_start", "sample_end"], "properties": {
+            "lease_id": {"type": "string"}, "job": {"type": "string"}, "task": {"type": "integer"}, "scene": {"type": "string"},
+            "scene_sha256": {"type": "string"}, "scene_format": {"type": "string"}, "scene_entry": {"type": "string"},
+            "settings": {"$ref": "#/components/schemas/RenderSettings"},
+            "tile": {"type": "object", "properties": {"x0": {"type": "integer"}, "y0": {"type": "integer"}, "x1": {"type": "integer"}, "y1": {"type": "integer"}}},
+            "pass": {"type": "integer"}, "sample_start": {"type": "integer"}, "sample_end": {"type": "integer"}, "lease_timeout_ms": {"type": "integer"}}},
+        "HeartbeatReply": {"type": "object", "required": ["cancelled"], "properties": {"cancelled": {"type": "boolean"}, "reason": {"type": "string"}}},
+        "ResultReply": {"type": "object", "required": ["accepted", "duplicate", "job_finished"], "properties": {"accepted": {"type": "boolean"}, "duplicate": {"type": "boolean"}, "job_finished": {"type": "boolean"}}},
+        "FailureReport": {"type": "object", "required": ["error"], "properties": {"error": {"type": "string"}}}
+    })
+}
+
 /// The whole document.
 pub fn document() -> Value {
-    let unauthorized = err("Missing or wrong bearer token.");
+    let none = Inputs::default();
+    let params = Inputs {
+        params: true,
+        ..none
+    };
+    let job_id = path_param("id", "Job id");
+    let lease_id = path_param("lease", "Lease id");
     json!({
         "openapi": "3.0.3",
         "info": {
             "title": "raytile coordinator",
             "version": env!("CARGO_PKG_VERSION"),
-            "description": "Distributed path tracing: upload scenes, submit jobs, fetch images; workers lease tile passes and upload binary results. Every endpoint but /healthz needs `Authorization: Bearer TOKEN` when the coordinator has a token."
+            "description": "Distributed path tracing: upload scenes, submit jobs, fetch images; workers lease tile passes and upload binary results. Every endpoint but /healthz needs `Authorization: Bearer TOKEN` when the coordinator has a token. Every error answer is the Error schema; a 405 (known path, other method) and a 404 (unknown path) are too."
         },
         "components": {
             "securitySchemes": {"bearer": {"type": "http", "scheme": "bearer"}},
-            "schemas": {
-                "Error": {"type": "object", "required": ["error"], "properties": {"error": {"type": "object", "required": ["code", "message"], "properties": {
-                    "code": {"type": "string"}, "message": {"type": "string"}, "field": {"type": "string"}}}}},
-                "SceneCreated": {"type": "object", "properties": {"id": {"type": "string"}, "format": {"type": "string"}, "entry": {"type": "string"}, "existed": {"type": "boolean"}, "warnings": {"type": "array", "items": {"type": "string"}}}},
-                "JobRequest": {"type": "object", "required": ["scene"], "additionalProperties": false, "properties": {
-                    "scene": {"type": "string"}, "width": {"type": "integer"}, "height": {"type": "integer"}, "spp": {"type": "integer"},
-                    "max_depth": {"type": "integer"}, "integrator": {"type": "string", "enum": IntegratorKind::ALL.map(IntegratorKind::name)},
-                    "seed": {"type": "integer"}, "camera": {"type": "string"}, "filter": {"type": "string", "enum": FilterKind::ALL.map(FilterKind::name)},
-                    "tile_size": {"type": "integer"}, "passes": {"type": "integer"}, "priority": {"type": "integer"},
-                    "default_light": {"type": "boolean"}}},
-                "JobStatus": {"type": "object", "properties": {
-                    "id": {"type": "string"}, "scene": {"type": "string"}, "state": {"type": "string", "enum": JobState::ALL.map(JobState::name)},
-                    "priority": {"type": "integer"}, "settings": {"type": "object"}, "tiles_total": {"type": "integer"}, "tiles_done": {"type": "integer"},
-                    "passes": {"type": "integer"}, "passes_done": {"type": "integer"}, "tasks_total": {"type": "integer"}, "tasks_done": {"type": "integer"},
-                    "tasks_leased": {"type": "integer"}, "samples_done": {"type": "integer"}, "samples_total": {"type": "integer"},
-                    "workers": {"type": "object", "additionalProperties": {"type": "object", "properties": {"tasks": {"type": "integer"}, "samples": {"type": "integer"}}}},
-                    "created_ms": {"type": "integer"}, "started_ms": {"type": "integer", "nullable": true}, "finished_ms": {"type": "integer", "nullable": true},
-                    "error": {"type": "string", "nullable": true}}},
-                "JobList": {"type": "object", "properties": {"jobs": {"type": "array", "items": {"$ref": "#/components/schemas/JobStatus"}}}},
-                "RegisterRequest": {"type": "object", "properties": {"name": {"type": "string"}, "threads": {"type": "integer"}, "render_version": {"type": "integer", "description": "the worker's renderer version; a mismatch with the coordinator's is refused with 409"}}},
-                "Registered": {"type": "object", "properties": {"worker_id": {"type": "string"}, "lease_timeout_ms": {"type": "integer"}, "heartbeat_ms": {"type": "integer"}}},
-                "WorkerList": {"type": "object", "properties": {"workers": {"type": "array", "items": {"type": "object"}}}},
-                "Lease": {"type": "object", "properties": {
-                    "lease_id": {"type": "string"}, "job": {"type": "string"}, "task": {"type": "integer"}, "scene": {"type": "string"},
-                    "scene_sha256": {"type": "string"}, "scene_format": {"type": "string"}, "scene_entry": {"type": "string"},
-                    "settings": {"type": "object"}, "tile": {"type": "object", "properties": {"x0": {"type": "integer"}, "y0": {"type": "integer"}, "x1": {"type": "integer"}, "y1": {"type": "integer"}}},
-                    "pass": {"type": "integer"}, "sample_start": {"type": "integer"}, "sample_end": {"type": "integer"}, "lease_timeout_ms": {"type": "integer"}}},
-                "HeartbeatReply": {"type": "object", "properties": {"cancelled": {"type": "boolean"}, "reason": {"type": "string"}}},
-                "ResultReply": {"type": "object", "properties": {"accepted": {"type": "boolean"}, "duplicate": {"type": "boolean"}, "job_finished": {"type": "boolean"}}},
-                "FailureReport": {"type": "object", "properties": {"error": {"type": "string"}}}
-            }
+            "schemas": schemas()
         },
         "security": [{"bearer": []}],
         "paths": {
-            "/healthz": {"get": {"summary": "Liveness (no token needed)", "security": [], "responses": {"200": {"description": "ok"}}}},
-            "/metrics": {"get": {"summary": "Prometheus metrics", "responses": {"200": {"description": "text/plain exposition format"}, "401": unauthorized}}},
-            "/v1/openapi.json": {"get": {"summary": "This document", "responses": {"200": {"description": "OpenAPI 3 JSON"}, "401": unauthorized}}},
-            "/v1/scenes": {"post": {
-                "summary": "Upload a scene (.gltf with data URIs, .glb, JSON scene, or .tar/.zip of a scene folder)",
-                "parameters": [
+            "/healthz": {"get": {"summary": "Liveness (no token needed)", "security": [],
+                "responses": {"200": ok_json("ok", "Health")}}},
+            "/metrics": {"get": op("Prometheus metrics", json!([]), none,
+                json!({"200": {"description": "Prometheus text exposition format", "content": {"text/plain": {"schema": {"type": "string"}}}}}))},
+            "/v1/openapi.json": {"get": op("This document", json!([]), none,
+                json!({"200": {"description": "OpenAPI 3 JSON", "content": {"application/json": {"schema": {"type": "object"}}}}}))},
+            "/v1/scenes": {"post": with_body(binary_body(), op("Upload a scene (.gltf with data URIs, .glb, JSON scene, or .tar/.zip of a scene folder)",
+                json!([
                     {"name": "format", "in": "query", "schema": {"type": "string", "enum": ["gltf", "glb", "json", "tar", "zip"]}, "description": "Format hint; otherwise Content-Type, then magic bytes."},
-                    {"name": "entry", "in": "query", "schema": {"type": "string"}, "description": "Scene file inside an archive."}],
-                "requestBody": {"required": true, "content": {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}},
-                "responses": {"201": ok_json("Stored", "SceneCreated"), "200": ok_json("Already stored", "SceneCreated"),
-                    "413": err("Over the upload limit"), "422": err("Not a valid scene"), "401": unauthorized}}},
-            "/v1/scenes/{id}": {"get": {"summary": "Download a scene blob (workers)", "parameters": [path_param("id", "Scene id")],
-                "responses": {"200": {"description": "The bytes as uploaded; headers x-raytile-sha256, x-raytile-format, x-raytile-entry", "content": {"application/octet-stream": {}}},
-                    "404": err("Unknown scene"), "401": unauthorized}}},
+                    {"name": "entry", "in": "query", "schema": {"type": "string"}, "description": "Scene file inside an archive."}]),
+                params,
+                json!({"201": ok_json("Stored", "SceneCreated"), "200": ok_json("Already stored", "SceneCreated"),
+                    "413": err("Over the upload limit"), "422": err("Not a valid scene (field named)")})))},
+            "/v1/scenes/{id}": {"get": op("Download a scene blob (workers)", json!([path_param("id", "Scene id")]), params,
+                json!({"200": {"description": "The bytes as uploaded; headers x-raytile-sha256, x-raytile-format, x-raytile-entry", "content": {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}},
+                    "404": err("Unknown scene")}))},
             "/v1/jobs": {
-                "post": {"summary": "Submit a job", "requestBody": {"required": true, "content": {"application/json": {"schema": {"$ref": "#/components/schemas/JobRequest"}}}},
-                    "responses": {"201": ok_json("Created", "JobStatus"), "422": err("Invalid settings or unknown scene (field named)"), "429": err("Too many unfinished jobs"), "401": unauthorized}},
-                "get": {"summary": "List jobs", "responses": {"200": ok_json("Jobs", "JobList"), "401": unauthorized}}},
+                "post": with_body(json_body("JobRequest"), op("Submit a job", json!([]), Inputs { json: true, writes: true, ..none },
+                    json!({"201": ok_json("Created", "JobStatus"),
+                        "422": err("Invalid settings, a setting over this coordinator's limits, or an unknown scene (field named)"),
+                        "429": err("Too many unfinished jobs")}))),
+                "get": op("List jobs", json!([]), none, json!({"200": ok_json("Jobs", "JobList")}))},
             "/v1/jobs/{id}": {
-                "get": {"summary": "Job status", "parameters": [path_param("id", "Job id")], "responses": {"200": ok_json("Job", "JobStatus"), "404": err("Unknown job"), "401": unauthorized}},
-                "delete": {"summary": "Cancel a job; with purge=true also delete it and its tile data", "parameters": [path_param("id", "Job id"), {"name": "purge", "in": "query", "schema": {"type": "boolean"}, "description": "Delete the job and its stored tiles after cancelling it."}], "responses": {"200": ok_json("Job", "JobStatus"), "404": err("Unknown job"), "401": unauthorized}}},
-            "/v1/jobs/{id}/image": {"get": {"summary": "The frame so far (partial while running)",
-                "parameters": [path_param("id", "Job id"), {"name": "format", "in": "query", "schema": {"type": "string", "enum": ["png", "exr", "hdr"]}}],
-                "responses": {"200": {"description": "Image", "content": {"image/png": {}, "image/x-exr": {}, "image/vnd.radiance": {}}}, "404": err("Unknown job"), "422": err("Unknown format"), "401": unauthorized}}},
-            "/v1/jobs/{id}/tasks/{task}/result": {"put": {"summary": "Upload a tile result (workers): binary, see docs/farm.md",
-                "parameters": [path_param("id", "Job id"), path_param("task", "Task index"), {"name": "worker", "in": "query", "schema": {"type": "string"}}],
-                "requestBody": {"required": true, "content": {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}},
-                "responses": {"200": ok_json("Accepted, or ignored as duplicate/late (duplicate: true)", "ResultReply"), "404": err("Unknown job or task"),
-                    "413": err("Larger than the tile"), "422": err("Malformed result or wrong tile/pass"), "401": unauthorized}}},
+                "get": op("Job status", json!([job_id]), params,
+                    json!({"200": ok_json("Job", "JobStatus"), "404": err("Unknown job")})),
+                "delete": op("Cancel a job; with purge=true also delete it and its tile data",
+                    json!([job_id, {"name": "purge", "in": "query", "schema": {"type": "boolean"}, "description": "Delete the job and its stored tiles after cancelling it."}]),
+                    Inputs { params: true, writes: true, ..none },
+                    json!({"200": ok_json("Job", "JobStatus"), "404": err("Unknown job")}))},
+            "/v1/jobs/{id}/image": {"get": op("The frame so far (partial while running)",
+                json!([job_id, {"name": "format", "in": "query", "schema": {"type": "string", "enum": ["png", "exr", "hdr"]}}]), params,
+                json!({"200": {"description": "Image", "content": {"image/png": {"schema": {"type": "string", "format": "binary"}}, "image/x-exr": {"schema": {"type": "string", "format": "binary"}}, "image/vnd.radiance": {"schema": {"type": "string", "format": "binary"}}}},
+                    "404": err("Unknown job"), "422": err("Unknown format")}))},
+            "/v1/jobs/{id}/tasks/{task}/result": {"put": with_body(binary_body(), op("Upload a tile result (workers): binary, see docs/farm.md",
+                json!([job_id, {"name": "task", "in": "path", "required": true, "description": "Task index", "schema": {"type": "integer", "minimum": 0, "maximum": u32::MAX}},
+                    {"name": "worker", "in": "query", "schema": {"type": "string"}}]),
+                Inputs { params: true, writes: true, ..none },
+                json!({"200": ok_json("Accepted, or ignored as duplicate/late (duplicate: true) or for a finished job (job_finished: true)", "ResultReply"),
+                    "404": err("Unknown job or task"), "413": err("Larger than the tile"), "422": err("Malformed result or wrong tile/pass")})))},
             "/v1/workers": {
-                "post": {"summary": "Register a worker", "requestBody": {"required": true, "content": {"application/json": {"schema": {"$ref": "#/components/schemas/RegisterRequest"}}}},
-                    "responses": {"200": ok_json("Registered", "Registered"), "401": unauthorized}},
-                "get": {"summary": "List workers", "responses": {"200": ok_json("Workers", "WorkerList"), "401": unauthorized}}},
-            "/v1/workers/{id}/lease": {"post": {"summary": "Lease a task (long poll)",
-                "parameters": [path_param("id", "Worker id"), {"name": "wait_ms", "in": "query", "schema": {"type": "integer"}, "description": "Longest wait for work"}],
-                "responses": {"200": ok_json("A task", "Lease"), "204": {"description": "No work within wait_ms"}, "404": err("Unknown worker: register again"),
-                    "503": err("Shutting down"), "401": unauthorized}}},
-            "/v1/leases/{lease}/heartbeat": {"post": {"summary": "Extend a lease; says whether to stop", "parameters": [path_param("lease", "Lease id")],
-                "responses": {"200": ok_json("Reply", "HeartbeatReply"), "401": unauthorized}}},
-            "/v1/leases/{lease}/failure": {"post": {"summary": "Report that the task failed", "parameters": [path_param("lease", "Lease id")],
-                "requestBody": {"required": true, "content": {"application/json": {"schema": {"$ref": "#/components/schemas/FailureReport"}}}},
-                "responses": {"204": {"description": "Recorded (or ignored for a stale lease)"}, "401": unauthorized}}},
-            "/v1/leases/{lease}/release": {"post": {"summary": "Hand a task back unrendered (worker shutting down)", "parameters": [path_param("lease", "Lease id")],
-                "responses": {"204": {"description": "Re-queued (or ignored for a stale lease)"}, "401": unauthorized}}}
+                "post": with_body(json_body("RegisterRequest"), op("Register a worker", json!([]), Inputs { json: true, writes: true, ..none },
+                    json!({"200": ok_json("Registered", "Registered"), "409": err("Another renderer version: run one release on the whole farm")}))),
+                "get": op("List workers", json!([]), none, json!({"200": ok_json("Workers", "WorkerList")}))},
+            "/v1/workers/{id}/lease": {"post": op("Lease a task (long poll)",
+                json!([path_param("id", "Worker id"), {"name": "wait_ms", "in": "query", "schema": {"type": "integer", "minimum": 0, "maximum": u64::MAX}, "description": "Longest wait for work (capped by the coordinator)"}]),
+                Inputs { params: true, writes: true, ..none },
+                json!({"200": ok_json("A task", "Lease"), "204": {"description": "No work within wait_ms"}, "404": err("Unknown worker: register again"),
+                    "503": err("Shutting down, or the coordinator could not write its database: retry later")}))},
+            "/v1/leases/{lease}/heartbeat": {"post": op("Extend a lease; says whether to stop", json!([lease_id]), params,
+                json!({"200": ok_json("Reply", "HeartbeatReply")}))},
+            "/v1/leases/{lease}/failure": {"post": with_body(json_body("FailureReport"), op("Report that the task failed", json!([lease_id]),
+                Inputs { params: true, json: true, writes: true },
+                json!({"204": {"description": "Recorded (or ignored for a stale lease)"}})))},
+            "/v1/leases/{lease}/release": {"post": op("Hand a task back unrendered (worker shutting down)", json!([lease_id]),
+                Inputs { params: true, writes: true, ..none },
+                json!({"204": {"description": "Re-queued (or ignored for a stale lease)"}}))}
         }
     })
 }

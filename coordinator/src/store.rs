@@ -173,6 +173,8 @@ pub struct TaskRow {
 pub struct Store {
     conn: Connection,
     path: PathBuf,
+    #[cfg(test)]
+    faults: Faults,
 }
 
 impl Store {
@@ -182,7 +184,12 @@ impl Store {
         let conn = Connection::open(&path)?;
         conn.busy_timeout(std::time::Duration::from_secs(10))?;
         conn.execute_batch(SCHEMA)?;
-        let mut store = Store { conn, path };
+        let mut store = Store {
+            conn,
+            path,
+            #[cfg(test)]
+            faults: Faults::default(),
+        };
         store.discard_other_renderer_tiles()?;
         Ok(store)
     }
@@ -266,94 +273,36 @@ impl Store {
         Ok(c)
     }
 
-    /// Inserts a new job and its queued tasks in one transaction.
-    pub fn insert_job(&mut self, j: &JobRow, tasks: u32) -> rusqlite::Result<()> {
+    /// Writes every change of one scheduler operation in one transaction: all of them are
+    /// stored, or (the disk is full, the file read-only...) none is and the error says why.
+    /// The scheduler changes its memory only after this returns `Ok`.
+    pub fn write(&mut self, writes: &[Write<'_>]) -> rusqlite::Result<()> {
+        if writes.is_empty() {
+            return Ok(());
+        }
+        #[cfg(test)]
+        self.faults.check()?;
         let tx = self.conn.transaction()?;
-        tx.execute(
-            "INSERT INTO jobs (id, seq, scene, settings, priority, state, error, created_ms, started_ms, finished_ms)
-             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
-            params![j.id, j.seq as i64, j.scene, j.settings, j.priority, job_state_name(j.state), j.error,
-                    j.created_ms as i64, j.started_ms.map(|v| v as i64), j.finished_ms.map(|v| v as i64)],
-        )?;
-        {
-            let mut st = tx.prepare(&format!(
-                "INSERT INTO tasks (job_id, idx, state, failures) VALUES (?1, ?2, '{TASK_QUEUED}', 0)"
-            ))?;
-            for i in 0..tasks {
-                st.execute(params![j.id, i])?;
-            }
+        for w in writes {
+            apply(&tx, w)?;
         }
         tx.commit()
     }
 
-    /// Updates a job's state, error and times.
-    pub fn update_job(
-        &self,
-        id: &str,
-        state: JobState,
-        error: Option<&str>,
-        started_ms: Option<u64>,
-        finished_ms: Option<u64>,
-    ) -> rusqlite::Result<()> {
-        self.conn.execute(
-            "UPDATE jobs SET state = ?2, error = ?3, started_ms = ?4, finished_ms = ?5 WHERE id = ?1",
-            params![id, job_state_name(state), error, started_ms.map(|v| v as i64), finished_ms.map(|v| v as i64)],
-        )?;
-        Ok(())
+    /// A switch that makes the next writes fail as a full disk would (tests only).
+    #[cfg(test)]
+    pub fn faults(&self) -> Faults {
+        self.faults.clone()
+    }
+
+    /// Inserts a new job (its tasks are queued until a row says otherwise).
+    pub fn insert_job(&mut self, j: &JobRow) -> rusqlite::Result<()> {
+        self.write(&[Write::InsertJob(j)])
     }
 
     /// Writes one task's state.
-    pub fn update_task(&self, job: &str, t: &TaskRow) -> rusqlite::Result<()> {
-        write_task(&self.conn, job, t)
-    }
-
-    /// Stores a finished task's result and marks the task done, atomically.
-    pub fn finish_task(&mut self, job: &str, t: &TaskRow, data: &[u8]) -> rusqlite::Result<()> {
-        let tx = self.conn.transaction()?;
-        tx.execute(
-            "INSERT OR IGNORE INTO results (job_id, idx, data) VALUES (?1, ?2, ?3)",
-            params![job, t.idx, data],
-        )?;
-        write_task(&tx, job, t)?;
-        tx.commit()
-    }
-
-    /// Deletes a job with its tasks, results and failure counts, in one transaction.
-    pub fn delete_job(&mut self, job: &str) -> rusqlite::Result<()> {
-        let tx = self.conn.transaction()?;
-        for table in ["results", "tasks", "blocked"] {
-            tx.execute(
-                &format!("DELETE FROM {table} WHERE job_id = ?1"),
-                params![job],
-            )?;
-        }
-        tx.execute("DELETE FROM jobs WHERE id = ?1", params![job])?;
-        tx.commit()
-    }
-
-    /// Records a worker's failure count on a job.
-    pub fn set_blocked(&self, job: &str, worker: &str, failures: u32) -> rusqlite::Result<()> {
-        self.conn.execute(
-            "INSERT INTO blocked (job_id, worker, failures) VALUES (?1, ?2, ?3)
-             ON CONFLICT (job_id, worker) DO UPDATE SET failures = excluded.failures",
-            params![job, worker, failures],
-        )?;
-        Ok(())
-    }
-
-    /// Registers a worker.
-    pub fn insert_worker(
-        &self,
-        id: &str,
-        name: &str,
-        threads: u32,
-        registered_ms: u64,
-    ) -> rusqlite::Result<()> {
-        self.conn.execute(
-            "INSERT OR REPLACE INTO workers (id, name, threads, registered_ms) VALUES (?1, ?2, ?3, ?4)",
-            params![id, name, threads, registered_ms as i64],
-        )?;
-        Ok(())
+    pub fn update_task(&mut self, job: &str, t: &TaskRow) -> rusqlite::Result<()> {
+        self.write(&[Write::Task { job, row: t }])
     }
 
     /// Every job, in submission order.
@@ -415,25 +364,181 @@ impl Store {
     }
 }
 
-/// Writes one task's state through `conn` (the store's connection or a transaction on it).
+/// One change to the store. A scheduler operation collects its changes and hands them to
+/// [`Store::write`] together.
+#[derive(Clone, Copy, Debug)]
+pub enum Write<'a> {
+    /// A new job. Its tasks get no rows: a task without a row is queued with no failures, so
+    /// creating a job costs one row whatever its size.
+    InsertJob(&'a JobRow),
+    /// A job's state, error and times.
+    Job {
+        /// Job id.
+        id: &'a str,
+        /// State.
+        state: JobState,
+        /// Why it failed.
+        error: Option<&'a str>,
+        /// First lease.
+        started_ms: Option<u64>,
+        /// End.
+        finished_ms: Option<u64>,
+    },
+    /// One task's state.
+    Task {
+        /// Job id.
+        job: &'a str,
+        /// The task.
+        row: &'a TaskRow,
+    },
+    /// A finished task's result, stored with the task's done state.
+    Result {
+        /// Job id.
+        job: &'a str,
+        /// The task, done.
+        row: &'a TaskRow,
+        /// The encoded tile sums.
+        data: &'a [u8],
+    },
+    /// A worker's failure count on a job.
+    Blocked {
+        /// Job id.
+        job: &'a str,
+        /// Worker id.
+        worker: &'a str,
+        /// Failures so far.
+        failures: u32,
+    },
+    /// A job with its tasks, results and failure counts.
+    DeleteJob(&'a str),
+    /// A registered worker.
+    Worker {
+        /// Worker id.
+        id: &'a str,
+        /// Name.
+        name: &'a str,
+        /// Threads.
+        threads: u32,
+        /// Registration time.
+        registered_ms: u64,
+    },
+}
+
+/// Applies one change inside a transaction.
+fn apply(tx: &Connection, w: &Write<'_>) -> rusqlite::Result<()> {
+    match *w {
+        Write::InsertJob(j) => {
+            tx.execute(
+                "INSERT INTO jobs (id, seq, scene, settings, priority, state, error, created_ms, started_ms, finished_ms)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
+                params![j.id, j.seq as i64, j.scene, j.settings, j.priority, job_state_name(j.state), j.error,
+                        j.created_ms as i64, j.started_ms.map(|v| v as i64), j.finished_ms.map(|v| v as i64)],
+            )?;
+        }
+        Write::Job {
+            id,
+            state,
+            error,
+            started_ms,
+            finished_ms,
+        } => {
+            tx.execute(
+                "UPDATE jobs SET state = ?2, error = ?3, started_ms = ?4, finished_ms = ?5 WHERE id = ?1",
+                params![id, job_state_name(state), error, started_ms.map(|v| v as i64), finished_ms.map(|v| v as i64)],
+            )?;
+        }
+        Write::Task { job, row } => write_task(tx, job, row)?,
+        Write::Result { job, row, data } => {
+            tx.execute(
+                "INSERT OR IGNORE INTO results (job_id, idx, data) VALUES (?1, ?2, ?3)",
+                params![job, row.idx, data],
+            )?;
+            write_task(tx, job, row)?;
+        }
+        Write::Blocked {
+            job,
+            worker,
+            failures,
+        } => {
+            tx.execute(
+                "INSERT INTO blocked (job_id, worker, failures) VALUES (?1, ?2, ?3)
+                 ON CONFLICT (job_id, worker) DO UPDATE SET failures = excluded.failures",
+                params![job, worker, failures],
+            )?;
+        }
+        Write::DeleteJob(job) => {
+            for table in ["results", "tasks", "blocked"] {
+                tx.execute(
+                    &format!("DELETE FROM {table} WHERE job_id = ?1"),
+                    params![job],
+                )?;
+            }
+            tx.execute("DELETE FROM jobs WHERE id = ?1", params![job])?;
+        }
+        Write::Worker {
+            id,
+            name,
+            threads,
+            registered_ms,
+        } => {
+            tx.execute(
+                "INSERT OR REPLACE INTO workers (id, name, threads, registered_ms) VALUES (?1, ?2, ?3, ?4)",
+                params![id, name, threads, registered_ms as i64],
+            )?;
+        }
+    }
+    Ok(())
+}
+
+/// Writes one task's state (inserting its row the first time it leaves the queue).
 fn write_task(conn: &Connection, job: &str, t: &TaskRow) -> rusqlite::Result<()> {
     let (state, worker, lease) = t.state.columns();
     conn.execute(
-        "UPDATE tasks SET state = ?3, failures = ?4, worker = ?5, lease = ?6 WHERE job_id = ?1 AND idx = ?2",
+        "INSERT INTO tasks (job_id, idx, state, failures, worker, lease) VALUES (?1, ?2, ?3, ?4, ?5, ?6)
+         ON CONFLICT (job_id, idx) DO UPDATE SET state = excluded.state, failures = excluded.failures,
+             worker = excluded.worker, lease = excluded.lease",
         params![job, t.idx, state, t.failures, worker, lease],
     )?;
     Ok(())
 }
 
-/// Reads every stored result of a job as (task index, bytes), through `conn`, calling `f` for
-/// each so the caller never holds them all at once.
+/// Injected write failures, shared between a test and the store it holds (tests only).
+#[cfg(test)]
+#[derive(Clone, Debug, Default)]
+pub struct Faults(std::sync::Arc<std::sync::atomic::AtomicU32>);
+
+#[cfg(test)]
+impl Faults {
+    /// Makes the next `n` calls of [`Store::write`] fail with `SQLITE_FULL`, writing nothing.
+    pub fn fail_next(&self, n: u32) {
+        self.0.store(n, std::sync::atomic::Ordering::SeqCst);
+    }
+
+    fn check(&self) -> rusqlite::Result<()> {
+        use std::sync::atomic::Ordering::SeqCst;
+        let take = self.0.fetch_update(SeqCst, SeqCst, |n| n.checked_sub(1));
+        if take.is_ok() {
+            return Err(rusqlite::Error::SqliteFailure(
+                rusqlite::ffi::Error::new(rusqlite::ffi::SQLITE_FULL),
+                Some("injected fault: database or disk is full".into()),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Reads the stored results of a job's tasks `tasks` as (task index, bytes), through `conn`,
+/// calling `f` for each so the caller never holds them all at once.
 pub fn for_each_result(
     conn: &Connection,
     job: &str,
+    tasks: std::ops::Range<usize>,
     mut f: impl FnMut(u32, &[u8]),
 ) -> rusqlite::Result<()> {
-    let mut st = conn.prepare("SELECT idx, data FROM results WHERE job_id = ?1 ORDER BY idx")?;
-    let mut rows = st.query([job])?;
+    let mut st = conn.prepare_cached(
+        "SELECT idx, data FROM results WHERE job_id = ?1 AND idx >= ?2 AND idx < ?3 ORDER BY idx",
+    )?;
+    let mut rows = st.query(params![job, tasks.start as i64, tasks.end as i64])?;
     while let Some(r) = rows.next()? {
         let idx: u32 = r.get(0)?;
         let data = r.get_ref(1)?.as_blob()?;
@@ -463,7 +568,7 @@ mod tests {
                 started_ms: None,
                 finished_ms: None,
             };
-            store.insert_job(&row, 4).unwrap();
+            store.insert_job(&row).unwrap();
         }
         let states: Vec<JobState> = store.jobs().unwrap().iter().map(|r| r.state).collect();
         assert_eq!(states, JobState::ALL);

@@ -73,9 +73,11 @@ async fn every_route_is_documented_and_routed() {
     let dir = tempfile::tempdir().unwrap();
     let st = test_state(dir.path(), None);
     let doc = crate::openapi::document();
-    for (method, path) in crate::api::ROUTES {
+    let routes = crate::api::routes();
+    for (method, path) in &routes {
+        let method = method.as_str().to_lowercase();
         assert!(
-            doc["paths"][path][method].is_object(),
+            doc["paths"][path][&method].is_object(),
             "{method} {path} missing from OpenAPI"
         );
         let uri = path
@@ -112,7 +114,7 @@ async fn every_route_is_documented_and_routed() {
         .values()
         .map(|p| p.as_object().unwrap().len())
         .sum();
-    assert_eq!(n, crate::api::ROUTES.len());
+    assert_eq!(n, routes.len());
 }
 
 #[tokio::test]
@@ -284,4 +286,301 @@ async fn handlers_take_the_time_from_the_injected_clock() {
         ),
         (Some(42_000), Some(47_000), Some(1))
     );
+}
+
+/// Checks that `body` is the documented error body: `{"error": {"code", "message"}}` with an
+/// optional `field` and `retryable`, nothing else.
+fn assert_error_body(what: &str, body: &serde_json::Value) {
+    let e = body["error"]
+        .as_object()
+        .unwrap_or_else(|| panic!("{what}: {body}"));
+    assert_eq!(body.as_object().unwrap().len(), 1, "{what}: {body}");
+    assert!(
+        e["code"].is_string() && e["message"].is_string(),
+        "{what}: {body}"
+    );
+    for (k, v) in e {
+        match k.as_str() {
+            "code" | "message" => {}
+            "field" => assert!(v.is_string(), "{what}: {body}"),
+            "retryable" => assert!(v.is_boolean(), "{what}: {body}"),
+            _ => panic!("{what}: unexpected key {k} in {body}"),
+        }
+    }
+}
+
+/// Every route of the real router gets bad path parameters, bad query strings, bad JSON
+/// bodies, a method it does not serve and no token; every answer is the documented JSON error
+/// with the expected status and field, and its status is listed for the operation in the
+/// OpenAPI document.
+#[tokio::test]
+async fn every_rejection_of_every_route_is_the_documented_json_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let st = test_state(dir.path(), Some("sesame"));
+    let doc = crate::openapi::document();
+    let mut checked = 0;
+    for (method, path) in crate::api::routes() {
+        let op = &doc["paths"][path][method.as_str().to_lowercase()];
+        assert!(op.is_object(), "{method} {path} is not documented");
+        let params: Vec<&str> = path
+            .split('/')
+            .filter_map(|s| s.strip_prefix('{')?.strip_suffix('}'))
+            .collect();
+        let fill = |bad: Option<&str>| {
+            let mut uri = path.to_string();
+            for p in &params {
+                let v = match (Some(*p) == bad, *p) {
+                    (true, "task") => "abc",
+                    (true, _) => "%FF",
+                    (false, "task") => "0",
+                    (false, _) => "x",
+                };
+                uri = uri.replace(&format!("{{{p}}}"), v);
+            }
+            uri
+        };
+        // (what, request, status, field)
+        let mut cases: Vec<(String, Request<Body>, u16, Option<String>)> = Vec::new();
+        let req = |uri: &str, ct: Option<&str>, body: Body, token: bool| {
+            let mut b = Request::builder().method(method.clone()).uri(uri);
+            if token {
+                b = b.header("authorization", "Bearer sesame");
+            }
+            if let Some(ct) = ct {
+                b = b.header("content-type", ct);
+            }
+            b.body(body).unwrap()
+        };
+        for p in &params {
+            let uri = fill(Some(p));
+            cases.push((
+                format!("bad path parameter {p}"),
+                req(&uri, None, Body::empty(), true),
+                400,
+                Some(p.to_string()),
+            ));
+        }
+        let query: Vec<(&str, &str)> = op["parameters"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .filter(|p| p["in"] == "query")
+            .map(|p| {
+                (
+                    p["name"].as_str().unwrap(),
+                    p["schema"]["type"].as_str().unwrap(),
+                )
+            })
+            .collect();
+        for (name, ty) in &query {
+            let uri = format!("{}?{name}=a&{name}=b", fill(None));
+            cases.push((
+                format!("{name} twice"),
+                req(&uri, None, Body::empty(), true),
+                400,
+                Some(name.to_string()),
+            ));
+            if *ty != "string" {
+                let uri = format!("{}?{name}=x", fill(None));
+                cases.push((
+                    format!("{name} not a {ty}"),
+                    req(&uri, None, Body::empty(), true),
+                    400,
+                    Some(name.to_string()),
+                ));
+            }
+        }
+        if op["requestBody"]["content"]["application/json"].is_object() {
+            let uri = fill(None);
+            let json = Some("application/json");
+            for (what, ct, body, status, field) in [
+                ("not JSON", json, Body::from("not json"), 400, Some("body")),
+                ("no Content-Type", None, Body::from("{}"), 415, Some("body")),
+                ("a JSON array", json, Body::from("[1]"), 422, Some("body")),
+                (
+                    "over the limit",
+                    json,
+                    Body::from(vec![b' '; crate::api::JSON_BODY_LIMIT + 1]),
+                    413,
+                    None,
+                ),
+            ] {
+                cases.push((
+                    what.into(),
+                    req(&uri, ct, body, true),
+                    status,
+                    field.map(String::from),
+                ));
+            }
+        }
+        if path != "/healthz" {
+            cases.push((
+                "no token".into(),
+                req(&fill(None), None, Body::empty(), false),
+                401,
+                None,
+            ));
+        }
+        for (what, r, status, field) in cases {
+            let what = format!("{method} {path}: {what}");
+            let (code, body) = call(&st, r).await;
+            assert_eq!(code.as_u16(), status, "{what}: {body}");
+            assert_error_body(&what, &body);
+            assert_eq!(
+                body["error"]["field"].as_str(),
+                field.as_deref(),
+                "{what}: {body}"
+            );
+            assert!(
+                op["responses"][status.to_string()].is_object(),
+                "{what}: {status} is not documented"
+            );
+            checked += 1;
+        }
+        // A method the path does not serve.
+        let r = Request::builder()
+            .method("PATCH")
+            .uri(fill(None))
+            .header("authorization", "Bearer sesame")
+            .body(Body::empty())
+            .unwrap();
+        let (code, body) = call(&st, r).await;
+        assert_eq!(code, StatusCode::METHOD_NOT_ALLOWED, "PATCH {path}: {body}");
+        assert_error_body(&format!("PATCH {path}"), &body);
+    }
+    assert!(checked > 40, "only {checked} cases");
+    let r = Request::get("/v1/nothing")
+        .header("authorization", "Bearer sesame")
+        .body(Body::empty())
+        .unwrap();
+    let (code, body) = call(&st, r).await;
+    assert_eq!(code, StatusCode::NOT_FOUND);
+    assert_error_body("unknown route", &body);
+}
+
+/// Each job limit is refused with 422 naming the field, by arithmetic before anything is
+/// allocated: a frame of 8192² one-pixel tiles (67 million tasks) is answered at once.
+#[tokio::test]
+async fn jobs_over_the_limits_are_refused_at_once_naming_the_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let st = test_state(dir.path(), None);
+    let (_, scene) = call(&st, post("/v1/scenes", r#"{"objects": []}"#)).await;
+    let id = scene["id"].as_str().unwrap().to_string();
+    let check = |fields: &str, field: &str| {
+        let body = format!(r#"{{"scene": "{id}", {fields}}}"#);
+        let (st, field) = (st.clone(), field.to_string());
+        async move {
+            let t = std::time::Instant::now();
+            let (code, b) = call(&st, post("/v1/jobs", body.clone())).await;
+            let took = t.elapsed();
+            assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{body}: {b}");
+            assert_eq!(b["error"]["field"], field.as_str(), "{body}: {b}");
+            assert!(
+                took < std::time::Duration::from_millis(500),
+                "{body}: {took:?}"
+            );
+            b
+        }
+    };
+    let b = check(
+        r#""width": 8192, "height": 8192, "tile_size": 1, "spp": 64, "passes": 64"#,
+        "tile_size",
+    )
+    .await;
+    assert!(
+        b["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("at least 16"),
+        "{b}"
+    );
+    // Tiles alone over the task limit (the minimum tile size allowed).
+    check(
+        r#""width": 16384, "height": 8192, "tile_size": 16"#,
+        "tile_size",
+    )
+    .await;
+    // Tiles × passes over it.
+    let b = check(
+        r#""width": 4096, "height": 4096, "tile_size": 16, "spp": 64, "passes": 8"#,
+        "passes",
+    )
+    .await;
+    assert!(
+        b["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("524288 tasks"),
+        "{b}"
+    );
+    check(r#""spp": 512, "passes": 512"#, "passes").await;
+    assert_eq!(st.sched().job_list().len(), 0, "nothing was created");
+    // Limits set by the operator.
+    let mut c = Config::new(dir.path().join("b"));
+    c.scene_loader = Arc::new(|_p: &std::path::Path| Ok(LoadedScene::default()));
+    c.limits.max_pixels = 1000;
+    c.limits.max_spp = 8;
+    let st2 = AppState::open(c).unwrap();
+    let (_, scene) = call(&st2, post("/v1/scenes", r#"{"objects": []}"#)).await;
+    let id2 = scene["id"].as_str().unwrap();
+    for (fields, field) in [
+        (r#""width": 40, "height": 30"#, "width"),
+        (r#""width": 10, "height": 10, "spp": 9"#, "spp"),
+    ] {
+        let body = format!(r#"{{"scene": "{id2}", {fields}}}"#);
+        let (code, b) = call(&st2, post("/v1/jobs", body)).await;
+        assert_eq!(
+            (code, b["error"]["field"].as_str()),
+            (StatusCode::UNPROCESSABLE_ENTITY, Some(field)),
+            "{b}"
+        );
+    }
+    let body = format!(r#"{{"scene": "{id2}", "width": 10, "height": 10, "spp": 8}}"#);
+    assert_eq!(
+        call(&st2, post("/v1/jobs", body)).await.0,
+        StatusCode::CREATED
+    );
+    // Queued work as a whole: 2^22 tasks by default, 2^18 in a job; the 17th such job waits.
+    let big =
+        format!(r#"{{"scene": "{id}", "width": 8192, "height": 8192, "tile_size": 16, "spp": 1}}"#);
+    for _ in 0..16 {
+        let (code, b) = call(&st, post("/v1/jobs", big.clone())).await;
+        assert_eq!(code, StatusCode::CREATED, "{b}");
+    }
+    let (code, b) = call(&st, post("/v1/jobs", big)).await;
+    assert_eq!(code, StatusCode::TOO_MANY_REQUESTS, "{b}");
+    assert_error_body("429", &b);
+}
+
+/// A store that cannot be written answers 503 with a retryable body and changes nothing; the
+/// same request succeeds once the store is back.
+#[tokio::test]
+async fn a_store_fault_is_a_retryable_503_and_the_retry_succeeds() {
+    let dir = tempfile::tempdir().unwrap();
+    let st = test_state(dir.path(), None);
+    let (_, scene) = call(&st, post("/v1/scenes", r#"{"objects": []}"#)).await;
+    let body = format!(r#"{{"scene": "{}"}}"#, scene["id"].as_str().unwrap());
+    st.sched().store_faults().fail_next(1);
+    let resp = app(st.clone())
+        .oneshot(post("/v1/jobs", body.clone()))
+        .await
+        .unwrap();
+    assert_eq!(resp.status(), StatusCode::SERVICE_UNAVAILABLE);
+    assert_eq!(resp.headers()["retry-after"], "1");
+    let b = axum::body::to_bytes(resp.into_body(), usize::MAX)
+        .await
+        .unwrap();
+    let b: serde_json::Value = serde_json::from_slice(&b).unwrap();
+    assert_error_body("503", &b);
+    assert_eq!(
+        (
+            b["error"]["code"].as_str(),
+            b["error"]["retryable"].as_bool()
+        ),
+        (Some("store_unavailable"), Some(true))
+    );
+    assert_eq!(st.sched().job_list().len(), 0);
+    let (code, _) = call(&st, post("/v1/jobs", body)).await;
+    assert_eq!(code, StatusCode::CREATED);
+    assert_eq!(st.sched().job_list().len(), 1);
 }

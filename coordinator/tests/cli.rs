@@ -41,6 +41,14 @@ fn help_lists_the_flags() {
         "--insecure",
         "--lease-timeout",
         "--max-upload-bytes",
+        "--max-queued-jobs",
+        "--max-queued-tasks",
+        "--max-pixels",
+        "--max-spp",
+        "--max-passes",
+        "--min-tile-size",
+        "--max-tasks-per-job",
+        "--long-poll-max",
         "--healthcheck",
     ] {
         assert!(text.contains(flag), "{flag} missing from:\n{text}");

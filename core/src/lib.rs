@@ -42,7 +42,7 @@ pub mod settings;
 pub mod texture;
 
 pub use film::{Film, TileAccum};
-pub use integrator::{render, render_tile, RenderProgress};
+pub use integrator::{render, render_tile, Cancel, Cancelled, RenderProgress};
 pub use scene::{load_scene, RenderJob, Scene, SceneError};
 pub use settings::{IntegratorKind, RenderOverrides, RenderSettings, SettingsError, Tile};
 

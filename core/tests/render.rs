@@ -510,3 +510,54 @@ fn bad_scenes_are_errors_not_panics() {
         .to_string()
         .contains("spp"));
 }
+
+/// A tile render watches its cancel flag: set from another thread, the render stops within a
+/// fraction of a second (a worker is free for the next task), and a render nobody cancels gives
+/// the same bits as the whole-frame render's tile.
+#[test]
+fn a_cancelled_tile_render_stops_soon_and_an_uncancelled_one_is_unchanged() {
+    use raytile_core::{render_tile, Cancel, Cancelled, Tile};
+    let desc = furnace(BsdfDesc::Diffuse {
+        albedo: Vec3::splat(0.5),
+        texture: None,
+    });
+    let scene = Scene::build(&desc).unwrap();
+    let settings = RenderSettings {
+        width: 16,
+        height: 16,
+        spp: 4,
+        max_depth: 100,
+        tile_size: 16,
+        ..Default::default()
+    };
+    let job = RenderJob::new(&scene, &settings).unwrap();
+    let tile = Tile {
+        x0: 0,
+        y0: 0,
+        x1: 16,
+        y1: 16,
+    };
+    let film = render(&scene, &job, &());
+    let acc = render_tile(&scene, &job, tile, 0..4, &Cancel::new()).unwrap();
+    let mut one = raytile_core::Film::new(16, 16);
+    one.add_tile(&acc).unwrap();
+    let bits = |f: &raytile_core::Film| -> Vec<u32> {
+        f.pixels.iter().flatten().map(|v| v.to_bits()).collect()
+    };
+    assert_eq!(bits(&one), bits(&film));
+    // Samples enough for minutes: cancelled after 200 ms, it returns at once.
+    let cancel = Cancel::new();
+    let t = std::time::Instant::now();
+    let r = std::thread::scope(|s| {
+        let h = s.spawn(|| render_tile(&scene, &job, tile, 0..1 << 24, &cancel));
+        std::thread::sleep(std::time::Duration::from_millis(200));
+        cancel.cancel();
+        h.join().unwrap()
+    });
+    let took = t.elapsed();
+    assert_eq!(r.map(|_| ()), Err(Cancelled));
+    assert!(
+        took < std::time::Duration::from_secs(2),
+        "stopped after {took:?}"
+    );
+}

@@ -21,6 +21,10 @@ pub struct ErrorDetail {
     /// The offending request field, when there is one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub field: Option<String>,
+    /// Whether the same request may succeed if sent again later, unchanged (a 503 while the
+    /// coordinator cannot write its database, or while it shuts down). Absent means false.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub retryable: bool,
 }
 
 /// Response of `POST /v1/scenes`.

@@ -932,6 +932,144 @@ mod api {
     }
 }
 
+/// Store faults for real: the coordinator's data directory on a small tmpfs that fills up
+/// mid-job, then is freed. Needs root with CAP_SYS_ADMIN (mount); under `CI=true` a machine
+/// where that fails fails the test rather than skipping it. (Needs the core.)
+mod store_faults {
+    use super::*;
+
+    /// A tmpfs mounted on a folder, unmounted when dropped (also when a test fails).
+    struct Tmpfs(PathBuf);
+
+    impl Tmpfs {
+        /// Mounts a tmpfs of `size` (`8m`) on `dir`; `Err` says why it could not.
+        fn mount(dir: &std::path::Path, size: &str) -> Result<Tmpfs, String> {
+            std::fs::create_dir_all(dir).map_err(|e| e.to_string())?;
+            let out = std::process::Command::new("mount")
+                .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
+                .arg(dir)
+                .output()
+                .map_err(|e| format!("running mount: {e}"))?;
+            if !out.status.success() {
+                return Err(String::from_utf8_lossy(&out.stderr).trim().to_string());
+            }
+            Ok(Tmpfs(dir.to_path_buf()))
+        }
+
+        /// Writes a file until the file system is full; returns its path.
+        fn fill(&self) -> PathBuf {
+            use std::io::Write;
+            let p = self.0.join("filler");
+            let mut f = std::fs::File::create(&p).unwrap();
+            let chunk = vec![0xa5u8; 4096];
+            loop {
+                match f.write_all(&chunk) {
+                    Ok(()) => {}
+                    Err(e) if e.raw_os_error() == Some(28) => break, // ENOSPC
+                    Err(e) => panic!("filling {}: {e}", p.display()),
+                }
+            }
+            let _ = f.sync_all();
+            p
+        }
+    }
+
+    impl Drop for Tmpfs {
+        fn drop(&mut self) {
+            let _ = std::process::Command::new("umount")
+                .arg("-l")
+                .arg(&self.0)
+                .status();
+        }
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_full_disk_mid_job_loses_no_tile_and_renders_none_twice() {
+        let scene = cornell();
+        let dir = tempfile::tempdir().unwrap();
+        let data = dir.path().join("data");
+        let fs = match Tmpfs::mount(&data, "16m") {
+            Ok(fs) => fs,
+            Err(e) if std::env::var("CI").as_deref() != Ok("true") => {
+                eprintln!(
+                    "skipping: cannot mount a tmpfs here ({e}); CI=true makes this a failure"
+                );
+                return;
+            }
+            Err(e) => panic!("cannot mount a tmpfs for the store-fault test: {e}"),
+        };
+        let mut cfg = test_config(&data);
+        // Leases outlast the fault, so that no task is leased twice because of it.
+        cfg.lease_timeout = Duration::from_secs(30);
+        let c = Coord::start(cfg, 0).await;
+        let id = upload(&c.base, std::fs::read(&scene).unwrap()).await;
+        let mut req = job(&id, 16);
+        req.overrides.spp = Some(256);
+        req.overrides.passes = Some(8);
+        let j = submit(&c.base, &req).await;
+        let ws: Vec<Worker> = (0..2)
+            .map(|i| Worker::start(&c.base, 1, dir.path(), &format!("w{i}")))
+            .collect();
+        wait_for(&c.base, &j.id, 60, |s| {
+            s.tasks_done >= 2 || s.state.is_final()
+        })
+        .await;
+        let filler = fs.fill();
+        let during = status(&c.base, &j.id).await;
+        assert!(
+            !during.state.is_final(),
+            "the job ended before the disk filled"
+        );
+        // The fault is real: a new job cannot be stored, and the answer says to retry.
+        let r = reqwest::Client::new()
+            .post(format!("{}/v1/jobs", c.base))
+            .json(&job(&id, 16))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 503);
+        let body: proto::ErrorBody = r.json().await.unwrap();
+        assert!(body.error.retryable, "{body:?}");
+        // Workers keep trying for a while: results, leases and expiry all fail to store.
+        tokio::time::sleep(Duration::from_secs(3)).await;
+        let stuck = status(&c.base, &j.id).await;
+        assert!(
+            stuck.tasks_done <= during.tasks_done + 2,
+            "results were accepted with the disk full: {} → {}",
+            during.tasks_done,
+            stuck.tasks_done
+        );
+        std::fs::remove_file(&filler).unwrap();
+        let done = wait_for(&c.base, &j.id, 300, |s| s.state.is_final()).await;
+        assert_eq!(done.state, JobState::Done, "{done:?}");
+        let renders: u64 = ws
+            .iter()
+            .map(|w| w.stats.renders.load(Ordering::Relaxed))
+            .sum();
+        let (accepted, dups): (u64, u64) = ws.iter().fold((0, 0), |(a, d), w| {
+            (
+                a + w.stats.accepted.load(Ordering::Relaxed),
+                d + w.stats.duplicates.load(Ordering::Relaxed),
+            )
+        });
+        assert_eq!(
+            (renders, accepted, dups),
+            (done.tasks_total, done.tasks_total, 0),
+            "every task rendered and accepted exactly once"
+        );
+        assert_eq!(
+            image(&c.base, &j.id, "exr").await,
+            local_exr(&scene, &done.settings),
+            "the frame differs from the local render"
+        );
+        for w in ws {
+            w.stop().await;
+        }
+        c.stop().await;
+        drop(fs);
+    }
+}
+
 /// Built scenes are kept between jobs: a second job on a scene does not build it again.
 /// (Needs the core.)
 mod scene_cache {
@@ -975,6 +1113,53 @@ mod scene_cache {
         for w in ws {
             w.stop().await;
         }
+        c.stop().await;
+    }
+}
+
+/// Cancel: a worker rendering a long tile of a cancelled job stops within about a second (its
+/// next heartbeat, then the render's next look at its cancel flag) and takes the next job.
+/// (Needs the core.)
+mod cancel {
+    use super::*;
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_cancel_frees_the_worker_within_a_second() {
+        let scene = cornell();
+        let dir = tempfile::tempdir().unwrap();
+        let c = Coord::start(test_config(&dir.path().join("data")), 0).await;
+        let w = Worker::start(&c.base, 1, dir.path(), "w");
+        let id = upload(&c.base, std::fs::read(&scene).unwrap()).await;
+        // One 64×64 tile of 2^20 samples per pixel: hours of work unless cancelled.
+        let mut long = job(&id, 64);
+        long.overrides.spp = Some(1 << 20);
+        long.overrides.passes = Some(1);
+        let j = submit(&c.base, &long).await;
+        wait_for(&c.base, &j.id, 60, |s| s.tasks_leased == 1).await;
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        let r = reqwest::Client::new()
+            .delete(format!("{}/v1/jobs/{}", c.base, j.id))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 200);
+        let cancelled = tokio::time::Instant::now();
+        while w.stats.cancelled.load(Ordering::Relaxed) == 0 {
+            assert!(
+                cancelled.elapsed() < Duration::from_secs(10),
+                "the worker is still rendering the cancelled tile"
+            );
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        let took = cancelled.elapsed();
+        assert!(took < Duration::from_millis(1500), "freed after {took:?}");
+        assert_eq!(w.stats.renders.load(Ordering::Relaxed), 0);
+        // Free: the next job is rendered.
+        let next = submit(&c.base, &job(&id, 32)).await;
+        let done = wait_for(&c.base, &next.id, 120, |s| s.state.is_final()).await;
+        assert_eq!(done.state, JobState::Done);
+        eprintln!("the worker stopped rendering {took:?} after the cancel");
+        w.stop().await;
         c.stop().await;
     }
 }

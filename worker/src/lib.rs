@@ -36,6 +36,8 @@ pub struct Stats {
     pub failures: AtomicU64,
     /// Scenes this worker loaded and built (a scene already in the cache is not built again).
     pub scene_builds: AtomicU64,
+    /// Tile passes stopped part-way: the job was cancelled, or the lease was lost.
+    pub cancelled: AtomicU64,
 }
 
 /// How a worker runs.
@@ -273,6 +275,10 @@ impl Worker {
         for _ in 0..5 {
             match self.client.report_failure(&lease.lease_id, &body).await {
                 Ok(()) => return,
+                // Nothing was recorded: worth another try (else the lease expires).
+                Err(e) if e.status() == Some(StatusCode::SERVICE_UNAVAILABLE) => {
+                    self.pause(&format!("cannot report failure: {e}")).await
+                }
                 Err(e) if e.status().is_some() => return,
                 Err(e) => self.pause(&format!("cannot report failure: {e}")).await,
             }
@@ -415,6 +421,10 @@ impl Worker {
             lease.sample_start..lease.sample_end,
         );
         let job = self.jobs.get(&lease.job).cloned();
+        // Set when the coordinator says stop: the render returns within a fraction of a
+        // second instead of keeping the render threads busy to the end of the tile.
+        let cancel = Arc::new(raytile_core::Cancel::new());
+        let watched = cancel.clone();
         let mut render = tokio::task::spawn_blocking(move || {
             pool.install(|| {
                 std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
@@ -424,7 +434,7 @@ impl Worker {
                             RenderJob::new(&scene, &settings).map_err(|e| format!("job: {e}"))?,
                         ),
                     };
-                    let accum = raytile_core::render_tile(&scene, &job, tile, samples);
+                    let accum = raytile_core::render_tile(&scene, &job, tile, samples, &watched);
                     Ok::<_, String>((accum, job))
                 }))
             })
@@ -435,13 +445,18 @@ impl Worker {
             tokio::select! {
                 biased;
                 _ = &mut *shutdown => {
-                    // Rendering cannot be interrupted; hand the lease back so another worker
-                    // takes the tile at once, and let the thread finish on its own.
+                    // Hand the lease back so another worker takes the tile at once; the render
+                    // stops at its next look at the flag.
+                    cancel.cancel();
                     self.release(&lease).await;
                     return Flow::Exit;
                 }
                 r = &mut render => match r {
-                    Ok(Ok(acc)) => break acc,
+                    Ok(Ok((Ok(acc), job))) => break (acc, job),
+                    Ok(Ok((Err(raytile_core::Cancelled), _))) => {
+                        self.cfg.stats.cancelled.fetch_add(1, Ordering::Relaxed);
+                        return Flow::Continue;
+                    }
                     Ok(Err(msg)) => {
                         self.report_failure(&lease, msg).await;
                         return Flow::Continue;
@@ -457,6 +472,11 @@ impl Worker {
                         if reply.cancelled {
                             tracing::info!(job = %lease.job, task = lease.task,
                                 reason = reply.reason.as_deref().unwrap_or(""), "stopping task");
+                            // Stop the render and wait for it, so the render threads are free
+                            // for the next task.
+                            cancel.cancel();
+                            let _ = (&mut render).await;
+                            self.cfg.stats.cancelled.fetch_add(1, Ordering::Relaxed);
                             return Flow::Continue;
                         }
                     }
@@ -505,11 +525,13 @@ impl Worker {
 /// Server errors (5xx) after which a result upload is given up.
 const UPLOAD_SERVER_ERRORS: u32 = 5;
 
-/// Uploads one tile result. While the coordinator cannot be reached it retries with backoff
-/// for as long as it takes (a restarted coordinator accepts the result); a refusal (4xx) is
-/// dropped at once (the task is someone else's by now, or the job is gone), and a server
-/// error (5xx) after [`UPLOAD_SERVER_ERRORS`] attempts, so that one result the coordinator
-/// cannot store never wedges the worker: its lease expires and the tile is rendered again.
+/// Uploads one tile result. While the coordinator cannot be reached, or answers 503 (it could
+/// not write its database, or it is shutting down: nothing was stored, the same request may
+/// succeed later), it retries with backoff for as long as it takes: a result is never thrown
+/// away for a fault the coordinator recovers from. A refusal (4xx) is dropped at once (the
+/// task is someone else's by now, or the job is gone), and another server error (500) after
+/// [`UPLOAD_SERVER_ERRORS`] attempts, so that one result the coordinator cannot take never
+/// wedges the worker: its lease expires and the tile is rendered again.
 async fn upload_result(
     client: Client,
     to: ResultTarget,
@@ -544,7 +566,9 @@ async fn upload_result(
                 return;
             }
             Err(e) => {
-                if e.status().is_some() {
+                if e.status()
+                    .is_some_and(|s| s != StatusCode::SERVICE_UNAVAILABLE)
+                {
                     server_errors += 1;
                     if server_errors >= UPLOAD_SERVER_ERRORS {
                         tracing::warn!("result dropped after {server_errors} errors ({what}): {e}");
@@ -579,5 +603,115 @@ fn load_and_build(file: &Path) -> anyhow::Result<Scene> {
         Ok(Ok(scene)) => Ok(scene),
         Ok(Err(e)) => Err(anyhow!("scene: {e}")),
         Err(p) => Err(anyhow!("scene loading panicked: {}", panic_message(p))),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+    /// Serves `answers` in order, one per connection, reading each request to its end;
+    /// returns the base URL and a counter of requests served.
+    async fn serve(answers: Vec<(u16, &'static str)>) -> (String, Arc<AtomicU64>) {
+        let l = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let base = format!("http://{}", l.local_addr().unwrap());
+        let served = Arc::new(AtomicU64::new(0));
+        let count = served.clone();
+        tokio::spawn(async move {
+            for (status, body) in answers {
+                let (mut s, _) = l.accept().await.unwrap();
+                let mut req = Vec::new();
+                let mut buf = [0u8; 65536];
+                // Head, then as many body bytes as Content-Length says.
+                loop {
+                    let n = s.read(&mut buf).await.unwrap();
+                    req.extend_from_slice(&buf[..n]);
+                    let text = String::from_utf8_lossy(&req).to_lowercase();
+                    if let Some(end) = text.find("\r\n\r\n") {
+                        let len: usize = text
+                            .lines()
+                            .find_map(|l| l.strip_prefix("content-length: "))
+                            .and_then(|v| v.trim().parse().ok())
+                            .unwrap_or(0);
+                        if req.len() >= end + 4 + len {
+                            break;
+                        }
+                    }
+                    if n == 0 {
+                        break;
+                    }
+                }
+                count.fetch_add(1, Ordering::SeqCst);
+                let resp = format!(
+                    "HTTP/1.1 {status} X\r\ncontent-type: application/json\r\ncontent-length: {}\r\nconnection: close\r\n\r\n{body}",
+                    body.len()
+                );
+                s.write_all(resp.as_bytes()).await.unwrap();
+            }
+        });
+        (base, served)
+    }
+
+    /// A coordinator that cannot write its database answers 503 for a while: the worker keeps
+    /// the result and retries, past the cap on other server errors, until it is accepted.
+    #[tokio::test]
+    async fn result_uploads_outlast_a_coordinator_answering_503() {
+        let busy = r#"{"error": {"code": "store_unavailable", "message": "retry later", "retryable": true}}"#;
+        let mut answers = vec![(503, busy); UPLOAD_SERVER_ERRORS as usize + 2];
+        answers.push((
+            200,
+            r#"{"accepted": true, "duplicate": false, "job_finished": false}"#,
+        ));
+        let (base, served) = serve(answers).await;
+        let stats = Arc::new(Stats::default());
+        let to = ResultTarget {
+            job: "j".into(),
+            task: 0,
+            worker: "w".into(),
+        };
+        let client = Client::new(&base, None).unwrap();
+        let upload = upload_result(
+            client,
+            to,
+            vec![0; 64],
+            stats.clone(),
+            Duration::from_millis(5),
+        );
+        tokio::time::timeout(Duration::from_secs(20), upload)
+            .await
+            .expect("the upload gave up or hung");
+        assert_eq!(stats.accepted.load(Ordering::SeqCst), 1);
+        assert_eq!(
+            served.load(Ordering::SeqCst),
+            UPLOAD_SERVER_ERRORS as u64 + 3
+        );
+    }
+
+    /// Other server errors are given up after a few attempts, so one result the coordinator
+    /// cannot take never wedges the worker.
+    #[tokio::test]
+    async fn result_uploads_give_up_after_repeated_internal_errors() {
+        let err = r#"{"error": {"code": "internal", "message": "internal error"}}"#;
+        let (base, served) = serve(vec![(500, err); UPLOAD_SERVER_ERRORS as usize]).await;
+        let stats = Arc::new(Stats::default());
+        let to = ResultTarget {
+            job: "j".into(),
+            task: 0,
+            worker: "w".into(),
+        };
+        let client = Client::new(&base, None).unwrap();
+        let upload = upload_result(
+            client,
+            to,
+            vec![0; 64],
+            stats.clone(),
+            Duration::from_millis(5),
+        );
+        tokio::time::timeout(Duration::from_secs(20), upload)
+            .await
+            .expect("the upload hung");
+        assert_eq!(stats.accepted.load(Ordering::SeqCst), 0);
+        assert_eq!(served.load(Ordering::SeqCst), UPLOAD_SERVER_ERRORS as u64);
     }
 }

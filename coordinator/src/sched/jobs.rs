@@ -26,8 +26,10 @@ pub(super) struct Job {
     life: JobLife,
     /// Task index → tile and pass (shared with image composition, outside the lock).
     pub layout: Arc<TaskLayout>,
-    /// Tasks in layout order; changed only through [`Job::transition`].
+    /// Tasks in layout order; changed only through [`Job::set_task`] and [`Job::renew`].
     tasks: Vec<Task>,
+    /// How many tasks are done.
+    done: usize,
     /// Lowest task index that may be queued: everything before it is leased or finished.
     cursor: usize,
     /// Failures per worker (a worker with enough is blocked from the job).
@@ -35,7 +37,8 @@ pub(super) struct Job {
 }
 
 impl Job {
-    /// A job just submitted, every task queued.
+    /// A job just submitted, every task queued. `layout` is `TaskLayout::new(&settings)`,
+    /// made by the caller (outside the scheduler's lock: it is the costly part).
     pub fn new(
         id: String,
         seq: u64,
@@ -43,8 +46,8 @@ impl Job {
         settings: RenderSettings,
         priority: i32,
         now_ms: u64,
+        layout: Arc<TaskLayout>,
     ) -> Job {
-        let layout = TaskLayout::new(&settings);
         let tasks = vec![Task::queued(); layout.task_count()];
         Job {
             id,
@@ -53,8 +56,9 @@ impl Job {
             settings,
             priority,
             life: JobLife::queued(now_ms),
-            layout: Arc::new(layout),
+            layout,
             tasks,
+            done: 0,
             cursor: 0,
             worker_failures: HashMap::new(),
         }
@@ -69,7 +73,16 @@ impl Job {
         worker_failures: HashMap<String, u32>,
         deadline: Instant,
     ) -> (Job, Vec<(String, usize)>) {
-        let mut job = Job::new(row.id, row.seq, row.scene, settings, row.priority, 0);
+        let layout = Arc::new(TaskLayout::new(&settings));
+        let mut job = Job::new(
+            row.id,
+            row.seq,
+            row.scene,
+            settings,
+            row.priority,
+            0,
+            layout,
+        );
         job.life = JobLife {
             state: row.state,
             error: row.error,
@@ -87,7 +100,10 @@ impl Job {
             t.state = match tr.state {
                 StoredTask::Queued => TaskState::Queued,
                 StoredTask::Failed => TaskState::Failed,
-                StoredTask::Done { worker } => TaskState::Done { worker },
+                StoredTask::Done { worker } => {
+                    job.done += 1;
+                    TaskState::Done { worker }
+                }
                 StoredTask::Leased { worker, lease } => {
                     leases.push((lease.clone(), tr.idx as usize));
                     TaskState::Leased {
@@ -117,9 +133,8 @@ impl Job {
         }
     }
 
-    /// Task `idx`'s row in the store (the lease deadline is not stored).
-    pub fn task_row(&self, idx: usize) -> TaskRow {
-        let t = &self.tasks[idx];
+    /// The store row of task `idx` in state `t` (the lease deadline is not stored).
+    pub fn task_row(idx: usize, t: &Task) -> TaskRow {
         let state = match &t.state {
             TaskState::Queued => StoredTask::Queued,
             TaskState::Leased { worker, lease, .. } => StoredTask::Leased {
@@ -148,9 +163,16 @@ impl Job {
         self.life.state.is_final()
     }
 
-    /// Sends `ev` to the job state machine; whether it changed.
-    pub fn apply(&mut self, ev: JobEvent, now_ms: u64) -> bool {
-        self.life.apply(ev, now_ms)
+    /// What the job's life would become on `ev` at `now_ms`, or `None` if `ev` changes
+    /// nothing. The job itself is unchanged until [`Job::set_life`].
+    pub fn next_life(&self, ev: JobEvent, now_ms: u64) -> Option<JobLife> {
+        let mut life = self.life.clone();
+        life.apply(ev, now_ms).then_some(life)
+    }
+
+    /// Puts a life from [`Job::next_life`] in place, once the store has it.
+    pub fn set_life(&mut self, life: JobLife) {
+        self.life = life;
     }
 
     /// The tasks, in layout order.
@@ -163,14 +185,32 @@ impl Job {
         self.layout.task(idx)
     }
 
-    /// Sends `ev` to task `idx`'s state machine. A task queued again moves the cursor back so
-    /// the next lease finds it first.
-    pub fn transition(&mut self, idx: usize, ev: TaskEvent) -> Outcome {
-        let out = transition(&mut self.tasks[idx], ev);
-        if out == Outcome::Changed && self.tasks[idx].state == TaskState::Queued {
+    /// What task `idx` would become on `ev` (the task state machine's answer and the new
+    /// task). The job is unchanged until [`Job::set_task`]: the caller stores the new state
+    /// first.
+    pub fn next_task(&self, idx: usize, ev: TaskEvent) -> (Outcome, Task) {
+        let mut t = self.tasks[idx].clone();
+        let out = transition(&mut t, ev);
+        (out, t)
+    }
+
+    /// Puts a task from [`Job::next_task`] in place, once the store has it. A task queued
+    /// again moves the cursor back so the next lease finds it first.
+    pub fn set_task(&mut self, idx: usize, t: Task) {
+        let was_done = matches!(self.tasks[idx].state, TaskState::Done { .. });
+        let is_done = matches!(t.state, TaskState::Done { .. });
+        self.done = self.done + usize::from(is_done) - usize::from(was_done);
+        if t.state == TaskState::Queued {
             self.cursor = self.cursor.min(idx);
         }
-        out
+        self.tasks[idx] = t;
+    }
+
+    /// Renews the lease of task `idx`: the deadline lives in memory only (after a restart
+    /// every lease gets the grace period), so nothing is stored. Whether it applied.
+    pub fn renew(&mut self, idx: usize, ev: TaskEvent) -> bool {
+        debug_assert!(matches!(ev, TaskEvent::Renew { .. }));
+        transition(&mut self.tasks[idx], ev) == Outcome::Changed
     }
 
     /// The first queued task in layout order, if any.
@@ -183,11 +223,10 @@ impl Job {
         found
     }
 
-    /// Whether every task is done.
-    pub fn all_done(&self) -> bool {
-        self.tasks
-            .iter()
-            .all(|t| matches!(t.state, TaskState::Done { .. }))
+    /// Whether every task but `idx` is done (so that `idx` done finishes the job).
+    pub fn all_done_but(&self, idx: usize) -> bool {
+        let own = usize::from(matches!(self.tasks[idx].state, TaskState::Done { .. }));
+        self.done - own + 1 == self.tasks.len()
     }
 
     /// The worker holding task `idx` and its lease id, while the task is leased.

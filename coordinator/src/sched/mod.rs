@@ -12,8 +12,14 @@
 //!
 //! The scheduler reads no clock: every method that needs the time takes a [`Now`] read by its
 //! caller (lease deadlines from `Now::instant`, times shown to users and worker liveness from
-//! `Now::wall_ms`), so tests drive time. Its only IO is the store, written before a method
-//! returns, so a restarted coordinator finds every change that was answered.
+//! `Now::wall_ms`), so tests drive time. Its only IO is the store.
+//!
+//! Write, then apply: every operation works out the states it would change on copies, writes
+//! them to the store in one transaction, and only when that succeeded puts them in memory. A
+//! write that fails (a full disk, a read-only file) leaves memory as it was and returns
+//! [`SchedError::Store`], which the API answers 503: the client's retry finds the same state,
+//! so no result is lost and no task is handed out twice. A restarted coordinator finds every
+//! change that was answered.
 
 mod ids;
 mod jobs;
@@ -29,14 +35,15 @@ pub use metrics::{Counters, Metrics};
 pub use order::{TaskLayout, TaskWork};
 
 use crate::clock::Now;
-use crate::store::Store;
+use crate::store::{Store, TaskRow, Write};
 use ids::Ids;
 use jobs::Job;
 use metrics::Throughput;
 use raytile_core::{RenderSettings, Tile};
 use raytile_proto::{JobState, JobStatus};
-use state::{JobEvent, Outcome, TaskEvent};
+use state::{JobEvent, JobLife, Outcome, TaskEvent};
 use std::collections::HashMap;
+use std::sync::Arc;
 use std::time::Duration;
 use workers::{WorkerRec, Workers};
 
@@ -139,21 +146,15 @@ pub struct Sched {
     throughput: Throughput,
 }
 
-fn save_job(store: &Store, job: &Job) -> Result<(), SchedError> {
-    let life = job.life();
-    store.update_job(
-        &job.id,
-        life.state,
-        life.error.as_deref(),
-        life.started_ms,
-        life.finished_ms,
-    )?;
-    Ok(())
-}
-
-fn save_task(store: &Store, job: &Job, idx: usize) -> Result<(), SchedError> {
-    store.update_task(&job.id, &job.task_row(idx))?;
-    Ok(())
+/// The store change that records `life` as job `id`'s.
+fn life_write<'a>(id: &'a str, life: &'a JobLife) -> Write<'a> {
+    Write::Job {
+        id,
+        state: life.state,
+        error: life.error.as_deref(),
+        started_ms: life.started_ms,
+        finished_ms: life.finished_ms,
+    }
 }
 
 impl Sched {
@@ -218,20 +219,41 @@ impl Sched {
         self.jobs.values().filter(|j| !j.is_final()).count()
     }
 
-    /// Creates a job submitted at `now`; `settings` must be valid.
+    /// Tasks of the jobs not yet final.
+    pub fn unfinished_tasks(&self) -> u64 {
+        self.jobs
+            .values()
+            .filter(|j| !j.is_final())
+            .map(|j| j.tasks().len() as u64)
+            .sum()
+    }
+
+    /// Creates a job submitted at `now`; `settings` must be valid and within the
+    /// coordinator's limits, and `layout` is `TaskLayout::new(&settings)`, made by the caller
+    /// before it takes the lock (it is what costs time on a large job). Storing the job writes
+    /// one row whatever its size: its tasks get rows as they leave the queue.
     pub fn create_job(
         &mut self,
         scene: String,
         settings: RenderSettings,
+        layout: Arc<TaskLayout>,
         priority: i32,
         now: Now,
     ) -> Result<JobStatus, SchedError> {
+        debug_assert_eq!(*layout, TaskLayout::new(&settings));
         let seq = self.next_seq;
-        self.next_seq += 1;
         let id = self.ids.job(seq);
-        let job = Job::new(id.clone(), seq, scene, settings, priority, now.wall_ms);
-        self.store
-            .insert_job(&job.row(), job.tasks().len() as u32)?;
+        let job = Job::new(
+            id.clone(),
+            seq,
+            scene,
+            settings,
+            priority,
+            now.wall_ms,
+            layout,
+        );
+        self.store.write(&[Write::InsertJob(&job.row())])?;
+        self.next_seq += 1;
         let status = job.status();
         self.jobs.insert(id, job);
         Ok(status)
@@ -240,7 +262,12 @@ impl Sched {
     /// Registers a worker at `now` and returns its id.
     pub fn register(&mut self, name: &str, threads: u32, now: Now) -> Result<String, SchedError> {
         let id = self.ids.next("w-");
-        self.store.insert_worker(&id, name, threads, now.wall_ms)?;
+        self.store.write(&[Write::Worker {
+            id: &id,
+            name,
+            threads,
+            registered_ms: now.wall_ms,
+        }])?;
         self.workers.insert(
             id.clone(),
             WorkerRec {
@@ -276,13 +303,21 @@ impl Sched {
                 lease: lease.clone(),
                 deadline: now.instant + self.cfg.lease_timeout,
             };
-            if job.transition(idx, ev) != Outcome::Changed {
+            let (out, task) = job.next_task(idx, ev);
+            if out != Outcome::Changed {
                 continue;
             }
-            let started = job.apply(JobEvent::Start, now.wall_ms);
-            save_task(&self.store, job, idx)?;
-            if started {
-                save_job(&self.store, job)?;
+            let life = job.next_life(JobEvent::Start, now.wall_ms);
+            let row = Job::task_row(idx, &task);
+            let mut writes = vec![Write::Task {
+                job: &id,
+                row: &row,
+            }];
+            writes.extend(life.as_ref().map(|l| life_write(&id, l)));
+            self.store.write(&writes)?;
+            job.set_task(idx, task);
+            if let Some(l) = life {
+                job.set_life(l);
             }
             self.leases.insert(lease.clone(), (id.clone(), idx));
             self.counters.leased += 1;
@@ -315,8 +350,7 @@ impl Sched {
             lease: lease.into(),
             deadline: now.instant + self.cfg.lease_timeout,
         };
-        if job.transition(idx, ev) == Outcome::Changed {
-            // The deadline lives in memory only: after a restart every lease gets the grace.
+        if job.renew(idx, ev) {
             if let Some(w) = worker {
                 self.workers.touch(&w, now.wall_ms);
             }
@@ -369,13 +403,11 @@ impl Sched {
                 ResultOutcome::JobFinished
             });
         }
-        if let Some((_, lease)) = job.lease_of(i) {
-            self.leases.remove(lease);
-        }
         let ev = TaskEvent::Complete {
             worker: d.worker.into(),
         };
-        match job.transition(i, ev) {
+        let (out, task) = job.next_task(i, ev);
+        match out {
             Outcome::Changed => {}
             Outcome::AlreadyDone => {
                 self.counters.duplicates += 1;
@@ -383,10 +415,26 @@ impl Sched {
             }
             Outcome::Ignored => return Ok(ResultOutcome::JobFinished),
         }
-        let finished = job.all_done() && job.apply(JobEvent::Finish, now.wall_ms);
-        self.store.finish_task(job_id, &job.task_row(i), d.bytes)?;
-        if finished {
-            save_job(&self.store, job)?;
+        let finished = if job.all_done_but(i) {
+            job.next_life(JobEvent::Finish, now.wall_ms)
+        } else {
+            None
+        };
+        let row = Job::task_row(i, &task);
+        let mut writes = vec![Write::Result {
+            job: job_id,
+            row: &row,
+            data: d.bytes,
+        }];
+        writes.extend(finished.as_ref().map(|l| life_write(job_id, l)));
+        // Stored first: if this fails, nothing changed and the worker's retry is accepted.
+        self.store.write(&writes)?;
+        if let Some((_, lease)) = job.lease_of(i) {
+            self.leases.remove(lease);
+        }
+        job.set_task(i, task);
+        if let Some(l) = finished {
+            job.set_life(l);
         }
         let samples = work.sample_count();
         self.counters.done += 1;
@@ -401,16 +449,19 @@ impl Sched {
     /// A worker reports at `now` that it could not render its leased task. Returns whether
     /// the report applied (a stale lease changes nothing).
     pub fn fail(&mut self, lease: &str, error: &str, now: Now) -> Result<bool, SchedError> {
-        let Some((job_id, idx)) = self.leases.remove(lease) else {
+        let Some((job_id, idx)) = self.leases.get(lease).cloned() else {
             return Ok(false);
         };
         let Some(job) = self.jobs.get_mut(&job_id) else {
+            self.leases.remove(lease);
             return Ok(false);
         };
         let Some(worker) = job.lease_of(idx).map(|(w, _)| w.to_string()) else {
+            self.leases.remove(lease);
             return Ok(false);
         };
         if job.is_final() {
+            self.leases.remove(lease);
             return Ok(false);
         }
         let fatal = job.tasks()[idx].failures + 1 >= self.cfg.max_task_failures;
@@ -418,27 +469,23 @@ impl Sched {
             lease: lease.into(),
             fatal,
         };
-        if job.transition(idx, ev) != Outcome::Changed {
+        let (out, task) = job.next_task(idx, ev);
+        if out != Outcome::Changed {
+            self.leases.remove(lease);
             return Ok(false);
         }
-        self.counters.failed += 1;
-        let wf = job.worker_failures.entry(worker.clone()).or_insert(0);
-        *wf += 1;
-        let wf = *wf;
-        if let Some(w) = self.workers.touch(&worker, now.wall_ms) {
-            w.failures += 1;
-        }
+        let wf = job.failures_of(&worker) + 1;
         let work = job.work(idx).expect("a leased task is in the layout");
         let (t, pass) = (work.tile, work.pass);
         // A job every live worker is blocked from would wait for ever: fail it instead.
         // Workers that vanished long ago do not keep it alive (see `Workers::all_live_blocked`;
-        // the expiry tick checks again as workers come and go).
+        // the expiry tick catches the case where the last live peer goes later).
         let block = self.cfg.block_worker_after;
-        let all_blocked = !fatal
-            && wf >= block
-            && self
-                .workers
-                .all_live_blocked(&job.worker_failures, block, now.wall_ms);
+        let all_blocked = !fatal && wf >= block && {
+            let mut failures = job.worker_failures.clone();
+            failures.insert(worker.clone(), wf);
+            self.workers.all_live_blocked(&failures, block, now.wall_ms)
+        };
         let error = if all_blocked {
             Some(format!(
                 "every worker failed this job {block} times, so none may take it any more; last error, from worker {worker} on tile [{}, {}) × [{}, {}) pass {pass}: {error}",
@@ -447,63 +494,111 @@ impl Sched {
         } else if fatal {
             Some(format!(
                 "tile [{}, {}) × [{}, {}) pass {pass} failed {} times; last error from worker {worker}: {error}",
-                t.x0, t.x1, t.y0, t.y1, job.tasks()[idx].failures
+                t.x0, t.x1, t.y0, t.y1, task.failures
             ))
         } else {
             None
         };
-        let failed = error.is_some_and(|error| job.apply(JobEvent::Fail { error }, now.wall_ms));
-        save_task(&self.store, job, idx)?;
-        self.store.set_blocked(&job_id, &worker, wf)?;
-        if failed {
-            save_job(&self.store, job)?;
+        let failed = error.and_then(|error| job.next_life(JobEvent::Fail { error }, now.wall_ms));
+        let row = Job::task_row(idx, &task);
+        let mut writes = vec![
+            Write::Task {
+                job: &job_id,
+                row: &row,
+            },
+            Write::Blocked {
+                job: &job_id,
+                worker: &worker,
+                failures: wf,
+            },
+        ];
+        writes.extend(failed.as_ref().map(|l| life_write(&job_id, l)));
+        self.store.write(&writes)?;
+        self.leases.remove(lease);
+        job.set_task(idx, task);
+        job.worker_failures.insert(worker.clone(), wf);
+        if let Some(l) = failed {
+            job.set_life(l);
+        }
+        self.counters.failed += 1;
+        if let Some(w) = self.workers.touch(&worker, now.wall_ms) {
+            w.failures += 1;
         }
         Ok(true)
     }
 
     /// The lease holder hands its task back (shutting down): re-queued, no failure counted.
     pub fn release(&mut self, lease: &str) -> Result<bool, SchedError> {
-        let Some((job_id, idx)) = self.leases.remove(lease) else {
+        let Some((job_id, idx)) = self.leases.get(lease).cloned() else {
             return Ok(false);
         };
         let Some(job) = self.jobs.get_mut(&job_id) else {
+            self.leases.remove(lease);
             return Ok(false);
         };
         let ev = TaskEvent::Release {
             lease: lease.into(),
         };
-        let ok = job.transition(idx, ev) == Outcome::Changed;
-        if ok {
-            save_task(&self.store, job, idx)?;
+        let (out, task) = job.next_task(idx, ev);
+        if out != Outcome::Changed {
+            self.leases.remove(lease);
+            return Ok(false);
         }
-        Ok(ok)
+        let row = Job::task_row(idx, &task);
+        self.store.write(&[Write::Task {
+            job: &job_id,
+            row: &row,
+        }])?;
+        self.leases.remove(lease);
+        job.set_task(idx, task);
+        Ok(true)
     }
 
     /// Re-queues every lease whose deadline has passed at `now`, and fails the jobs every live
-    /// worker is blocked from; returns how many leases expired.
+    /// worker is blocked from; returns how many leases expired. Only the leases out are
+    /// looked at, not every task of every job.
     pub fn expire(&mut self, now: Now) -> Result<usize, SchedError> {
         let mut expired = Vec::new();
-        for job in self.jobs.values_mut().filter(|j| !j.is_final()) {
-            for i in 0..job.tasks().len() {
-                let Some((_, lease)) = job.lease_of(i) else {
-                    continue;
-                };
-                let lease = lease.to_string();
-                let ev = TaskEvent::Expire { now: now.instant };
-                if job.transition(i, ev) == Outcome::Changed {
-                    expired.push((job.id.clone(), i, lease));
-                }
+        for (lease, (job_id, idx)) in &self.leases {
+            let Some(job) = self.jobs.get(job_id).filter(|j| !j.is_final()) else {
+                continue;
+            };
+            let (out, task) = job.next_task(*idx, TaskEvent::Expire { now: now.instant });
+            if out == Outcome::Changed {
+                expired.push((job_id.clone(), *idx, lease.clone(), task));
             }
         }
-        for (job_id, i, lease) in &expired {
-            self.leases.remove(lease);
-            save_task(&self.store, &self.jobs[job_id], *i)?;
+        expired.sort_by(|a, b| (&a.0, a.1).cmp(&(&b.0, b.1)));
+        let rows: Vec<TaskRow> = expired
+            .iter()
+            .map(|(_, i, _, t)| Job::task_row(*i, t))
+            .collect();
+        let writes: Vec<Write> = expired
+            .iter()
+            .zip(&rows)
+            .map(|((job, ..), row)| Write::Task { job, row })
+            .collect();
+        self.store.write(&writes)?;
+        let n = expired.len();
+        for (job_id, i, lease, task) in expired {
+            self.leases.remove(&lease);
+            if let Some(job) = self.jobs.get_mut(&job_id) {
+                job.set_task(i, task);
+            }
             tracing::info!(job = %job_id, task = i, "lease expired; task re-queued");
         }
-        self.counters.expired += expired.len() as u64;
+        self.counters.expired += n as u64;
+        // Leases of jobs that ended or were purged stop nothing any more: forget them (memory
+        // only; a heartbeat on one is told to stop all the same).
+        let jobs = &self.jobs;
+        self.leases
+            .retain(|_, (j, _)| jobs.get(j.as_str()).is_some_and(|j| !j.is_final()));
         // Jobs every live worker is blocked from (the last one blocked may have gone since).
         let block = self.cfg.block_worker_after;
-        let stuck: Vec<String> = self
+        let error = format!(
+            "every live worker failed this job {block} times, so none may take it any more"
+        );
+        let stuck: Vec<(String, JobLife)> = self
             .jobs
             .values()
             .filter(|j| !j.is_final() && !j.worker_failures.is_empty())
@@ -511,19 +606,22 @@ impl Sched {
                 self.workers
                     .all_live_blocked(&j.worker_failures, block, now.wall_ms)
             })
-            .map(|j| j.id.clone())
+            .filter_map(|j| {
+                let ev = JobEvent::Fail {
+                    error: error.clone(),
+                };
+                Some((j.id.clone(), j.next_life(ev, now.wall_ms)?))
+            })
             .collect();
-        for id in stuck {
-            let job = self.jobs.get_mut(&id).expect("listed above");
-            let error = format!(
-                "every live worker failed this job {block} times, so none may take it any more"
-            );
-            if job.apply(JobEvent::Fail { error }, now.wall_ms) {
-                tracing::warn!(job = %id, "failed: every live worker is blocked from it");
-                save_job(&self.store, job)?;
+        let writes: Vec<Write> = stuck.iter().map(|(id, l)| life_write(id, l)).collect();
+        self.store.write(&writes)?;
+        for (id, life) in stuck {
+            tracing::warn!(job = %id, "failed: every live worker is blocked from it");
+            if let Some(job) = self.jobs.get_mut(&id) {
+                job.set_life(life);
             }
         }
-        Ok(expired.len())
+        Ok(n)
     }
 
     /// Cancels a job at `now` if it is not finished. Returns its status, or `None` if unknown.
@@ -531,8 +629,9 @@ impl Sched {
         let Some(job) = self.jobs.get_mut(job_id) else {
             return Ok(None);
         };
-        if job.apply(JobEvent::Cancel, now.wall_ms) {
-            save_job(&self.store, job)?;
+        if let Some(life) = job.next_life(JobEvent::Cancel, now.wall_ms) {
+            self.store.write(&[life_write(job_id, &life)])?;
+            job.set_life(life);
         }
         Ok(Some(job.status()))
     }
@@ -541,12 +640,21 @@ impl Sched {
     /// store. Returns its last status, or `None` if unknown. Workers still holding one of its
     /// leases learn it is gone at their next heartbeat; their results are refused (404).
     pub fn purge(&mut self, job_id: &str, now: Now) -> Result<Option<JobStatus>, SchedError> {
-        let Some(status) = self.cancel(job_id, now)? else {
+        if !self.jobs.contains_key(job_id) {
             return Ok(None);
-        };
-        self.store.delete_job(job_id)?;
-        self.jobs.remove(job_id);
+        }
+        self.store.write(&[Write::DeleteJob(job_id)])?;
+        let mut job = self.jobs.remove(job_id).expect("checked above");
+        if let Some(life) = job.next_life(JobEvent::Cancel, now.wall_ms) {
+            job.set_life(life);
+        }
         self.leases.retain(|_, (j, _)| j != job_id);
-        Ok(Some(status))
+        Ok(Some(job.status()))
+    }
+
+    /// The store's fault switch (tests only).
+    #[cfg(test)]
+    pub fn store_faults(&self) -> crate::store::Faults {
+        self.store.faults()
     }
 }

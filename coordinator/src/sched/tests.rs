@@ -69,6 +69,30 @@ fn finish(s: &mut Sched, w: &str, now: Now) -> Option<Grant> {
     Some(g)
 }
 
+/// `create_job` with the layout made here, as the API makes it before taking the lock.
+trait NewJob {
+    fn new_job(
+        &mut self,
+        scene: String,
+        settings: RenderSettings,
+        priority: i32,
+        now: Now,
+    ) -> Result<JobStatus, SchedError>;
+}
+
+impl NewJob for Sched {
+    fn new_job(
+        &mut self,
+        scene: String,
+        settings: RenderSettings,
+        priority: i32,
+        now: Now,
+    ) -> Result<JobStatus, SchedError> {
+        let layout = Arc::new(TaskLayout::new(&settings));
+        self.create_job(scene, settings, layout, priority, now)
+    }
+}
+
 fn state_of(s: &Sched, job: &str) -> JobState {
     s.job_status(job).unwrap().state
 }
@@ -79,9 +103,9 @@ fn priority_then_fifo_then_pass_order() {
     let now = t0();
     let mut s = open(dir.path(), now);
     let w = s.register("w", 1, now).unwrap();
-    let a = s.create_job("s".into(), small(2), 0, now).unwrap().id;
-    let b = s.create_job("s".into(), small(2), 5, now).unwrap().id;
-    let c = s.create_job("s".into(), small(2), 0, now).unwrap().id;
+    let a = s.new_job("s".into(), small(2), 0, now).unwrap().id;
+    let b = s.new_job("s".into(), small(2), 5, now).unwrap().id;
+    let c = s.new_job("s".into(), small(2), 0, now).unwrap().id;
     let mut grants = Vec::new();
     while let Some(g) = finish(&mut s, &w, now) {
         grants.push(g);
@@ -108,7 +132,7 @@ fn timestamps_come_from_the_callers_clock() {
     let mut s = open(dir.path(), start);
     let w = s.register("w", 1, start.after(secs(1))).unwrap();
     let job = s
-        .create_job("s".into(), small(1), 0, start.after(secs(2)))
+        .new_job("s".into(), small(1), 0, start.after(secs(2)))
         .unwrap()
         .id;
     finish(&mut s, &w, start.after(secs(3))).unwrap();
@@ -122,7 +146,7 @@ fn timestamps_come_from_the_callers_clock() {
     let info = &s.worker_list()[0];
     assert_eq!((info.registered_ms, info.last_seen_ms), (ms(1), ms(4)));
     let cancelled = s
-        .create_job("s".into(), small(1), 0, start.after(secs(5)))
+        .new_job("s".into(), small(1), 0, start.after(secs(5)))
         .unwrap()
         .id;
     let st = s.cancel(&cancelled, start.after(secs(6))).unwrap().unwrap();
@@ -141,7 +165,7 @@ fn expired_leases_are_requeued_and_late_results_are_duplicates() {
     let mut s = open(dir.path(), t0);
     let w1 = s.register("w1", 1, t0).unwrap();
     let w2 = s.register("w2", 1, t0).unwrap();
-    let job = s.create_job("s".into(), small(1), 0, t0).unwrap().id;
+    let job = s.new_job("s".into(), small(1), 0, t0).unwrap().id;
     let g = s.lease(&w1, t0).unwrap().unwrap();
     assert_eq!(s.expire(t0.after(secs(5))).unwrap(), 0);
     assert_eq!(s.heartbeat(&g.lease, t0.after(secs(5))), Heartbeat::Renewed);
@@ -187,7 +211,7 @@ fn repeated_failures_fail_the_job_and_block_the_worker() {
     let mut s = open(dir.path(), now);
     let bad = s.register("bad", 1, now).unwrap();
     let good = s.register("good", 1, now).unwrap();
-    let job = s.create_job("s".into(), small(1), 0, now).unwrap().id;
+    let job = s.new_job("s".into(), small(1), 0, now).unwrap().id;
     for _ in 0..2 {
         let g = s.lease(&bad, now).unwrap().unwrap();
         assert!(s.fail(&g.lease, "out of memory", now).unwrap());
@@ -226,7 +250,7 @@ fn a_job_every_live_worker_is_blocked_from_fails_instead_of_waiting() {
     let now = start.after(secs(120));
     let a = s.register("a", 1, now).unwrap();
     let b = s.register("b", 1, now).unwrap();
-    let job = s.create_job("s".into(), small(2), 0, now).unwrap().id;
+    let job = s.new_job("s".into(), small(2), 0, now).unwrap().id;
     // Each worker fails twice: no task reaches 10 failures, both get blocked.
     for w in [&a, &b] {
         for _ in 0..2 {
@@ -245,7 +269,7 @@ fn a_job_every_live_worker_is_blocked_from_fails_instead_of_waiting() {
         "{err}"
     );
     // The expiry tick fails a job once the peers of its last blocked worker have gone.
-    let job2 = s.create_job("s".into(), small(1), 0, now).unwrap().id;
+    let job2 = s.new_job("s".into(), small(1), 0, now).unwrap().id;
     for _ in 0..2 {
         let g = s.lease(&a, now).unwrap().unwrap();
         assert!(s.fail(&g.lease, "no GPU", now).unwrap());
@@ -264,7 +288,7 @@ fn a_job_every_live_worker_is_blocked_from_fails_instead_of_waiting() {
     // With no live worker at all, nothing is failed: workers may come back. Here a and b
     // are blocked while c may take the job; then nobody calls in for an hour.
     s.register("c", 1, later).unwrap();
-    let job3 = s.create_job("s".into(), small(1), 0, later).unwrap().id;
+    let job3 = s.new_job("s".into(), small(1), 0, later).unwrap().id;
     for w in [&a, &b] {
         for _ in 0..2 {
             let g = s.lease(w, later).unwrap().unwrap();
@@ -289,7 +313,7 @@ fn after_a_restart_workers_count_as_live_until_they_could_have_called_in() {
         let mut s = open(dir.path(), start);
         let a = s.register("a", 1, start).unwrap();
         s.register("b", 1, start).unwrap();
-        let job = s.create_job("s".into(), small(1), 0, start).unwrap().id;
+        let job = s.new_job("s".into(), small(1), 0, start).unwrap().id;
         for _ in 0..2 {
             let g = s.lease(&a, start).unwrap().unwrap();
             assert!(s.fail(&g.lease, "no GPU", start).unwrap());
@@ -314,7 +338,7 @@ fn restart_resumes_without_redoing_finished_tasks() {
     let (job, out, w) = {
         let mut s = open(dir.path(), t0);
         let w = s.register("w", 1, t0).unwrap();
-        let job = s.create_job("s".into(), small(2), 0, t0).unwrap().id;
+        let job = s.new_job("s".into(), small(2), 0, t0).unwrap().id;
         for _ in 0..3 {
             finish(&mut s, &w, t0).unwrap();
         }
@@ -352,7 +376,7 @@ fn a_lease_out_at_a_restart_expires_after_the_grace() {
     {
         let mut s = open(dir.path(), t0);
         let w = s.register("w", 1, t0).unwrap();
-        s.create_job("s".into(), small(1), 0, t0).unwrap();
+        s.new_job("s".into(), small(1), 0, t0).unwrap();
         s.lease(&w, t0).unwrap().unwrap();
     }
     let t1 = t0.after(secs(100));
@@ -367,8 +391,8 @@ fn purge_deletes_a_job_and_its_tiles_for_good() {
     let now = t0();
     let mut s = open(dir.path(), now);
     let w = s.register("w", 1, now).unwrap();
-    let keep = s.create_job("s".into(), small(1), 0, now).unwrap().id;
-    let gone = s.create_job("s".into(), small(1), 1, now).unwrap().id;
+    let keep = s.new_job("s".into(), small(1), 0, now).unwrap().id;
+    let gone = s.new_job("s".into(), small(1), 1, now).unwrap().id;
     finish(&mut s, &w, now).unwrap();
     let g = s.lease(&w, now).unwrap().unwrap();
     let st = s.purge(&gone, now).unwrap().unwrap();
@@ -399,9 +423,9 @@ fn restart_under_another_renderer_version_renders_unfinished_jobs_again() {
     let (finished_job, open_job) = {
         let mut s = open(dir.path(), t0);
         let w = s.register("w", 1, t0).unwrap();
-        let finished_job = s.create_job("s".into(), small(1), 0, t0).unwrap().id;
+        let finished_job = s.new_job("s".into(), small(1), 0, t0).unwrap().id;
         while finish(&mut s, &w, t0).is_some() {}
-        let open_job = s.create_job("s".into(), small(2), 0, t0).unwrap().id;
+        let open_job = s.new_job("s".into(), small(2), 0, t0).unwrap().id;
         for _ in 0..3 {
             finish(&mut s, &w, t0).unwrap();
         }
@@ -457,7 +481,7 @@ fn ids_stay_unique_across_restarts_in_the_same_millisecond() {
         let mut s = open(dir.path(), now);
         let w = s.register("w", 1, now).unwrap();
         assert!(seen.insert(w.clone()), "worker id {w} repeated");
-        let j = s.create_job("s".into(), small(1), 0, now).unwrap().id;
+        let j = s.new_job("s".into(), small(1), 0, now).unwrap().id;
         assert!(seen.insert(j.clone()), "job id {j} repeated");
         let g = s.lease(&w, now).unwrap().unwrap();
         assert!(
@@ -466,4 +490,187 @@ fn ids_stay_unique_across_restarts_in_the_same_millisecond() {
             g.lease
         );
     }
+}
+
+/// Runs `op` once with the store's next write failing, checks that it returned the store
+/// error and changed nothing (jobs, counters, what a restart would find), then runs it again
+/// with the store healthy and returns its answer.
+fn with_one_fault<T: std::fmt::Debug>(
+    s: &mut Sched,
+    dir: &std::path::Path,
+    mut op: impl FnMut(&mut Sched) -> Result<T, SchedError>,
+) -> T {
+    let before = (s.job_list(), s.metrics(t0()).counters);
+    let stored = restored_jobs(dir);
+    s.store_faults().fail_next(1);
+    let r = op(s);
+    assert!(matches!(r, Err(SchedError::Store(_))), "{r:?}");
+    assert_eq!((s.job_list(), s.metrics(t0()).counters), before);
+    assert_eq!(restored_jobs(dir), stored, "the store changed");
+    op(s).unwrap()
+}
+
+/// The jobs a coordinator restarted on `dir` would find (tasks and states, not times).
+fn restored_jobs(dir: &std::path::Path) -> Vec<(String, JobState, u64, u64)> {
+    let s = Sched::restore(cfg(), Store::open(dir).unwrap(), t0(), secs(5)).unwrap();
+    s.job_list()
+        .into_iter()
+        .map(|j| (j.id, j.state, j.tasks_done, j.tasks_leased))
+        .collect()
+}
+
+#[test]
+fn a_failed_write_changes_nothing_and_the_retry_applies_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let now = t0();
+    let mut s = open(dir.path(), now);
+    // Register and create.
+    let w = with_one_fault(&mut s, dir.path(), |s| s.register("w", 1, now));
+    let w2 = s.register("w2", 1, now).unwrap();
+    let job = with_one_fault(&mut s, dir.path(), |s| {
+        s.new_job("s".into(), small(2), 0, now)
+    })
+    .id;
+    assert_eq!(s.job_list().len(), 1, "one job, not two");
+    // Lease: the first task, once; the failed attempt handed nothing out.
+    let g = with_one_fault(&mut s, dir.path(), |s| s.lease(&w, now)).expect("a task for w");
+    assert_eq!(g.task, 0);
+    assert_eq!(s.job_status(&job).unwrap().state, JobState::Running);
+    // Complete: the retry is accepted, not called a duplicate.
+    let out = with_one_fault(&mut s, dir.path(), |s| {
+        let (tile, pass) = s.task_for_upload(&job, g.task).unwrap();
+        let acc = TileAccum {
+            tile,
+            pixels: vec![[1.0; 4]; tile.pixel_count()],
+            bad_samples: 0,
+        };
+        let bytes = raytile_proto::tile::encode(&acc, pass);
+        let d = Delivery {
+            worker: &w,
+            tile,
+            pass,
+            bytes: &bytes,
+        };
+        s.complete(&job, g.task, d, now)
+    });
+    assert_eq!(out, ResultOutcome::Accepted);
+    assert_eq!(
+        deliver(&mut s, &job, g.task, &w, now),
+        ResultOutcome::Duplicate
+    );
+    // Fail: counted once.
+    let g = s.lease(&w, now).unwrap().unwrap();
+    assert!(with_one_fault(&mut s, dir.path(), |s| s.fail(&g.lease, "oops", now)));
+    assert_eq!(s.worker_list()[0].failures, 1);
+    // Release.
+    let g = s.lease(&w, now).unwrap().unwrap();
+    assert!(with_one_fault(&mut s, dir.path(), |s| s.release(&g.lease)));
+    // Expire: the lease stays out until the write succeeds, then is re-queued once.
+    let g = s.lease(&w2, now).unwrap().unwrap();
+    let late = now.after(secs(60));
+    assert_eq!(with_one_fault(&mut s, dir.path(), |s| s.expire(late)), 1);
+    assert!(matches!(
+        s.heartbeat(&g.lease, late),
+        Heartbeat::Stop { .. }
+    ));
+    // Finish the job: every task exactly once.
+    let mut n = 1;
+    while finish(&mut s, &w, late).is_some() {
+        n += 1;
+    }
+    let st = s.job_status(&job).unwrap();
+    assert_eq!((st.state, n), (JobState::Done, st.tasks_total));
+    // Cancel and purge another job.
+    let other = s.new_job("s".into(), small(1), 0, late).unwrap().id;
+    let st = with_one_fault(&mut s, dir.path(), |s| s.cancel(&other, late)).unwrap();
+    assert_eq!(st.state, JobState::Cancelled);
+    with_one_fault(&mut s, dir.path(), |s| s.purge(&other, late)).unwrap();
+    assert!(s.job_status(&other).is_none());
+    // What a restart finds is what memory holds.
+    let mem: Vec<_> = s
+        .job_list()
+        .into_iter()
+        .map(|j| (j.id, j.state, j.tasks_done, j.tasks_leased))
+        .collect();
+    assert_eq!(restored_jobs(dir.path()), mem);
+}
+
+#[test]
+fn the_last_result_finishes_the_job_only_when_stored() {
+    let dir = tempfile::tempdir().unwrap();
+    let now = t0();
+    let mut s = open(dir.path(), now);
+    let w = s.register("w", 1, now).unwrap();
+    let job = s.new_job("s".into(), small(1), 0, now).unwrap().id;
+    let total = s.job_status(&job).unwrap().tasks_total;
+    for _ in 1..total {
+        finish(&mut s, &w, now).unwrap();
+    }
+    let g = s.lease(&w, now).unwrap().unwrap();
+    let out = with_one_fault(&mut s, dir.path(), |s| {
+        let (tile, pass) = s.task_for_upload(&job, g.task).unwrap();
+        let acc = TileAccum {
+            tile,
+            pixels: vec![[1.0; 4]; tile.pixel_count()],
+            bad_samples: 0,
+        };
+        let bytes = raytile_proto::tile::encode(&acc, pass);
+        let d = Delivery {
+            worker: &w,
+            tile,
+            pass,
+            bytes: &bytes,
+        };
+        s.complete(&job, g.task, d, now)
+    });
+    assert_eq!(out, ResultOutcome::Accepted);
+    assert_eq!(state_of(&s, &job), JobState::Done);
+    drop(s);
+    let s = open(dir.path(), now);
+    assert_eq!(state_of(&s, &job), JobState::Done);
+}
+
+#[test]
+fn creating_the_largest_allowed_job_stores_one_row() {
+    let dir = tempfile::tempdir().unwrap();
+    let now = t0();
+    let mut s = open(dir.path(), now);
+    // 2^18 tasks (the default limit): 512 × 512 tiles of 16 pixels, one pass.
+    let settings = RenderSettings {
+        width: 8192,
+        height: 8192,
+        tile_size: 16,
+        spp: 1,
+        passes: 1,
+        ..Default::default()
+    };
+    let layout = Arc::new(TaskLayout::new(&settings));
+    assert_eq!(layout.task_count(), 1 << 18);
+    let t = std::time::Instant::now();
+    let st = s.create_job("s".into(), settings, layout, 0, now).unwrap();
+    let took = t.elapsed();
+    assert_eq!(st.tasks_total, 1 << 18);
+    let rows: i64 = rusqlite::Connection::open(dir.path().join("raytile.sqlite3"))
+        .unwrap()
+        .query_row("SELECT COUNT(*) FROM tasks", [], |r| r.get(0))
+        .unwrap();
+    assert_eq!(rows, 0, "queued tasks have no rows");
+    eprintln!("creating a job of 2^18 tasks held the scheduler for {took:?}");
+    assert!(took < Duration::from_secs(2), "{took:?}");
+}
+
+#[test]
+fn leases_of_cancelled_jobs_are_forgotten_at_the_next_expiry_tick() {
+    let dir = tempfile::tempdir().unwrap();
+    let now = t0();
+    let mut s = open(dir.path(), now);
+    let w = s.register("w", 1, now).unwrap();
+    let job = s.new_job("s".into(), small(1), 0, now).unwrap().id;
+    let g = s.lease(&w, now).unwrap().unwrap();
+    s.cancel(&job, now).unwrap();
+    assert_eq!(s.leases.len(), 1);
+    assert_eq!(s.expire(now).unwrap(), 0);
+    assert!(s.leases.is_empty());
+    assert!(matches!(s.heartbeat(&g.lease, now), Heartbeat::Stop { .. }));
+    assert!(!s.fail(&g.lease, "late", now).unwrap());
 }

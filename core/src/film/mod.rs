@@ -14,6 +14,31 @@ pub use output::{encode, save, FilmError, ImageFormat, OutputOptions, ToneMap};
 /// the wire crate's).
 pub use raytile_proto::tile::TileAccum;
 
+/// Why [`Film::add_tile`] refused a tile.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum TileMismatch {
+    /// The tile reaches outside the film (or is inverted).
+    #[error("tile [{}, {}) × [{}, {}) lies outside the {width}×{height} film", tile.x0, tile.x1, tile.y0, tile.y1)]
+    Outside {
+        /// The tile.
+        tile: crate::Tile,
+        /// Film width.
+        width: u32,
+        /// Film height.
+        height: u32,
+    },
+    /// The tile's pixels are not its size.
+    #[error("tile [{}, {}) × [{}, {}) has {got} pixels, expected {expected}", tile.x0, tile.x1, tile.y0, tile.y1)]
+    PixelCount {
+        /// The tile.
+        tile: crate::Tile,
+        /// Its pixel count.
+        expected: usize,
+        /// The pixels given.
+        got: usize,
+    },
+}
+
 /// The whole frame's accumulated sums.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Film {
@@ -39,13 +64,25 @@ impl Film {
     }
 
     /// Adds a tile's sums. The caller adds the tiles of each pass in pass order, which is what
-    /// makes the result independent of who rendered which tile when.
-    pub fn add_tile(&mut self, t: &TileAccum) {
+    /// makes the result independent of who rendered which tile when. A tile that does not fit
+    /// the film, or whose pixels are not its size, is refused and the film is unchanged.
+    pub fn add_tile(&mut self, t: &TileAccum) -> Result<(), TileMismatch> {
         let tile = t.tile;
-        let w = tile.width() as usize;
-        if tile.x1 > self.width || tile.y1 > self.height || t.pixels.len() != tile.pixel_count() {
-            return;
+        if tile.x0 > tile.x1 || tile.y0 > tile.y1 || tile.x1 > self.width || tile.y1 > self.height {
+            return Err(TileMismatch::Outside {
+                tile,
+                width: self.width,
+                height: self.height,
+            });
         }
+        if t.pixels.len() != tile.pixel_count() {
+            return Err(TileMismatch::PixelCount {
+                tile,
+                expected: tile.pixel_count(),
+                got: t.pixels.len(),
+            });
+        }
+        let w = tile.width() as usize;
         for (row, src) in t.pixels.chunks(w.max(1)).enumerate() {
             let y = tile.y0 as usize + row;
             let start = y * self.width as usize + tile.x0 as usize;
@@ -56,6 +93,7 @@ impl Film {
             }
         }
         self.bad_samples += t.bad_samples;
+        Ok(())
     }
 
     /// Linear RGB per pixel (sum / weight; black where no sample landed).
@@ -103,21 +141,46 @@ mod tests {
             tile,
             pixels: vec![[2.0, 4.0, 6.0, 2.0]; 4],
             bad_samples: 1,
-        });
+        })
+        .unwrap();
         let px = f.resolve();
         assert_eq!(px[4 + 1], [1.0, 2.0, 3.0]);
         assert_eq!(px[0], [0.0; 3]);
         assert_eq!(f.bad_samples, 1);
-        // A tile that does not fit is refused, not a panic.
-        f.add_tile(&TileAccum {
+        let before = f.clone();
+        // A tile that does not fit, or is not its size, is refused: an error, not a panic,
+        // and the film is unchanged.
+        let outside = f.add_tile(&TileAccum {
             tile: Tile {
                 x0: 3,
                 y0: 0,
                 x1: 9,
                 y1: 1,
             },
-            pixels: vec![],
-            bad_samples: 0,
+            pixels: vec![[1.0; 4]; 6],
+            bad_samples: 5,
         });
+        assert!(
+            matches!(outside, Err(TileMismatch::Outside { .. })),
+            "{outside:?}"
+        );
+        let short = f.add_tile(&TileAccum {
+            tile,
+            pixels: vec![[1.0; 4]; 3],
+            bad_samples: 5,
+        });
+        assert_eq!(
+            short,
+            Err(TileMismatch::PixelCount {
+                tile,
+                expected: 4,
+                got: 3
+            })
+        );
+        assert!(short
+            .unwrap_err()
+            .to_string()
+            .contains("3 pixels, expected 4"));
+        assert_eq!(f, before);
     }
 }

@@ -27,6 +27,7 @@ use crate::{Film, IntegratorKind, RenderJob, Scene, Tile, TileAccum};
 use glam::{Vec2, Vec3A};
 use rayon::prelude::*;
 use std::ops::Range;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 /// Progress reports during [`render`].
 pub trait RenderProgress: Sync {
@@ -49,12 +50,52 @@ fn li(scene: &Scene, job: &RenderJob, ray: Ray, sampler: &mut Sampler) -> Vec3A 
     }
 }
 
-/// Renders samples `samples` of every pixel of `tile` of `job`, in parallel over rows.
-pub fn render_tile(scene: &Scene, job: &RenderJob, tile: Tile, samples: Range<u32>) -> TileAccum {
+/// A flag that stops a tile render early: another thread (a worker told that the job was
+/// cancelled) sets it, and [`render_tile`] looks at it before every block of
+/// [`Cancel::CHECK_EVERY`] samples of a pixel, so it returns within a fraction of a second.
+/// One relaxed atomic load per check: nothing per ray.
+#[derive(Debug, Default)]
+pub struct Cancel(AtomicBool);
+
+/// [`render_tile`] stopped because its [`Cancel`] was set; the partial sums are dropped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("render cancelled")]
+pub struct Cancelled;
+
+impl Cancel {
+    /// Samples of one pixel between two looks at the flag.
+    pub const CHECK_EVERY: u32 = 1024;
+
+    /// A flag not set.
+    pub fn new() -> Cancel {
+        Cancel::default()
+    }
+
+    /// Asks the renders that watch this flag to stop.
+    pub fn cancel(&self) {
+        self.0.store(true, Ordering::Relaxed);
+    }
+
+    /// Whether [`Cancel::cancel`] was called.
+    pub fn is_cancelled(&self) -> bool {
+        self.0.load(Ordering::Relaxed)
+    }
+}
+
+/// Renders samples `samples` of every pixel of `tile` of `job`, in parallel over rows, or stops
+/// with [`Cancelled`] soon after `cancel` is set. A render that was not cancelled gives the same
+/// bits whether or not anyone watched the flag.
+pub fn render_tile(
+    scene: &Scene,
+    job: &RenderJob,
+    tile: Tile,
+    samples: Range<u32>,
+    cancel: &Cancel,
+) -> Result<TileAccum, Cancelled> {
     let seed = job.settings.seed;
     let w = tile.width() as usize;
     let mut pixels = vec![[0.0f32; 4]; tile.pixel_count()];
-    let bad: u64 = pixels
+    let bad: Option<u64> = pixels
         .par_chunks_mut(w.max(1))
         .enumerate()
         .map(|(row, out)| {
@@ -63,32 +104,41 @@ pub fn render_tile(scene: &Scene, job: &RenderJob, tile: Tile, samples: Range<u3
             for (col, px) in out.iter_mut().enumerate() {
                 let x = tile.x0 + col as u32;
                 let mut sum = [0.0f32; 4];
-                for s in samples.clone() {
-                    let mut sampler = Sampler::new(x, y, s, seed);
-                    let offset = job.filter.sample(sampler.next_2d());
-                    let lens = sampler.next_2d();
-                    let film = Vec2::new(x as f32 + 0.5 + offset.x, y as f32 + 0.5 + offset.y);
-                    let ray = job.camera.generate_ray(film, lens);
-                    let l = li(scene, job, ray, &mut sampler);
-                    if l.is_finite() {
-                        sum[0] += l.x;
-                        sum[1] += l.y;
-                        sum[2] += l.z;
-                        sum[3] += 1.0;
-                    } else {
-                        bad += 1;
+                // Blocks of samples, in index order, with a look at the flag before each.
+                let mut start = samples.start;
+                while start < samples.end {
+                    if cancel.is_cancelled() {
+                        return None;
                     }
+                    let end = start.saturating_add(Cancel::CHECK_EVERY).min(samples.end);
+                    for s in start..end {
+                        let mut sampler = Sampler::new(x, y, s, seed);
+                        let offset = job.filter.sample(sampler.next_2d());
+                        let lens = sampler.next_2d();
+                        let film = Vec2::new(x as f32 + 0.5 + offset.x, y as f32 + 0.5 + offset.y);
+                        let ray = job.camera.generate_ray(film, lens);
+                        let l = li(scene, job, ray, &mut sampler);
+                        if l.is_finite() {
+                            sum[0] += l.x;
+                            sum[1] += l.y;
+                            sum[2] += l.z;
+                            sum[3] += 1.0;
+                        } else {
+                            bad += 1;
+                        }
+                    }
+                    start = end;
                 }
                 *px = sum;
             }
-            bad
+            Some(bad)
         })
         .sum();
-    TileAccum {
+    Ok(TileAccum {
         tile,
         pixels,
-        bad_samples: bad,
-    }
+        bad_samples: bad.ok_or(Cancelled)?,
+    })
 }
 
 /// Renders the whole frame of `job` on the current rayon pool, pass by pass: every tile of
@@ -98,18 +148,21 @@ pub fn render(scene: &Scene, job: &RenderJob, progress: &dyn RenderProgress) -> 
     let settings = &job.settings;
     let mut film = Film::new(settings.width, settings.height);
     let tiles = settings.tiles();
+    let never = Cancel::new();
     for pass in settings.pass_ranges() {
         let n = (pass.end - pass.start) as u64;
         let accums: Vec<TileAccum> = tiles
             .par_iter()
             .map(|&t| {
-                let a = render_tile(scene, job, t, pass.clone());
+                let a = render_tile(scene, job, t, pass.clone(), &never)
+                    .expect("nobody cancels this render");
                 progress.tile_done(n * t.pixel_count() as u64);
                 a
             })
             .collect();
         for a in &accums {
-            film.add_tile(a);
+            film.add_tile(a)
+                .expect("render_tile gives every tile of the frame its own pixels");
         }
     }
     film
