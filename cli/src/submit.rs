@@ -1,14 +1,15 @@
-//! `raytile submit`: upload a scene, submit a job, follow it with a progress bar, download
-//! the image.
+//! `raytile submit`: check a scene as a farm will and upload exactly the files it uses, submit
+//! a job, follow it with a progress bar, download the image.
 
 use crate::render::flag_error;
 use anyhow::{anyhow, bail, Context};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use raytile_core::film::ImageFormat;
-use raytile_proto::client::{Client, ClientError};
+use raytile_core::scene::files::{self, SceneFiles};
+use raytile_proto::client::{reqwest, Bytes, Client, ClientError};
 use raytile_proto::scene::{self as pkg, SceneFormat};
-use raytile_proto::{JobRequest, JobState, JobStatus, RenderOverrides};
+use raytile_proto::{JobRequest, JobState, JobStatus, RenderOverrides, SceneCreated};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -94,50 +95,207 @@ fn job_error(e: ClientError) -> anyhow::Error {
     anyhow::Error::new(e).context("submitting the job")
 }
 
-/// Whether a .gltf file references files beside it (not data URIs).
-fn gltf_has_external_files(path: &Path) -> anyhow::Result<bool> {
-    let text = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    let v: serde_json::Value =
-        serde_json::from_slice(&text).with_context(|| format!("{} is not JSON", path.display()))?;
-    let external = |key: &str| {
-        v.get(key).and_then(|a| a.as_array()).is_some_and(|a| {
-            a.iter().any(|b| {
-                b.get("uri")
-                    .and_then(|u| u.as_str())
-                    .is_some_and(|u| !u.starts_with("data:"))
-            })
-        })
-    };
-    Ok(external("buffers") || external("images"))
+/// What `raytile submit` uploads for a scene: the scene file and every file it uses, checked
+/// as a farm checks them (confined to the scene's folder).
+#[derive(Debug)]
+pub struct ScenePack {
+    /// The scene file's format, from its extension.
+    pub format: Option<SceneFormat>,
+    /// Every file the scene read, the scene file first, named relative to its folder.
+    pub files: Vec<pkg::PackFile>,
 }
 
-/// Reads a scene for upload: (bytes, format, entry). A folder, or a `.gltf` with files beside
-/// it, travels as a tar archive of the folder.
-pub fn scene_upload(path: &Path) -> anyhow::Result<(Vec<u8>, Option<SceneFormat>, Option<String>)> {
-    if path.is_dir() {
-        return Ok((pkg::pack_folder(path)?, Some(SceneFormat::Tar), None));
-    }
-    let format = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .and_then(SceneFormat::from_name);
-    if format == Some(SceneFormat::Gltf) && gltf_has_external_files(path)? {
-        let dir = path.parent().unwrap_or(Path::new("."));
-        let dir = if dir.as_os_str().is_empty() {
-            Path::new(".")
+impl ScenePack {
+    /// Loads the scene at `path` (a scene file, or a folder with one scene file at its top) as
+    /// the farm will, confined to the scene's folder, and lists the files it read. A scene
+    /// naming a file the farm would refuse is an error that says which and how to fix it.
+    pub fn check(path: &Path) -> anyhow::Result<ScenePack> {
+        let scene = if path.is_dir() {
+            scene_in_folder(path)?
         } else {
-            dir
+            path.to_path_buf()
         };
-        let entry = path.file_name().map(|n| n.to_string_lossy().into_owned());
-        return Ok((pkg::pack_folder(dir)?, Some(SceneFormat::Tar), entry));
+        // The farm's own size limits are its business: here only where files are matters,
+        // with the caps of a local render.
+        let files = SceneFiles::confined_to_scene(&scene, files::TRUSTED_FILE_CAP, u64::MAX)
+            .with_context(|| format!("reading the folder of {}", scene.display()))?;
+        if let Err(e) = raytile_core::load_scene_with(&scene, &files) {
+            return Err(match files.refusal().and_then(|r| r.refusal.hint()) {
+                Some(hint) => anyhow!("{e}; a farm reads only files in the scene's folder: {hint}"),
+                None => anyhow!("{e}"),
+            });
+        }
+        let files = files
+            .used()
+            .into_iter()
+            .map(|u| {
+                let name = u.name.as_deref().unwrap_or(&u.path);
+                let name = name
+                    .to_str()
+                    .ok_or_else(|| anyhow!("{}: the file name is not UTF-8", u.path.display()))?
+                    .replace(std::path::MAIN_SEPARATOR, "/");
+                Ok(pkg::PackFile {
+                    path: u.path,
+                    name,
+                    size: u.bytes,
+                })
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        let format = scene
+            .extension()
+            .and_then(|e| e.to_str())
+            .and_then(SceneFormat::from_name);
+        Ok(ScenePack { format, files })
     }
-    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    Ok((bytes, format, None))
+
+    /// Bytes of all the files together.
+    pub fn total_bytes(&self) -> u64 {
+        self.files.iter().map(|f| f.size).sum()
+    }
+
+    /// What is uploaded, for the user: one line per file after the total.
+    pub fn summary(&self) -> String {
+        let mut out = format!(
+            "packing {} files, {} in all:",
+            self.files.len(),
+            show_bytes(self.total_bytes())
+        );
+        for f in &self.files {
+            out.push_str(&format!("\n  {}  {}", f.name, show_bytes(f.size)));
+        }
+        out
+    }
+
+    /// Uploads the scene: a scene that uses no other file as it is, otherwise a tar archive of
+    /// exactly the files it uses, written to the request body as it is sent.
+    pub async fn upload(&self, c: &Client) -> anyhow::Result<SceneCreated> {
+        if let [only] = self.files.as_slice() {
+            let file = tokio::fs::File::open(&only.path)
+                .await
+                .with_context(|| format!("reading {}", only.path.display()))?;
+            return Ok(c.upload_scene(file, self.format, None).await?);
+        }
+        eprintln!("{}", self.summary());
+        let (tx, mut rx) = tokio::sync::mpsc::channel::<std::io::Result<Bytes>>(4);
+        let files = self.files.clone();
+        let packer = tokio::task::spawn_blocking(move || {
+            let mut w = ChannelWriter {
+                tx: tx.clone(),
+                buf: Vec::with_capacity(CHUNK),
+            };
+            let r = pkg::pack_files(&files, &mut w).and_then(|()| std::io::Write::flush(&mut w));
+            if let Err(e) = &r {
+                // The body must fail rather than end: a cut archive must never be taken for a
+                // whole one.
+                let _ = tx.blocking_send(Err(std::io::Error::new(e.kind(), e.to_string())));
+            }
+            r
+        });
+        let body = futures_util::stream::poll_fn(move |cx| rx.poll_recv(cx));
+        let entry = self.files[0].name.clone();
+        let created = c
+            .upload_scene(
+                reqwest::Body::wrap_stream(body),
+                Some(SceneFormat::Tar),
+                Some(&entry),
+            )
+            .await;
+        match packer.await? {
+            Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
+                Err(anyhow!(e).context("packing the scene"))
+            }
+            _ => Ok(created?),
+        }
+    }
+}
+
+/// The one scene file (`.gltf`, `.glb` or `.json`) at the top of `dir`.
+fn scene_in_folder(dir: &Path) -> anyhow::Result<PathBuf> {
+    let mut found = Vec::new();
+    for e in std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))? {
+        let p = e?.path();
+        let ext = p
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        if p.is_file() && matches!(ext.as_deref(), Some("gltf" | "glb" | "json")) {
+            found.push(p);
+        }
+    }
+    found.sort();
+    match found.as_slice() {
+        [one] => Ok(one.clone()),
+        [] => bail!(
+            "{}: no .gltf, .glb or .json scene file in it",
+            dir.display()
+        ),
+        many => bail!(
+            "{}: several scene files ({}): name the one to submit",
+            dir.display(),
+            many.iter()
+                .filter_map(|p| p.file_name())
+                .map(|n| n.to_string_lossy().into_owned())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    }
+}
+
+/// Bytes for people: `12.3 MiB`.
+fn show_bytes(n: u64) -> String {
+    const UNITS: [&str; 4] = ["bytes", "KiB", "MiB", "GiB"];
+    let mut v = n as f64;
+    let mut unit = 0;
+    while v >= 1024.0 && unit + 1 < UNITS.len() {
+        v /= 1024.0;
+        unit += 1;
+    }
+    if unit == 0 {
+        format!("{n} bytes")
+    } else {
+        format!("{v:.1} {}", UNITS[unit])
+    }
+}
+
+/// Size of the chunks the archive is sent in.
+const CHUNK: usize = 1 << 16;
+
+/// Hands what is written to the request body in chunks; blocks while the body has not taken
+/// the previous chunks, so the archive is never all in memory.
+struct ChannelWriter {
+    tx: tokio::sync::mpsc::Sender<std::io::Result<Bytes>>,
+    buf: Vec<u8>,
+}
+
+impl ChannelWriter {
+    fn send(&mut self) -> std::io::Result<()> {
+        if self.buf.is_empty() {
+            return Ok(());
+        }
+        let chunk = Bytes::from(std::mem::replace(&mut self.buf, Vec::with_capacity(CHUNK)));
+        self.tx
+            .blocking_send(Ok(chunk))
+            .map_err(|_| std::io::Error::new(std::io::ErrorKind::BrokenPipe, "the upload ended"))
+    }
+}
+
+impl std::io::Write for ChannelWriter {
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        self.buf.extend_from_slice(b);
+        if self.buf.len() >= CHUNK {
+            self.send()?;
+        }
+        Ok(b.len())
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.send()
+    }
 }
 
 /// Uploads the scene, submits the job and, if `wait`, follows it to the end and writes the
-/// image to `output`. Bad flags and an unknown output extension are refused before anything is
-/// uploaded.
+/// image to `output`. Bad flags, an unknown output extension and a scene naming a file a farm
+/// would refuse are refused before anything is uploaded.
 pub async fn submit_and_follow(
     c: &Client,
     scene: &Path,
@@ -147,11 +305,8 @@ pub async fn submit_and_follow(
 ) -> anyhow::Result<JobStatus> {
     let format = output.map(ImageFormat::from_path).transpose()?;
     job.overrides.check().map_err(flag_error)?;
-    let (bytes, scene_format, entry) = scene_upload(scene)?;
-    let created = c
-        .upload_scene(bytes, scene_format, entry.as_deref())
-        .await
-        .context("uploading the scene")?;
+    let pack = ScenePack::check(scene)?;
+    let created = pack.upload(c).await.context("uploading the scene")?;
     let mut status = c
         .create_job(&job.request(created.id))
         .await

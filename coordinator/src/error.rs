@@ -41,6 +41,10 @@ pub enum AppError {
     /// 503: shutting down.
     #[error("shutting down")]
     Unavailable,
+    /// 503: too busy to take this request now (every scene parse slot stayed taken); answered
+    /// with `Retry-After`.
+    #[error("{0}")]
+    Busy(String),
     /// 500: anything else; logged in full, answered briefly.
     #[error("internal error")]
     Internal(#[from] anyhow::Error),
@@ -95,6 +99,7 @@ impl IntoResponse for AppError {
             }
             AppError::TooMany(_) => (StatusCode::TOO_MANY_REQUESTS, "too_many", None),
             AppError::Unavailable => (StatusCode::SERVICE_UNAVAILABLE, "unavailable", None),
+            AppError::Busy(_) => (StatusCode::SERVICE_UNAVAILABLE, "busy", None),
             AppError::Internal(e) => {
                 tracing::error!("internal error: {e:#}");
                 (StatusCode::INTERNAL_SERVER_ERROR, "internal", None)
@@ -118,6 +123,12 @@ impl IntoResponse for AppError {
             resp.headers_mut().insert(
                 axum::http::header::WWW_AUTHENTICATE,
                 axum::http::HeaderValue::from_static("Bearer"),
+            );
+        }
+        if code == "busy" {
+            resp.headers_mut().insert(
+                axum::http::header::RETRY_AFTER,
+                axum::http::HeaderValue::from_static("2"),
             );
         }
         resp

@@ -200,12 +200,12 @@ impl Client {
         self.json(self.request(Method::GET, "/healthz")).await
     }
 
-    /// `POST /v1/scenes`: uploads a scene (a file's bytes, or an archive of a folder). Without
-    /// `format`, the coordinator tells it from the content; `entry` picks the scene file in an
-    /// archive.
+    /// `POST /v1/scenes`: uploads a scene (a file's bytes, or an archive of a folder; bytes in
+    /// memory, or a stream: `reqwest::Body::wrap_stream`). Without `format`, the coordinator
+    /// tells it from the content; `entry` picks the scene file in an archive.
     pub async fn upload_scene(
         &self,
-        body: Vec<u8>,
+        body: impl Into<reqwest::Body>,
         format: Option<SceneFormat>,
         entry: Option<&str>,
     ) -> Result<SceneCreated, ClientError> {

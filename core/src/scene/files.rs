@@ -210,7 +210,9 @@ impl std::error::Error for FileError {}
 pub struct UsedFile {
     /// The file as opened (canonical: no symbolic link, no `..`).
     pub path: PathBuf,
-    /// Its name relative to the confined root (`None` under [`FilePolicy::Trusted`]).
+    /// Under the confined policy, its name relative to the root as the scene reaches it (a
+    /// link inside the root keeps its own name, so that a copy of the files under these names
+    /// loads the same); `None` under [`FilePolicy::Trusted`].
     pub name: Option<PathBuf>,
     /// Its size in bytes.
     pub bytes: u64,
@@ -224,6 +226,8 @@ pub(crate) struct Resolved {
     pub named: PathBuf,
     /// The canonical path, which is opened.
     pub canonical: PathBuf,
+    /// The name relative to the confined root, as the scene reaches the file.
+    pub name: Option<PathBuf>,
     /// The name for messages.
     pub shown: String,
 }
@@ -394,14 +398,20 @@ impl SceneFiles {
         let shown = show(&path.to_string_lossy());
         let canonical = std::fs::canonicalize(path)
             .map_err(|e| self.refuse("", &shown, Refusal::Unreadable(e.to_string())))?;
+        let mut name = None;
         if let Some(root) = &self.root {
             if !canonical.starts_with(root) {
                 return Err(self.refuse("", &shown, Refusal::OutsideRoot));
             }
+            let folder = self
+                .relative_folder(folder_of(path))
+                .ok_or_else(|| self.refuse("", &shown, Refusal::OutsideRoot))?;
+            name = path.file_name().map(|n| folder.join(n));
         }
         let r = Resolved {
             named: path.to_path_buf(),
             canonical,
+            name,
             shown,
         };
         let bytes = self.read(&r, "", cap)?;
@@ -428,6 +438,7 @@ impl SceneFiles {
             return Ok(Resolved {
                 named,
                 canonical,
+                name: None,
                 shown,
             });
         };
@@ -456,7 +467,8 @@ impl SceneFiles {
                 }
             }
         }
-        let named: PathBuf = std::iter::once(root.as_os_str()).chain(parts).collect();
+        let name: PathBuf = parts.iter().collect();
+        let named = root.join(&name);
         let canonical = std::fs::canonicalize(&named)
             .map_err(|e| self.refuse(field, &shown, Refusal::Unreadable(e.to_string())))?;
         if !canonical.starts_with(root) {
@@ -465,6 +477,7 @@ impl SceneFiles {
         Ok(Resolved {
             named,
             canonical,
+            name: Some(name),
             shown,
         })
     }
@@ -486,16 +499,34 @@ impl SceneFiles {
         if !canonical.starts_with(&folder_canonical) {
             return Err(self.refuse(field, shown, Refusal::OutsideFolder));
         }
+        let mut name = None;
         if let Some(root) = &self.root {
             if !canonical.starts_with(root) {
                 return Err(self.refuse(field, shown, Refusal::OutsideRoot));
             }
+            let folder = self
+                .relative_folder(folder)
+                .ok_or_else(|| self.refuse(field, shown, Refusal::OutsideRoot))?;
+            name = Some(folder.join(rel));
         }
         Ok(Resolved {
             named,
             canonical,
+            name,
             shown: shown.to_string(),
         })
+    }
+
+    /// A folder's name relative to the confined root: lexically when it is written under the
+    /// root (the folders the resolver made), else from its canonical path (the folder of the
+    /// scene file as the program was given it).
+    fn relative_folder(&self, folder: &Path) -> Option<PathBuf> {
+        let root = self.root.as_ref()?;
+        if let Ok(rel) = folder.strip_prefix(root) {
+            return Some(rel.to_path_buf());
+        }
+        let canonical = std::fs::canonicalize(folder).ok()?;
+        canonical.strip_prefix(root).ok().map(Path::to_path_buf)
     }
 
     /// Marks `r` (a scene file: the scene, or a file it includes) as being loaded; refuses it
@@ -569,14 +600,13 @@ impl SceneFiles {
         check(bytes.len() as u64)?;
         self.read_left.set(left - bytes.len() as u64);
         let mut used = self.used.borrow_mut();
-        if !used.iter().any(|u| u.path == r.canonical) {
+        if !used
+            .iter()
+            .any(|u| u.path == r.canonical && u.name == r.name)
+        {
             used.push(UsedFile {
                 path: r.canonical.clone(),
-                name: self
-                    .root
-                    .as_ref()
-                    .and_then(|root| r.canonical.strip_prefix(root).ok())
-                    .map(Path::to_path_buf),
+                name: r.name.clone(),
                 bytes: bytes.len() as u64,
             });
         }
@@ -748,8 +778,12 @@ mod tests {
             Err(Refusal::OutsideRoot)
         );
         assert_eq!(read(&files, &root, "zero.png"), Err(Refusal::OutsideRoot));
-        // A link that stays inside is followed.
+        // A link that stays inside is followed, and the file keeps the name the scene gives
+        // it (a copy of the files under their names loads the same).
         assert_eq!(read(&files, &root, "inside.txt").unwrap(), b"aaaa");
+        let used = files.used();
+        assert_eq!(used[0].name.as_deref(), Some(Path::new("inside.txt")));
+        assert_eq!(used[0].path, root.canonicalize().unwrap().join("a.txt"));
         // A FIFO is refused at once (no writer will ever come), a folder too.
         let started = std::time::Instant::now();
         assert_eq!(

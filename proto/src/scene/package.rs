@@ -1,4 +1,4 @@
-//! Scene packages on disk: content ids, safe archive extraction, folder packing.
+//! Scene packages on disk: content ids, safe archive extraction, packing the files of a scene.
 
 use super::{single_file_name, SceneFormat};
 use sha2::{Digest, Sha256};
@@ -259,29 +259,75 @@ fn pick_entry(files: &[PathBuf], entry: Option<&str>) -> Result<PathBuf, Package
     }
 }
 
-/// Packs a scene folder into a tar archive in memory (regular files only, relative names).
-pub fn pack_folder(dir: &Path) -> std::io::Result<Vec<u8>> {
-    let mut b = tar::Builder::new(Vec::new());
-    b.follow_symlinks(false);
-    let mut stack = vec![dir.to_path_buf()];
-    let mut files = Vec::new();
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d)? {
-            let e = e?;
-            let ft = e.file_type()?;
-            if ft.is_dir() {
-                stack.push(e.path());
-            } else if ft.is_file() {
-                files.push(e.path());
-            }
-        }
-    }
-    files.sort();
+/// A file to pack: where it is and its name in the archive.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct PackFile {
+    /// The file on disk.
+    pub path: PathBuf,
+    /// Its name in the archive: relative, `/`-separated, no `..`.
+    pub name: String,
+    /// Its size when it was checked: a file that no longer has it is an error.
+    pub size: u64,
+}
+
+/// Writes a tar archive of `files`, in the order given, to `out` as it goes (nothing is held
+/// in memory but a copy buffer). Members are regular files with the names given and fixed
+/// metadata (mode 0644, owner 0, time 0), so the same files always make the same bytes, and so
+/// the same scene id. A name that [`unpack`] would refuse, or a file whose size changed since
+/// it was checked, is an error.
+pub fn pack_files(files: &[PackFile], out: impl std::io::Write) -> std::io::Result<()> {
+    let mut b = tar::Builder::new(out);
     for f in files {
-        let rel = f.strip_prefix(dir).unwrap_or(&f).to_path_buf();
-        b.append_path_with_name(&f, rel)?;
+        let bad = |why: String| std::io::Error::new(std::io::ErrorKind::InvalidInput, why);
+        let rel = safe_relative(&f.name).map_err(|e| bad(e.to_string()))?;
+        if rel.as_os_str().is_empty() {
+            return Err(bad(format!("empty archive member name '{}'", f.name)));
+        }
+        let file = std::fs::File::open(&f.path)?;
+        let meta = file.metadata()?;
+        if !meta.is_file() || meta.len() != f.size {
+            return Err(bad(format!(
+                "{} changed since it was checked (it is no longer a regular file of {} bytes)",
+                f.path.display(),
+                f.size
+            )));
+        }
+        let mut h = tar::Header::new_gnu();
+        h.set_entry_type(tar::EntryType::Regular);
+        h.set_size(f.size);
+        h.set_mode(0o644);
+        h.set_mtime(0);
+        h.set_uid(0);
+        h.set_gid(0);
+        let mut data = Exact {
+            inner: file.take(f.size),
+            left: f.size,
+        };
+        // `append_data` writes a GNU long-name record for names over 100 bytes.
+        b.append_data(&mut h, &f.name, &mut data)?;
     }
-    b.into_inner()
+    b.into_inner()?.flush()
+}
+
+/// Reads exactly `left` bytes: fewer (the file shrank since its header was written) is an
+/// error rather than a corrupt archive.
+struct Exact<R> {
+    inner: R,
+    left: u64,
+}
+
+impl<R: Read> Read for Exact<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        if n == 0 && self.left > 0 && !buf.is_empty() {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::UnexpectedEof,
+                "a file shrank while it was being packed",
+            ));
+        }
+        self.left -= n as u64;
+        Ok(n)
+    }
 }
 
 #[cfg(test)]
@@ -348,6 +394,55 @@ mod tests {
         let t = tar_with(&[("a.gltf", b"{}"), ("b.gltf", b"{}")]);
         assert!(check_unpack(&t, None).unwrap_err().contains("entry"));
         assert_eq!(check_unpack(&t, Some("b.gltf")).unwrap(), "b.gltf");
+    }
+
+    #[test]
+    fn packs_the_files_given_the_same_way_every_time() {
+        let t = tempfile::tempdir().unwrap();
+        std::fs::create_dir(t.path().join("tex")).unwrap();
+        std::fs::write(t.path().join("s.gltf"), b"{}").unwrap();
+        std::fs::write(t.path().join("tex/a.png"), b"png").unwrap();
+        std::fs::write(t.path().join("unused.bin"), b"no").unwrap();
+        let files = vec![
+            PackFile {
+                path: t.path().join("s.gltf"),
+                name: "s.gltf".into(),
+                size: 2,
+            },
+            PackFile {
+                path: t.path().join("tex/a.png"),
+                name: "tex/a.png".into(),
+                size: 3,
+            },
+        ];
+        let mut a = Vec::new();
+        pack_files(&files, &mut a).unwrap();
+        let mut b = Vec::new();
+        pack_files(&files, &mut b).unwrap();
+        assert_eq!(a, b, "the same files make the same bytes");
+        assert_eq!(sniff(&a), Some(SceneFormat::Tar));
+        // What is unpacked is what was listed, nothing else.
+        let out = t.path().join("out");
+        std::fs::create_dir(&out).unwrap();
+        std::fs::write(t.path().join("blob"), &a).unwrap();
+        let entry = unpack(
+            &t.path().join("blob"),
+            SceneFormat::Tar,
+            None,
+            &out,
+            UnpackLimits::default(),
+        )
+        .unwrap();
+        assert_eq!(entry, out.join("s.gltf"));
+        assert_eq!(std::fs::read(out.join("tex/a.png")).unwrap(), b"png");
+        assert!(!out.join("unused.bin").exists());
+        // A file that changed since it was checked, or a hostile name, is an error.
+        let mut changed = files.clone();
+        changed[1].size = 4;
+        assert!(pack_files(&changed, &mut Vec::new()).is_err());
+        let mut hostile = files.clone();
+        hostile[1].name = "../a.png".into();
+        assert!(pack_files(&hostile, &mut Vec::new()).is_err());
     }
 
     #[test]
