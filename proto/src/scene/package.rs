@@ -99,13 +99,20 @@ fn safe_relative(name: &str) -> Result<PathBuf, PackageError> {
     Ok(out)
 }
 
-/// Copies at most `budget` bytes from `r` into a new file; errors if there is more.
+/// Copies a member of `declared` bytes (what its header says), at most `budget` bytes of it,
+/// from `r` into a new file. A member declared or found larger is refused before (or as soon
+/// as) it goes over; an error reading the member is the archive's fault, an error writing the
+/// file the disk's.
 fn copy_limited(
     r: &mut dyn Read,
+    declared: u64,
     dest: &Path,
     budget: &mut u64,
     limits: UnpackLimits,
 ) -> Result<(), PackageError> {
+    if declared > *budget {
+        return Err(PackageError::TooLarge(limits.max_bytes, limits.max_files));
+    }
     if let Some(parent) = dest.parent() {
         std::fs::create_dir_all(parent)?;
     }
@@ -114,9 +121,20 @@ fn copy_limited(
         .create_new(true)
         .open(dest)?;
     let mut limited = r.take(*budget + 1);
-    let n = std::io::copy(&mut limited, &mut f)?;
-    if n > *budget {
-        return Err(PackageError::TooLarge(limits.max_bytes, limits.max_files));
+    let mut buf = vec![0u8; 1 << 16];
+    let mut n: u64 = 0;
+    loop {
+        let got = match limited.read(&mut buf) {
+            Ok(0) => break,
+            Ok(got) => got,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(PackageError::Archive(format!("reading a member: {e}"))),
+        };
+        n += got as u64;
+        if n > *budget {
+            return Err(PackageError::TooLarge(limits.max_bytes, limits.max_files));
+        }
+        std::io::Write::write_all(&mut f, &buf[..got])?;
     }
     *budget -= n;
     Ok(())
@@ -176,7 +194,8 @@ pub fn unpack(
                 if files.len() >= limits.max_files {
                     return Err(PackageError::TooLarge(limits.max_bytes, limits.max_files));
                 }
-                copy_limited(&mut e, &dir.join(&rel), &mut budget, limits)?;
+                let declared = e.header().size().unwrap_or(u64::MAX);
+                copy_limited(&mut e, declared, &dir.join(&rel), &mut budget, limits)?;
                 files.push(rel);
             }
         }
@@ -202,7 +221,8 @@ pub fn unpack(
                 if rel.as_os_str().is_empty() {
                     continue;
                 }
-                copy_limited(&mut e, &dir.join(&rel), &mut budget, limits)?;
+                let declared = e.size();
+                copy_limited(&mut e, declared, &dir.join(&rel), &mut budget, limits)?;
                 files.push(rel);
             }
         }
@@ -454,6 +474,23 @@ mod tests {
         let big = vec![0u8; 2000];
         let t = tar_with(&[("s.gltf", &big)]);
         assert!(check_unpack(&t, None).unwrap_err().contains("too large"));
+        // A member claiming 10 GiB is refused from its header, before anything is written;
+        // one whose data is cut short is the archive's fault, not the disk's.
+        let mut t = tar_with(&[("s.gltf", b"{}")]);
+        let mut h = tar::Header::new_gnu();
+        h.set_size(10 << 30);
+        h.set_mode(0o644);
+        h.set_entry_type(tar::EntryType::Regular);
+        h.set_path("huge.bin").unwrap();
+        h.set_cksum();
+        t.truncate(t.len() - 1024);
+        t.extend_from_slice(h.as_bytes());
+        t.extend_from_slice(&[0u8; 512]);
+        assert!(check_unpack(&t, None).unwrap_err().contains("too large"));
+        let mut cut = tar_with(&[("s.gltf", &[b' '; 600])]);
+        cut.truncate(512 + 100);
+        let e = check_unpack(&cut, None).unwrap_err();
+        assert!(e.contains("bad archive"), "{e}");
         let mut b = tar::Builder::new(Vec::new());
         let mut h = tar::Header::new_gnu();
         h.set_entry_type(tar::EntryType::Symlink);
