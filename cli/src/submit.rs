@@ -38,7 +38,7 @@ impl JobArgs {
 /// `raytile submit` flags.
 #[derive(Args, Debug)]
 pub struct SubmitArgs {
-    /// Scene file (.gltf, .glb, .json) or folder.
+    /// Scene file (.gltf, .glb, .json), or a folder with one scene file at its top.
     pub scene: PathBuf,
     /// Coordinator URL.
     #[arg(

@@ -287,10 +287,11 @@ fn store_scene(
     let scene_file =
         pkg::unpack(&blob, format, entry.as_deref(), &root, limits).map_err(|e| match e {
             pkg::PackageError::Io(e) => AppError::internal(e),
-            e => AppError::invalid(
-                if entry.is_some() { "entry" } else { "body" },
-                e.to_string(),
-            ),
+            // Only a missing or ambiguous scene file is about `?entry=`; the rest is the body's.
+            e @ pkg::PackageError::Entry(_) if entry.is_some() => {
+                AppError::invalid("entry", e.to_string())
+            }
+            e => AppError::invalid("body", e.to_string()),
         })?;
     let rel = scene_file
         .strip_prefix(&root)
