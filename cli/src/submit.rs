@@ -12,6 +12,7 @@ use raytile_proto::scene::{self as pkg, SceneFormat};
 use raytile_proto::{JobRequest, JobState, JobStatus, RenderOverrides, SceneCreated};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
+use tokio::io::AsyncReadExt as _;
 
 /// Job settings as flags: the settings that differ from the scene's own, and the priority.
 #[derive(Args, Debug, Clone, Default)]
@@ -167,13 +168,50 @@ impl ScenePack {
     }
 
     /// Uploads the scene: a scene that uses no other file as it is, otherwise a tar archive of
-    /// exactly the files it uses, written to the request body as it is sent.
+    /// exactly the files it uses, written to the request body as it is sent. Either way the
+    /// length goes first, so a coordinator refuses an upload over its limit at once.
     pub async fn upload(&self, c: &Client) -> anyhow::Result<SceneCreated> {
+        match self.send(c).await {
+            Err(e)
+                if e.downcast_ref::<ClientError>()
+                    .is_some_and(ClientError::is_unreachable)
+                    && c.health().await.is_ok() =>
+            {
+                // An HTTP client sending a body may not read the answer the coordinator gives
+                // before it has it all (a 413): it sees the connection closed under it.
+                Err(e.context(format!(
+                    "the coordinator closed the connection while {} were sent: an upload over its limit (--max-upload-bytes, 512 MiB by default) is refused that way",
+                    show_bytes(self.upload_bytes())
+                )))
+            }
+            r => r,
+        }
+    }
+
+    /// The bytes the upload sends.
+    fn upload_bytes(&self) -> u64 {
+        match self.files.as_slice() {
+            [only] => only.size,
+            files => pkg::packed_size(files),
+        }
+    }
+
+    async fn send(&self, c: &Client) -> anyhow::Result<SceneCreated> {
         if let [only] = self.files.as_slice() {
             let file = tokio::fs::File::open(&only.path)
                 .await
                 .with_context(|| format!("reading {}", only.path.display()))?;
-            return Ok(c.upload_scene(file, self.format, None).await?);
+            let chunks =
+                futures_util::stream::try_unfold(file.take(only.size), |mut f| async move {
+                    let mut buf = vec![0u8; CHUNK];
+                    let n = f.read(&mut buf).await?;
+                    buf.truncate(n);
+                    std::io::Result::Ok((n > 0).then(|| (Bytes::from(buf), f)))
+                });
+            let body = reqwest::Body::wrap_stream(chunks);
+            return Ok(c
+                .upload_scene_stream(body, only.size, self.format, None)
+                .await?);
         }
         eprintln!("{}", self.summary());
         let (tx, mut rx) = tokio::sync::mpsc::channel::<std::io::Result<Bytes>>(4);
@@ -194,8 +232,9 @@ impl ScenePack {
         let body = futures_util::stream::poll_fn(move |cx| rx.poll_recv(cx));
         let entry = self.files[0].name.clone();
         let created = c
-            .upload_scene(
+            .upload_scene_stream(
                 reqwest::Body::wrap_stream(body),
+                pkg::packed_size(&self.files),
                 Some(SceneFormat::Tar),
                 Some(&entry),
             )
@@ -347,4 +386,88 @@ pub async fn submit_and_follow(
         eprintln!("wrote {}", out.display());
     }
     Ok(status)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A coordinator in this process, with uploads limited to `max_upload` bytes.
+    async fn coordinator(
+        dir: &Path,
+        max_upload: u64,
+    ) -> (Client, tokio::sync::watch::Sender<bool>) {
+        let mut cfg = raytile_coordinator::Config::new(dir);
+        cfg.limits.max_upload_bytes = max_upload;
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let base = format!("http://{}", listener.local_addr().unwrap());
+        let (stop, mut rx) = tokio::sync::watch::channel(false);
+        tokio::spawn(raytile_coordinator::run(listener, cfg, async move {
+            let _ = rx.wait_for(|v| *v).await;
+        }));
+        (Client::new(&base, None).unwrap(), stop)
+    }
+
+    /// A glTF triangle whose buffer file (`pad` bytes after the 36 it uses) is beside it.
+    fn gltf_folder(dir: &Path, pad: usize) -> PathBuf {
+        let mut bin: Vec<u8> = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        bin.resize(36 + pad, 0);
+        std::fs::write(dir.join("tri.bin"), &bin).unwrap();
+        std::fs::write(dir.join("unused.bin"), vec![1u8; 4096]).unwrap();
+        let gltf = format!(
+            r#"{{"asset": {{"version": "2.0"}},
+                "buffers": [{{"byteLength": {}, "uri": "tri.bin"}}],
+                "bufferViews": [{{"buffer": 0, "byteLength": 36}}],
+                "accessors": [{{"bufferView": 0, "componentType": 5126, "type": "VEC3", "count": 3,
+                                "min": [0, 0, 0], "max": [1, 1, 0]}}],
+                "meshes": [{{"primitives": [{{"attributes": {{"POSITION": 0}}}}]}}],
+                "nodes": [{{"mesh": 0}}], "scenes": [{{"nodes": [0]}}]}}"#,
+            bin.len()
+        );
+        std::fs::write(dir.join("tri.gltf"), gltf).unwrap();
+        dir.join("tri.gltf")
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn uploads_say_their_length_so_one_over_the_limit_is_refused_at_once() {
+        let t = tempfile::tempdir().unwrap();
+        let scene_dir = t.path().join("scene");
+        std::fs::create_dir(&scene_dir).unwrap();
+        let (c, stop) = coordinator(&t.path().join("data"), 64 << 10).await;
+        // Within the limit: the scene and its buffer, not the file beside them.
+        let scene = gltf_folder(&scene_dir, 1000);
+        let pack = ScenePack::check(&scene).unwrap();
+        let names: Vec<&str> = pack.files.iter().map(|f| f.name.as_str()).collect();
+        assert_eq!(names, ["tri.gltf", "tri.bin"]);
+        let created = pack.upload(&c).await.unwrap();
+        assert_eq!(created.entry, "tri.gltf");
+        assert_eq!(created.format, "tar");
+        // The same files again: the same bytes, the same scene.
+        assert!(pack.upload(&c).await.unwrap().existed);
+        // Over it, archive or single file: refused from its length. The client sees the 413,
+        // or only the connection closed under it, and then says what that means.
+        let scene = gltf_folder(&scene_dir, 1 << 20);
+        let big = scene_dir.join("big.json");
+        std::fs::write(&big, format!("{{\"objects\": []{}}}", " ".repeat(1 << 20))).unwrap();
+        for scene in [scene, big] {
+            let e = ScenePack::check(&scene)
+                .unwrap()
+                .upload(&c)
+                .await
+                .unwrap_err();
+            let status = e
+                .downcast_ref::<ClientError>()
+                .and_then(ClientError::status);
+            let said = format!("{e:#}");
+            assert!(
+                status == Some(reqwest::StatusCode::PAYLOAD_TOO_LARGE)
+                    || said.contains("MiB were sent: an upload over its limit"),
+                "{said}"
+            );
+        }
+        let _ = stop.send(true);
+    }
 }

@@ -300,8 +300,18 @@ pub fn pack_files(files: &[PackFile], out: impl std::io::Write) -> std::io::Resu
     for f in files {
         let bad = |why: String| std::io::Error::new(std::io::ErrorKind::InvalidInput, why);
         let rel = safe_relative(&f.name).map_err(|e| bad(e.to_string()))?;
-        if rel.as_os_str().is_empty() {
-            return Err(bad(format!("empty archive member name '{}'", f.name)));
+        // Names as tar writes them (so that `packed_size` is exact): `a/b`, no `.` or empty
+        // components.
+        let normal = rel
+            .components()
+            .map(|c| c.as_os_str().to_string_lossy())
+            .collect::<Vec<_>>()
+            .join("/");
+        if rel.as_os_str().is_empty() || normal != f.name {
+            return Err(bad(format!(
+                "archive member name '{}' is not a plain relative path",
+                f.name
+            )));
         }
         let file = std::fs::File::open(&f.path)?;
         let meta = file.metadata()?;
@@ -327,6 +337,28 @@ pub fn pack_files(files: &[PackFile], out: impl std::io::Write) -> std::io::Resu
         b.append_data(&mut h, &f.name, &mut data)?;
     }
     b.into_inner()?.flush()
+}
+
+/// The size in bytes of the archive [`pack_files`] writes for `files`, known before anything
+/// is read: a streamed upload can say its length, and the coordinator refuse one over its limit
+/// before it is sent.
+pub fn packed_size(files: &[PackFile]) -> u64 {
+    let blocks = |n: u64| n.div_ceil(512) * 512;
+    let members: u64 = files
+        .iter()
+        .map(|f| {
+            // A name longer than the header's 100 bytes goes first in a GNU long-name member:
+            // a header and the name with its NUL.
+            let long_name = if f.name.len() > 100 {
+                512 + blocks(f.name.len() as u64 + 1)
+            } else {
+                0
+            };
+            long_name + 512 + blocks(f.size)
+        })
+        .sum();
+    // The end of the archive: two empty blocks.
+    members + 1024
 }
 
 /// Reads exactly `left` bytes: fewer (the file shrank since its header was written) is an
@@ -463,6 +495,42 @@ mod tests {
         let mut hostile = files.clone();
         hostile[1].name = "../a.png".into();
         assert!(pack_files(&hostile, &mut Vec::new()).is_err());
+        hostile[1].name = "tex//./a.png".into();
+        assert!(pack_files(&hostile, &mut Vec::new()).is_err());
+    }
+
+    #[test]
+    fn the_packed_size_is_known_before_packing() {
+        let t = tempfile::tempdir().unwrap();
+        let mut files = Vec::new();
+        for (i, (name_len, size)) in [
+            (1, 0),
+            (99, 1),
+            (100, 511),
+            (101, 512),
+            (511, 513),
+            (512, 1),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            // Names of the given length, in folders so that some have slashes.
+            let name: String = format!("d{i}/")
+                .chars()
+                .chain(std::iter::repeat('n'))
+                .take(name_len.max(4))
+                .collect();
+            let path = t.path().join(format!("f{i}"));
+            std::fs::write(&path, vec![7u8; size]).unwrap();
+            files.push(PackFile {
+                path,
+                name,
+                size: size as u64,
+            });
+            let mut out = Vec::new();
+            pack_files(&files, &mut out).unwrap();
+            assert_eq!(packed_size(&files), out.len() as u64, "{files:?}");
+        }
     }
 
     #[test]
