@@ -1,16 +1,18 @@
-//! `raytile submit`: upload a scene, submit a job, follow it with a progress bar, download
-//! the image.
+//! `raytile submit`: check a scene as a farm will and upload exactly the files it uses, submit
+//! a job, follow it with a progress bar, download the image.
 
 use crate::render::flag_error;
 use anyhow::{anyhow, bail, Context};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use raytile_core::film::ImageFormat;
-use raytile_proto::client::{Client, ClientError};
+use raytile_core::scene::files::{self, SceneFiles};
+use raytile_proto::client::{reqwest, Bytes, Client, ClientError};
 use raytile_proto::scene::{self as pkg, SceneFormat};
-use raytile_proto::{JobRequest, JobState, JobStatus, RenderOverrides};
+use raytile_proto::{JobRequest, JobState, JobStatus, RenderOverrides, SceneCreated};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
+use tokio::io::AsyncReadExt as _;
 
 /// Job settings as flags: the settings that differ from the scene's own, and the priority.
 #[derive(Args, Debug, Clone, Default)]
@@ -37,7 +39,7 @@ impl JobArgs {
 /// `raytile submit` flags.
 #[derive(Args, Debug)]
 pub struct SubmitArgs {
-    /// Scene file (.gltf, .glb, .json) or folder.
+    /// Scene file (.gltf, .glb, .json), or a folder with one scene file at its top.
     pub scene: PathBuf,
     /// Coordinator URL.
     #[arg(
@@ -94,50 +96,245 @@ fn job_error(e: ClientError) -> anyhow::Error {
     anyhow::Error::new(e).context("submitting the job")
 }
 
-/// Whether a .gltf file references files beside it (not data URIs).
-fn gltf_has_external_files(path: &Path) -> anyhow::Result<bool> {
-    let text = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    let v: serde_json::Value =
-        serde_json::from_slice(&text).with_context(|| format!("{} is not JSON", path.display()))?;
-    let external = |key: &str| {
-        v.get(key).and_then(|a| a.as_array()).is_some_and(|a| {
-            a.iter().any(|b| {
-                b.get("uri")
-                    .and_then(|u| u.as_str())
-                    .is_some_and(|u| !u.starts_with("data:"))
-            })
-        })
-    };
-    Ok(external("buffers") || external("images"))
+/// What `raytile submit` uploads for a scene: the scene file and every file it uses, checked
+/// as a farm checks them (confined to the scene's folder).
+#[derive(Debug)]
+pub struct ScenePack {
+    /// The scene file's format, from its extension.
+    pub format: Option<SceneFormat>,
+    /// Every file the scene read, the scene file first, named relative to its folder.
+    pub files: Vec<pkg::PackFile>,
 }
 
-/// Reads a scene for upload: (bytes, format, entry). A folder, or a `.gltf` with files beside
-/// it, travels as a tar archive of the folder.
-pub fn scene_upload(path: &Path) -> anyhow::Result<(Vec<u8>, Option<SceneFormat>, Option<String>)> {
-    if path.is_dir() {
-        return Ok((pkg::pack_folder(path)?, Some(SceneFormat::Tar), None));
-    }
-    let format = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .and_then(SceneFormat::from_name);
-    if format == Some(SceneFormat::Gltf) && gltf_has_external_files(path)? {
-        let dir = path.parent().unwrap_or(Path::new("."));
-        let dir = if dir.as_os_str().is_empty() {
-            Path::new(".")
+impl ScenePack {
+    /// Loads the scene at `path` (a scene file, or a folder with one scene file at its top) as
+    /// the farm will, confined to the scene's folder, and lists the files it read. A scene
+    /// naming a file the farm would refuse is an error that says which and how to fix it.
+    pub fn check(path: &Path) -> anyhow::Result<ScenePack> {
+        let scene = if path.is_dir() {
+            scene_in_folder(path)?
         } else {
-            dir
+            path.to_path_buf()
         };
-        let entry = path.file_name().map(|n| n.to_string_lossy().into_owned());
-        return Ok((pkg::pack_folder(dir)?, Some(SceneFormat::Tar), entry));
+        // The farm's own size limits are its business: here only where files are matters,
+        // with the caps of a local render.
+        let files = SceneFiles::confined_to_scene(&scene, files::TRUSTED_FILE_CAP, u64::MAX)
+            .with_context(|| format!("reading the folder of {}", scene.display()))?;
+        if let Err(e) = raytile_core::load_scene_with(&scene, &files) {
+            return Err(match files.refusal().and_then(|r| r.refusal.hint()) {
+                Some(hint) => anyhow!("{e}; a farm reads only files in the scene's folder: {hint}"),
+                None => anyhow!("{e}"),
+            });
+        }
+        let files = files
+            .used()
+            .into_iter()
+            .map(|u| {
+                let name = u.name.as_deref().unwrap_or(&u.path);
+                let name = name
+                    .to_str()
+                    .ok_or_else(|| anyhow!("{}: the file name is not UTF-8", u.path.display()))?
+                    .replace(std::path::MAIN_SEPARATOR, "/");
+                Ok(pkg::PackFile {
+                    path: u.path,
+                    name,
+                    size: u.bytes,
+                })
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        let format = scene
+            .extension()
+            .and_then(|e| e.to_str())
+            .and_then(SceneFormat::from_name);
+        Ok(ScenePack { format, files })
     }
-    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    Ok((bytes, format, None))
+
+    /// Bytes of all the files together.
+    pub fn total_bytes(&self) -> u64 {
+        self.files.iter().map(|f| f.size).sum()
+    }
+
+    /// What is uploaded, for the user: one line per file after the total.
+    pub fn summary(&self) -> String {
+        let mut out = format!(
+            "packing {} files, {} in all:",
+            self.files.len(),
+            show_bytes(self.total_bytes())
+        );
+        for f in &self.files {
+            out.push_str(&format!("\n  {}  {}", f.name, show_bytes(f.size)));
+        }
+        out
+    }
+
+    /// Uploads the scene: a scene that uses no other file as it is, otherwise a tar archive of
+    /// exactly the files it uses, written to the request body as it is sent. Either way the
+    /// length goes first, so a coordinator refuses an upload over its limit at once.
+    pub async fn upload(&self, c: &Client) -> anyhow::Result<SceneCreated> {
+        match self.send(c).await {
+            Err(e)
+                if e.downcast_ref::<ClientError>()
+                    .is_some_and(ClientError::is_unreachable)
+                    && c.health().await.is_ok() =>
+            {
+                // An HTTP client sending a body may not read the answer the coordinator gives
+                // before it has it all (a 413): it sees the connection closed under it.
+                Err(e.context(format!(
+                    "the coordinator closed the connection while {} were sent: an upload over its limit (--max-upload-bytes, 512 MiB by default) is refused that way",
+                    show_bytes(self.upload_bytes())
+                )))
+            }
+            r => r,
+        }
+    }
+
+    /// The bytes the upload sends.
+    fn upload_bytes(&self) -> u64 {
+        match self.files.as_slice() {
+            [only] => only.size,
+            files => pkg::packed_size(files),
+        }
+    }
+
+    async fn send(&self, c: &Client) -> anyhow::Result<SceneCreated> {
+        if let [only] = self.files.as_slice() {
+            let file = tokio::fs::File::open(&only.path)
+                .await
+                .with_context(|| format!("reading {}", only.path.display()))?;
+            let chunks =
+                futures_util::stream::try_unfold(file.take(only.size), |mut f| async move {
+                    let mut buf = vec![0u8; CHUNK];
+                    let n = f.read(&mut buf).await?;
+                    buf.truncate(n);
+                    std::io::Result::Ok((n > 0).then(|| (Bytes::from(buf), f)))
+                });
+            let body = reqwest::Body::wrap_stream(chunks);
+            return Ok(c
+                .upload_scene_stream(body, only.size, self.format, None)
+                .await?);
+        }
+        eprintln!("{}", self.summary());
+        let (tx, mut rx) = tokio::sync::mpsc::channel::<std::io::Result<Bytes>>(4);
+        let files = self.files.clone();
+        let packer = tokio::task::spawn_blocking(move || {
+            let mut w = ChannelWriter {
+                tx: tx.clone(),
+                buf: Vec::with_capacity(CHUNK),
+            };
+            let r = pkg::pack_files(&files, &mut w).and_then(|()| std::io::Write::flush(&mut w));
+            if let Err(e) = &r {
+                // The body must fail rather than end: a cut archive must never be taken for a
+                // whole one.
+                let _ = tx.blocking_send(Err(std::io::Error::new(e.kind(), e.to_string())));
+            }
+            r
+        });
+        let body = futures_util::stream::poll_fn(move |cx| rx.poll_recv(cx));
+        let entry = self.files[0].name.clone();
+        let created = c
+            .upload_scene_stream(
+                reqwest::Body::wrap_stream(body),
+                pkg::packed_size(&self.files),
+                Some(SceneFormat::Tar),
+                Some(&entry),
+            )
+            .await;
+        match packer.await? {
+            Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
+                Err(anyhow!(e).context("packing the scene"))
+            }
+            _ => Ok(created?),
+        }
+    }
+}
+
+/// The one scene file (`.gltf`, `.glb` or `.json`) at the top of `dir`.
+fn scene_in_folder(dir: &Path) -> anyhow::Result<PathBuf> {
+    let mut found = Vec::new();
+    for e in std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))? {
+        let p = e?.path();
+        let ext = p
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        if p.is_file() && matches!(ext.as_deref(), Some("gltf" | "glb" | "json")) {
+            found.push(p);
+        }
+    }
+    found.sort();
+    match found.as_slice() {
+        [one] => Ok(one.clone()),
+        [] => bail!(
+            "{}: no .gltf, .glb or .json scene file in it",
+            dir.display()
+        ),
+        many => bail!(
+            "{}: several scene files ({}): name the one to submit",
+            dir.display(),
+            many.iter()
+                .filter_map(|p| p.file_name())
+                .map(|n| n.to_string_lossy().into_owned())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    }
+}
+
+/// Bytes for people: `12.3 MiB`.
+fn show_bytes(n: u64) -> String {
+    const UNITS: [&str; 4] = ["bytes", "KiB", "MiB", "GiB"];
+    let mut v = n as f64;
+    let mut unit = 0;
+    while v >= 1024.0 && unit + 1 < UNITS.len() {
+        v /= 1024.0;
+        unit += 1;
+    }
+    if unit == 0 {
+        format!("{n} bytes")
+    } else {
+        format!("{v:.1} {}", UNITS[unit])
+    }
+}
+
+/// Size of the chunks the archive is sent in.
+const CHUNK: usize = 1 << 16;
+
+/// Hands what is written to the request body in chunks; blocks while the body has not taken
+/// the previous chunks, so the archive is never all in memory.
+struct ChannelWriter {
+    tx: tokio::sync::mpsc::Sender<std::io::Result<Bytes>>,
+    buf: Vec<u8>,
+}
+
+impl ChannelWriter {
+    fn send(&mut self) -> std::io::Result<()> {
+        if self.buf.is_empty() {
+            return Ok(());
+        }
+        let chunk = Bytes::from(std::mem::replace(&mut self.buf, Vec::with_capacity(CHUNK)));
+        self.tx
+            .blocking_send(Ok(chunk))
+            .map_err(|_| std::io::Error::new(std::io::ErrorKind::BrokenPipe, "the upload ended"))
+    }
+}
+
+impl std::io::Write for ChannelWriter {
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        self.buf.extend_from_slice(b);
+        if self.buf.len() >= CHUNK {
+            self.send()?;
+        }
+        Ok(b.len())
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.send()
+    }
 }
 
 /// Uploads the scene, submits the job and, if `wait`, follows it to the end and writes the
-/// image to `output`. Bad flags and an unknown output extension are refused before anything is
-/// uploaded.
+/// image to `output`. Bad flags, an unknown output extension and a scene naming a file a farm
+/// would refuse are refused before anything is uploaded.
 pub async fn submit_and_follow(
     c: &Client,
     scene: &Path,
@@ -147,11 +344,8 @@ pub async fn submit_and_follow(
 ) -> anyhow::Result<JobStatus> {
     let format = output.map(ImageFormat::from_path).transpose()?;
     job.overrides.check().map_err(flag_error)?;
-    let (bytes, scene_format, entry) = scene_upload(scene)?;
-    let created = c
-        .upload_scene(bytes, scene_format, entry.as_deref())
-        .await
-        .context("uploading the scene")?;
+    let pack = ScenePack::check(scene)?;
+    let created = pack.upload(c).await.context("uploading the scene")?;
     let mut status = c
         .create_job(&job.request(created.id))
         .await
@@ -192,4 +386,88 @@ pub async fn submit_and_follow(
         eprintln!("wrote {}", out.display());
     }
     Ok(status)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A coordinator in this process, with uploads limited to `max_upload` bytes.
+    async fn coordinator(
+        dir: &Path,
+        max_upload: u64,
+    ) -> (Client, tokio::sync::watch::Sender<bool>) {
+        let mut cfg = raytile_coordinator::Config::new(dir);
+        cfg.limits.max_upload_bytes = max_upload;
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let base = format!("http://{}", listener.local_addr().unwrap());
+        let (stop, mut rx) = tokio::sync::watch::channel(false);
+        tokio::spawn(raytile_coordinator::run(listener, cfg, async move {
+            let _ = rx.wait_for(|v| *v).await;
+        }));
+        (Client::new(&base, None).unwrap(), stop)
+    }
+
+    /// A glTF triangle whose buffer file (`pad` bytes after the 36 it uses) is beside it.
+    fn gltf_folder(dir: &Path, pad: usize) -> PathBuf {
+        let mut bin: Vec<u8> = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        bin.resize(36 + pad, 0);
+        std::fs::write(dir.join("tri.bin"), &bin).unwrap();
+        std::fs::write(dir.join("unused.bin"), vec![1u8; 4096]).unwrap();
+        let gltf = format!(
+            r#"{{"asset": {{"version": "2.0"}},
+                "buffers": [{{"byteLength": {}, "uri": "tri.bin"}}],
+                "bufferViews": [{{"buffer": 0, "byteLength": 36}}],
+                "accessors": [{{"bufferView": 0, "componentType": 5126, "type": "VEC3", "count": 3,
+                                "min": [0, 0, 0], "max": [1, 1, 0]}}],
+                "meshes": [{{"primitives": [{{"attributes": {{"POSITION": 0}}}}]}}],
+                "nodes": [{{"mesh": 0}}], "scenes": [{{"nodes": [0]}}]}}"#,
+            bin.len()
+        );
+        std::fs::write(dir.join("tri.gltf"), gltf).unwrap();
+        dir.join("tri.gltf")
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn uploads_say_their_length_so_one_over_the_limit_is_refused_at_once() {
+        let t = tempfile::tempdir().unwrap();
+        let scene_dir = t.path().join("scene");
+        std::fs::create_dir(&scene_dir).unwrap();
+        let (c, stop) = coordinator(&t.path().join("data"), 64 << 10).await;
+        // Within the limit: the scene and its buffer, not the file beside them.
+        let scene = gltf_folder(&scene_dir, 1000);
+        let pack = ScenePack::check(&scene).unwrap();
+        let names: Vec<&str> = pack.files.iter().map(|f| f.name.as_str()).collect();
+        assert_eq!(names, ["tri.gltf", "tri.bin"]);
+        let created = pack.upload(&c).await.unwrap();
+        assert_eq!(created.entry, "tri.gltf");
+        assert_eq!(created.format, "tar");
+        // The same files again: the same bytes, the same scene.
+        assert!(pack.upload(&c).await.unwrap().existed);
+        // Over it, archive or single file: refused from its length. The client sees the 413,
+        // or only the connection closed under it, and then says what that means.
+        let scene = gltf_folder(&scene_dir, 1 << 20);
+        let big = scene_dir.join("big.json");
+        std::fs::write(&big, format!("{{\"objects\": []{}}}", " ".repeat(1 << 20))).unwrap();
+        for scene in [scene, big] {
+            let e = ScenePack::check(&scene)
+                .unwrap()
+                .upload(&c)
+                .await
+                .unwrap_err();
+            let status = e
+                .downcast_ref::<ClientError>()
+                .and_then(ClientError::status);
+            let said = format!("{e:#}");
+            assert!(
+                status == Some(reqwest::StatusCode::PAYLOAD_TOO_LARGE)
+                    || said.contains("MiB were sent: an upload over its limit"),
+                "{said}"
+            );
+        }
+        let _ = stop.send(true);
+    }
 }

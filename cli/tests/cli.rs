@@ -150,3 +150,201 @@ fn cluster_reports_the_coordinators_refusal_as_the_flag() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A scene folder: `scene.json` with a texture (through a link inside the folder) and a glTF
+/// include whose buffer sits beside it, plus files the scene does not use.
+fn scene_folder(dir: &Path) -> std::path::PathBuf {
+    let d = dir.join("scene");
+    std::fs::create_dir_all(d.join("models")).unwrap();
+    std::fs::create_dir_all(d.join("real")).unwrap();
+    std::fs::create_dir_all(d.join("tex")).unwrap();
+    // A 2×2 PNG, written by hand (no image crate here): 8-bit grey, no filter.
+    std::fs::write(d.join("real/wood.png"), tiny_png()).unwrap();
+    #[cfg(unix)]
+    std::os::unix::fs::symlink("../real/wood.png", d.join("tex/wood.png")).unwrap();
+    #[cfg(not(unix))]
+    std::fs::write(d.join("tex/wood.png"), tiny_png()).unwrap();
+    let positions: Vec<u8> = [-1.0f32, -1.0, 0.0, 1.0, -1.0, 0.0, 0.0, 1.0, 0.0]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    std::fs::write(d.join("models/tri.bin"), &positions).unwrap();
+    std::fs::write(
+        d.join("models/tri.gltf"),
+        r#"{"asset": {"version": "2.0"},
+            "buffers": [{"byteLength": 36, "uri": "tri.bin"}],
+            "bufferViews": [{"buffer": 0, "byteLength": 36}],
+            "accessors": [{"bufferView": 0, "componentType": 5126, "type": "VEC3", "count": 3,
+                           "min": [-1, -1, 0], "max": [1, 1, 0]}],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+            "nodes": [{"mesh": 0}], "scenes": [{"nodes": [0]}]}"#,
+    )
+    .unwrap();
+    std::fs::write(
+        d.join("scene.json"),
+        r#"{"render": {"width": 8, "height": 8, "spp": 1},
+            "camera": {"position": [0, 0, 4], "look_at": [0, 0, 0]},
+            "textures": {"wood": {"type": "image", "path": "tex/wood.png"}},
+            "materials": {"floor": {"type": "diffuse", "texture": "wood"}},
+            "objects": [{"shape": {"type": "plane", "point": [0, -1, 0]}, "material": "floor"},
+                        {"shape": {"type": "gltf", "path": "models/tri.gltf"}}],
+            "lights": [{"type": "point", "position": [0, 2, 2], "intensity": [5, 5, 5]}]}"#,
+    )
+    .unwrap();
+    std::fs::write(d.join("notes.txt"), b"not part of the scene").unwrap();
+    std::fs::write(d.join("models/unused.bin"), vec![0u8; 1000]).unwrap();
+    d
+}
+
+/// A valid 2×2 8-bit greyscale PNG.
+fn tiny_png() -> Vec<u8> {
+    fn crc32(bytes: &[u8]) -> u32 {
+        let mut c = !0u32;
+        for &b in bytes {
+            c ^= b as u32;
+            for _ in 0..8 {
+                c = if c & 1 != 0 {
+                    0xEDB8_8320 ^ (c >> 1)
+                } else {
+                    c >> 1
+                };
+            }
+        }
+        !c
+    }
+    fn adler32(bytes: &[u8]) -> u32 {
+        let (mut a, mut b) = (1u32, 0u32);
+        for &x in bytes {
+            a = (a + x as u32) % 65521;
+            b = (b + a) % 65521;
+        }
+        (b << 16) | a
+    }
+    let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
+    let mut chunk = |kind: &[u8], data: &[u8]| {
+        let body = [kind, data].concat();
+        out.extend((data.len() as u32).to_be_bytes());
+        out.extend(&body);
+        out.extend(crc32(&body).to_be_bytes());
+    };
+    chunk(b"IHDR", &[0, 0, 0, 2, 0, 0, 0, 2, 8, 0, 0, 0, 0]);
+    // Rows: filter byte 0, then two grey pixels; stored in one uncompressed deflate block.
+    let raw = [0u8, 200, 100, 0, 100, 200];
+    let mut z = vec![0x78, 0x01, 1, raw.len() as u8, 0, !(raw.len() as u8), 0xff];
+    z.extend(raw);
+    z.extend(adler32(&raw).to_be_bytes());
+    chunk(b"IDAT", &z);
+    chunk(b"IEND", &[]);
+    out
+}
+
+/// `raytile submit` checks the scene as a farm will before it uploads anything: a scene naming
+/// a file outside its folder is refused with the JSON path, the file and how to fix it.
+#[test]
+fn submit_refuses_a_scene_naming_files_outside_its_folder() {
+    let dir = std::env::temp_dir().join(format!("raytile-cli-confine-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let d = scene_folder(&dir);
+    std::fs::write(dir.join("outside.png"), tiny_png()).unwrap();
+    let nobody = {
+        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        format!("http://{}", l.local_addr().unwrap())
+    };
+    let outside = dir.join("outside.png").display().to_string();
+    for (path, want) in [
+        (outside.as_str(), "copy the file next to the scene"),
+        ("../outside.png", "remove the '..'"),
+    ] {
+        let scene = d.join("bad.json");
+        std::fs::write(
+            &scene,
+            format!(r#"{{"textures": {{"t": {{"type": "image", "path": {path:?}}}}}}}"#),
+        )
+        .unwrap();
+        let o = raytile()
+            .args(["submit"])
+            .arg(&scene)
+            .args(["--coordinator", &nobody])
+            .env_remove("RAYTILE_TOKEN")
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{path}: {err}");
+        assert!(
+            err.contains("at textures.t.path")
+                && err.contains(&format!("{path:?} refused"))
+                && err.contains(want)
+                && !err.contains("cannot reach"),
+            "{path}: {err}"
+        );
+        assert_eq!(err.lines().count(), 1, "{err}");
+        // The user's own render still reads it.
+        let o = raytile()
+            .arg("render")
+            .arg(&scene)
+            .arg("-o")
+            .arg(dir.join("local.png"))
+            .args(["--width", "4", "--height", "4", "--spp", "1"])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// `raytile submit` packs exactly the files the scene uses (a link inside the folder under the
+/// name the scene gives it), says what it packed, and the farm renders it.
+#[test]
+fn submit_packs_exactly_the_files_the_scene_uses() {
+    let dir = std::env::temp_dir().join(format!("raytile-cli-pack-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let d = scene_folder(&dir);
+    let data = dir.join("data");
+    let o = raytile()
+        .args(["cluster", "--workers", "1", "--threads", "1", "--render"])
+        .arg(d.join("scene.json"))
+        .arg("-o")
+        .arg(dir.join("out.png"))
+        .arg("--data-dir")
+        .arg(&data)
+        .env_remove("RAYTILE_TOKEN")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(dir.join("out.png").is_file());
+    assert!(err.contains("packing 4 files"), "{err}");
+    // What the coordinator unpacked is the scene's files, nothing beside them.
+    let scenes: Vec<_> = std::fs::read_dir(data.join("scenes"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert_eq!(scenes.len(), 1, "{scenes:?}");
+    let root = scenes[0].join("root");
+    let mut found = Vec::new();
+    let mut stack = vec![root.clone()];
+    while let Some(p) = stack.pop() {
+        for e in std::fs::read_dir(&p).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                found.push(p.strip_prefix(&root).unwrap().display().to_string());
+            }
+        }
+    }
+    found.sort();
+    assert_eq!(
+        found,
+        [
+            "models/tri.bin",
+            "models/tri.gltf",
+            "scene.json",
+            "tex/wood.png"
+        ]
+    );
+    for name in ["scene.json", "tex/wood.png", "models/tri.bin"] {
+        assert!(err.contains(&format!("  {name}  ")), "{name}: {err}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

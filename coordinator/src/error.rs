@@ -58,6 +58,10 @@ pub enum AppError {
         "the coordinator cannot write its database at the moment; nothing was changed: retry later"
     )]
     StoreUnavailable(#[source] rusqlite::Error),
+    /// 503: too busy to take this request now (every scene parse slot stayed taken); answered
+    /// with `Retry-After`.
+    #[error("{0}")]
+    Busy(String),
     /// 500: anything else; logged in full, answered briefly.
     #[error("internal error")]
     Internal(#[from] anyhow::Error),
@@ -124,6 +128,7 @@ impl AppError {
             AppError::StoreUnavailable(_) => {
                 (StatusCode::SERVICE_UNAVAILABLE, "store_unavailable", None)
             }
+            AppError::Busy(_) => (StatusCode::SERVICE_UNAVAILABLE, "busy", None),
             AppError::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal", None),
         }
     }
@@ -139,7 +144,10 @@ impl IntoResponse for AppError {
             }
             _ => {}
         }
-        let retryable = matches!(self, AppError::Unavailable | AppError::StoreUnavailable(_));
+        let retryable = matches!(
+            self,
+            AppError::Unavailable | AppError::StoreUnavailable(_) | AppError::Busy(_)
+        );
         let mut message = self.to_string();
         if let Some(f) = &field {
             if !message.starts_with(f.as_str()) {
@@ -163,9 +171,14 @@ impl IntoResponse for AppError {
             );
         }
         if retryable {
+            let secs = if matches!(self, AppError::Busy(_)) {
+                "2"
+            } else {
+                "1"
+            };
             headers.insert(
                 axum::http::header::RETRY_AFTER,
-                axum::http::HeaderValue::from_static("1"),
+                axum::http::HeaderValue::from_static(secs),
             );
         }
         resp

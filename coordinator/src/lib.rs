@@ -22,7 +22,7 @@ pub mod store;
 mod tests;
 
 pub use api::app;
-pub use scenes::{core_scene_loader, LoadError, LoadedScene, SceneLoader};
+pub use scenes::{core_scene_loader, LoadError, LoadedScene, SceneLimits, SceneLoader};
 
 use anyhow::Context;
 use clock::{Clock, Now};
@@ -177,6 +177,9 @@ pub struct Config {
     pub block_worker_after: u32,
     /// Request limits.
     pub limits: Limits,
+    /// Bounds on checking uploaded scenes. The file and memory bounds are the core loader's:
+    /// after changing them, make the loader again with [`core_scene_loader`].
+    pub scene_limits: SceneLimits,
     /// Parses uploaded scenes (the core's loader; tests inject fakes).
     pub scene_loader: SceneLoader,
     /// The time source of every scheduler call (the system clock; tests inject their own).
@@ -197,7 +200,8 @@ impl Config {
             max_task_failures: 3,
             block_worker_after: 3,
             limits: Limits::default(),
-            scene_loader: core_scene_loader(),
+            scene_limits: SceneLimits::default(),
+            scene_loader: core_scene_loader(SceneLimits::default()),
             clock: clock::system_clock(),
         }
     }
@@ -229,6 +233,8 @@ pub struct Inner {
     pub started: Now,
     /// Scene metadata cache.
     pub scene_meta: Mutex<HashMap<String, Arc<scenes::SceneMeta>>>,
+    /// One permit per scene parse that may run ([`SceneLimits::max_parallel_parses`]).
+    pub parse_slots: Arc<tokio::sync::Semaphore>,
     shutdown_tx: watch::Sender<bool>,
 }
 
@@ -265,12 +271,16 @@ impl AppState {
             tracing::info!(unfinished, "resuming unfinished jobs");
         }
         let (shutdown_tx, _) = watch::channel(false);
+        let parse_slots = Arc::new(tokio::sync::Semaphore::new(
+            cfg.scene_limits.max_parallel_parses.max(1),
+        ));
         Ok(AppState(Arc::new(Inner {
             cfg,
             sched: Mutex::new(sched),
             notify: Notify::new(),
             started: now,
             scene_meta: Mutex::new(HashMap::new()),
+            parse_slots,
             shutdown_tx,
         })))
     }

@@ -1,7 +1,7 @@
 //! `raytile-coordinator`: serves the farm's HTTP API.
 
 use clap::Parser;
-use raytile_coordinator::{run, Config, Limits};
+use raytile_coordinator::{core_scene_loader, run, Config, Limits, SceneLimits};
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -57,6 +57,21 @@ struct Args {
     /// Longest a worker's lease request waits for work, in seconds.
     #[arg(long, default_value_t = 30.0)]
     long_poll_max: f64,
+    /// Largest file an uploaded scene may name (and the scene file itself), in bytes.
+    #[arg(long, default_value_t = SceneLimits::default().max_file_bytes)]
+    max_scene_file_bytes: u64,
+    /// Most bytes an uploaded scene may read, all its files together.
+    #[arg(long, default_value_t = SceneLimits::default().max_scene_bytes)]
+    max_scene_bytes: u64,
+    /// Most memory checking one uploaded scene may allocate for decoded data, in bytes.
+    #[arg(long, default_value_t = SceneLimits::default().max_parse_memory)]
+    max_parse_memory: u64,
+    /// Most uploaded scenes checked at once; further uploads wait.
+    #[arg(long, default_value_t = SceneLimits::default().max_parallel_parses)]
+    scene_parses: usize,
+    /// How long an upload waits for a check to end before it is answered 503, in seconds.
+    #[arg(long, default_value_t = SceneLimits::default().parse_wait.as_secs_f64())]
+    scene_parse_wait: f64,
     /// Do not serve: ask the coordinator listening on --listen for /healthz and exit 0 when
     /// it answers 200 (a container health check; images have no curl).
     #[arg(long)]
@@ -108,6 +123,14 @@ async fn real_main(a: Args) -> anyhow::Result<()> {
     cfg.limits.min_tile_size = a.min_tile_size;
     cfg.limits.max_tasks_per_job = a.max_tasks_per_job;
     cfg.long_poll_max = secs(a.long_poll_max, "long-poll-max")?;
+    cfg.scene_limits = SceneLimits {
+        max_file_bytes: a.max_scene_file_bytes,
+        max_scene_bytes: a.max_scene_bytes,
+        max_parse_memory: a.max_parse_memory,
+        max_parallel_parses: a.scene_parses.max(1),
+        parse_wait: secs(a.scene_parse_wait, "scene-parse-wait")?,
+    };
+    cfg.scene_loader = core_scene_loader(cfg.scene_limits.clone());
     let addr: std::net::SocketAddr = a
         .listen
         .parse()

@@ -1,16 +1,20 @@
 //! Scene uploads: streamed to a temporary file with a size cut-off, hashed on the way, unpacked
-//! safely, parsed once, and stored content-addressed under `data/scenes/{id}/`:
-//! `blob` (the bytes as uploaded, served to workers), `root/` (unpacked) and `meta.json`.
+//! safely, parsed once (at most [`SceneLimits::max_parallel_parses`] at a time, every file the
+//! scene names confined to its folder), and stored content-addressed under
+//! `data/scenes/{id}/`: `blob` (the bytes as uploaded, served to workers), `root/` (unpacked)
+//! and `meta.json`.
 
 use crate::error::AppError;
 use crate::AppState;
 use futures_util::StreamExt;
 use raytile_core::scene::desc::RenderDefaults;
+use raytile_core::scene::files;
 use raytile_proto::scene::{self as pkg, SceneFormat, UnpackLimits};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use std::time::Duration;
 use tokio::io::AsyncWriteExt;
 
 /// What the loader found out about a valid scene.
@@ -34,16 +38,57 @@ pub enum LoadError {
 /// Parses a scene file once to validate it.
 pub type SceneLoader = Arc<dyn Fn(&Path) -> Result<LoadedScene, LoadError> + Send + Sync>;
 
-/// The core's loader, with panics turned into internal errors.
-pub fn core_scene_loader() -> SceneLoader {
-    Arc::new(|path: &Path| {
+/// Bounds on checking uploaded scenes: what one parse may read and allocate, and how many run
+/// at once. A parse reads the scene through the core's confined resolver: only files in the
+/// scene file's own folder.
+#[derive(Clone, Debug)]
+pub struct SceneLimits {
+    /// Largest file a scene may name (and the scene file itself), in bytes.
+    pub max_file_bytes: u64,
+    /// Most bytes one scene may read, all its files together.
+    pub max_scene_bytes: u64,
+    /// Most memory one parse may allocate for decoded data (texels, vertices, indices).
+    pub max_parse_memory: u64,
+    /// Most scene parses at once; further uploads wait for one to end.
+    pub max_parallel_parses: usize,
+    /// How long an upload waits for a parse to end before it is answered 503 (retryable).
+    pub parse_wait: Duration,
+}
+
+impl Default for SceneLimits {
+    fn default() -> Self {
+        SceneLimits {
+            max_file_bytes: files::DEFAULT_FILE_CAP,
+            max_scene_bytes: files::DEFAULT_SCENE_BUDGET,
+            max_parse_memory: 2 << 30,
+            max_parallel_parses: 2,
+            parse_wait: Duration::from_secs(30),
+        }
+    }
+}
+
+/// The core's loader, confined to the scene file's folder with the file and memory bounds of
+/// `limits`, with panics turned into internal errors.
+pub fn core_scene_loader(limits: SceneLimits) -> SceneLoader {
+    Arc::new(move |path: &Path| {
         let p = path.to_path_buf();
-        match std::panic::catch_unwind(move || raytile_core::load_scene(&p)) {
+        let limits = limits.clone();
+        let load = move || -> Result<_, LoadError> {
+            let files = files::SceneFiles::confined_to_scene(
+                &p,
+                limits.max_file_bytes,
+                limits.max_scene_bytes,
+            )
+            .map_err(|e| LoadError::Internal(format!("scene folder: {e}")))?
+            .with_memory_limit(limits.max_parse_memory);
+            raytile_core::load_scene_with(&p, &files).map_err(|e| LoadError::Invalid(e.to_string()))
+        };
+        match std::panic::catch_unwind(load) {
             Ok(Ok(desc)) => Ok(LoadedScene {
                 defaults: desc.render,
                 warnings: desc.warnings,
             }),
-            Ok(Err(e)) => Err(LoadError::Invalid(e.to_string())),
+            Ok(Err(e)) => Err(e),
             Err(_) => Err(LoadError::Internal("scene loader panicked".into())),
         }
     })
@@ -182,11 +227,31 @@ pub async fn upload(
             },
         ));
     }
+    // Parsing takes memory (decoded texels and geometry): a bounded number run at once, the
+    // other uploads wait here with their bytes on disk.
+    let limits = &state.cfg.scene_limits;
+    let permit =
+        match tokio::time::timeout(limits.parse_wait, state.parse_slots.clone().acquire_owned())
+            .await
+        {
+            Ok(Ok(permit)) => permit,
+            Ok(Err(_)) => return Err(AppError::Unavailable),
+            Err(_) => {
+                return Err(AppError::Busy(format!(
+                    "{} scenes are being checked and none ended within {} s: try again shortly",
+                    limits.max_parallel_parses,
+                    limits.parse_wait.as_secs_f64()
+                )))
+            }
+        };
     let st = state.clone();
     let (id2, sha2) = (id.clone(), sha.clone());
-    let m = tokio::task::spawn_blocking(move || store_scene(&st, tmp, format, entry, id2, sha2))
-        .await
-        .map_err(AppError::internal)??;
+    let m = tokio::task::spawn_blocking(move || {
+        let _permit = permit;
+        store_scene(&st, tmp, format, entry, id2, sha2)
+    })
+    .await
+    .map_err(AppError::internal)??;
     Ok((
         true,
         raytile_proto::SceneCreated {
@@ -222,10 +287,11 @@ fn store_scene(
     let scene_file =
         pkg::unpack(&blob, format, entry.as_deref(), &root, limits).map_err(|e| match e {
             pkg::PackageError::Io(e) => AppError::internal(e),
-            e => AppError::invalid(
-                if entry.is_some() { "entry" } else { "body" },
-                e.to_string(),
-            ),
+            // Only a missing or ambiguous scene file is about `?entry=`; the rest is the body's.
+            e @ pkg::PackageError::Entry(_) if entry.is_some() => {
+                AppError::invalid("entry", e.to_string())
+            }
+            e => AppError::invalid("body", e.to_string()),
         })?;
     let rel = scene_file
         .strip_prefix(&root)
@@ -233,13 +299,18 @@ fn store_scene(
         .to_string_lossy()
         .into_owned();
     let loaded = (state.cfg.scene_loader)(&scene_file).map_err(|e| match e {
-        // The loader names the file by its temporary path: show the entry instead.
-        LoadError::Invalid(m) => AppError::invalid(
-            "scene",
-            m.replace(&root.to_string_lossy().to_string(), "")
-                .trim_start_matches('/')
-                .to_string(),
-        ),
+        // The loader names files by their temporary paths (as given, and canonical for the
+        // files a scene includes): show them relative to the scene's root instead.
+        LoadError::Invalid(m) => {
+            let mut m = m;
+            for r in [Some(root.clone()), std::fs::canonicalize(&root).ok()]
+                .into_iter()
+                .flatten()
+            {
+                m = m.replace(&format!("{}/", r.to_string_lossy()), "");
+            }
+            AppError::invalid("scene", m)
+        }
         LoadError::Internal(m) => AppError::internal(m),
     })?;
     let m = SceneMeta {

@@ -43,7 +43,7 @@ pub mod texture;
 
 pub use film::{Film, TileAccum};
 pub use integrator::{render, render_tile, Cancel, Cancelled, RenderProgress};
-pub use scene::{load_scene, RenderJob, Scene, SceneError};
+pub use scene::{load_scene, load_scene_with, RenderJob, Scene, SceneError};
 pub use settings::{IntegratorKind, RenderOverrides, RenderSettings, SettingsError, Tile};
 
 /// Version of the renderer's arithmetic: raised whenever a change to the tracer changes the

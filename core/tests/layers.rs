@@ -10,7 +10,8 @@
 //!    `scene/job`
 //! 5. `integrator`
 //!
-//! The front ends (`scene/desc`, `scene/json`, `scene/gltf`, `scene/image`) and the builder
+//! The front ends (`scene/desc`, `scene/json`, `scene/gltf`, `scene/image`, `scene/files`)
+//! and the builder
 //! (`scene/build`) produce the runtime from files; they may use any layer but the integrators,
 //! and no layer may use them. Test modules (after `#[cfg(test)]`) are not checked: tests may
 //! describe scenes.
@@ -41,12 +42,12 @@ fn layer_of_path(path: &str) -> Option<u32> {
     let top = parts.next().unwrap();
     match top {
         "scene" => match parts.next() {
-            Some("desc" | "json" | "gltf" | "image" | "build") => None,
+            Some("desc" | "json" | "gltf" | "image" | "build" | "files") => None,
             _ => Some(4),
         },
         // Items re-exported at the crate root.
         "Scene" | "RenderJob" | "SceneError" => Some(4),
-        "load_scene" => None,
+        "load_scene" | "load_scene_with" => None,
         "render" | "render_tile" | "RenderProgress" => Some(5),
         "Film" | "TileAccum" => Some(2),
         "IntegratorKind" | "RenderSettings" | "RenderOverrides" | "SettingsError" | "Tile" => {
@@ -94,7 +95,7 @@ fn references(text: &str, rel: &str) -> Vec<String> {
         }
         // Inside `scene/`, front ends are reached as `super::desc` etc.
         if rel.starts_with("scene/") {
-            for m in ["desc", "json", "gltf", "image", "build"] {
+            for m in ["desc", "json", "gltf", "image", "build", "files"] {
                 if line.contains(&format!("super::{m}")) {
                     out.push(format!("scene::{m}"));
                 }

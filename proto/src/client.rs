@@ -205,10 +205,33 @@ impl Client {
     /// archive.
     pub async fn upload_scene(
         &self,
-        body: Vec<u8>,
+        body: impl Into<reqwest::Body>,
         format: Option<SceneFormat>,
         entry: Option<&str>,
     ) -> Result<SceneCreated, ClientError> {
+        self.json(self.scene_request(format, entry).body(body))
+            .await
+    }
+
+    /// `POST /v1/scenes` with a body streamed as it is made (`reqwest::Body::wrap_stream`) of
+    /// exactly `len` bytes: the length is sent first, so a coordinator refuses an upload over
+    /// its limit before any of it is sent.
+    pub async fn upload_scene_stream(
+        &self,
+        body: reqwest::Body,
+        len: u64,
+        format: Option<SceneFormat>,
+        entry: Option<&str>,
+    ) -> Result<SceneCreated, ClientError> {
+        self.json(
+            self.scene_request(format, entry)
+                .header(reqwest::header::CONTENT_LENGTH, len)
+                .body(body),
+        )
+        .await
+    }
+
+    fn scene_request(&self, format: Option<SceneFormat>, entry: Option<&str>) -> RequestBuilder {
         let mut q: Vec<(&str, &str)> = Vec::new();
         if let Some(f) = format {
             q.push(("format", f.name()));
@@ -216,12 +239,7 @@ impl Client {
         if let Some(e) = entry {
             q.push(("entry", e));
         }
-        self.json(
-            self.request(Method::POST, "/v1/scenes")
-                .query(&q)
-                .body(body),
-        )
-        .await
+        self.request(Method::POST, "/v1/scenes").query(&q)
     }
 
     /// `POST /v1/jobs`: submits a job.

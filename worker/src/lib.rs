@@ -55,6 +55,8 @@ pub struct Config {
     pub cache_dir: PathBuf,
     /// Built scenes kept between jobs; workers in one process may share one.
     pub scene_cache: Arc<SceneCache>,
+    /// Bounds on loading a leased scene, which reads only files in its own folder.
+    pub scene_limits: SceneLoadLimits,
     /// How long one lease request waits for work.
     pub long_poll: Duration,
     /// Longest pause between retries when the coordinator is unreachable.
@@ -73,9 +75,33 @@ impl Config {
             name: default_name(),
             cache_dir: std::env::temp_dir().join("raytile-worker-cache"),
             scene_cache: Arc::new(SceneCache::default()),
+            scene_limits: SceneLoadLimits::default(),
             long_poll: Duration::from_secs(20),
             max_backoff: Duration::from_secs(30),
             stats: Arc::new(Stats::default()),
+        }
+    }
+}
+
+/// Bounds on loading a leased scene. A scene comes from the network: every file it names is
+/// read through the core's confined resolver, inside the scene file's own folder.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SceneLoadLimits {
+    /// Largest file a scene may name (and the scene file itself), in bytes.
+    pub max_file_bytes: u64,
+    /// Most bytes a scene may read, all its files together.
+    pub max_scene_bytes: u64,
+    /// Most memory loading a scene may allocate for decoded data (texels, vertices), in bytes.
+    pub max_memory: u64,
+}
+
+impl Default for SceneLoadLimits {
+    fn default() -> Self {
+        use raytile_core::scene::files;
+        SceneLoadLimits {
+            max_file_bytes: files::DEFAULT_FILE_CAP,
+            max_scene_bytes: files::DEFAULT_SCENE_BUDGET,
+            max_memory: files::DEFAULT_MEMORY_LIMIT,
         }
     }
 }
@@ -375,11 +401,13 @@ impl Worker {
             .get_or_build(&key, || async {
                 let file = self.scene_file(lease).await?;
                 let pool = self.pool.clone();
+                let limits = self.cfg.scene_limits;
                 let t = std::time::Instant::now();
-                let scene =
-                    tokio::task::spawn_blocking(move || pool.install(|| load_and_build(&file)))
-                        .await
-                        .map_err(|e| anyhow!("scene build task: {e}"))??;
+                let scene = tokio::task::spawn_blocking(move || {
+                    pool.install(|| load_and_build(&file, limits))
+                })
+                .await
+                .map_err(|e| anyhow!("scene build task: {e}"))??;
                 self.cfg.stats.scene_builds.fetch_add(1, Ordering::Relaxed);
                 tracing::info!(
                     scene = %lease.scene,
@@ -593,11 +621,19 @@ struct ResultTarget {
     worker: String,
 }
 
-/// Loads and builds a scene, turning panics into errors.
-fn load_and_build(file: &Path) -> anyhow::Result<Scene> {
+/// Loads (confined to the scene file's folder, within `limits`) and builds a scene, turning
+/// panics into errors.
+fn load_and_build(file: &Path, limits: SceneLoadLimits) -> anyhow::Result<Scene> {
+    let files = raytile_core::scene::files::SceneFiles::confined_to_scene(
+        file,
+        limits.max_file_bytes,
+        limits.max_scene_bytes,
+    )
+    .map_err(|e| anyhow!("scene folder {}: {e}", file.display()))?
+    .with_memory_limit(limits.max_memory);
     let f = file.to_path_buf();
     match std::panic::catch_unwind(move || -> Result<Scene, raytile_core::SceneError> {
-        let desc = raytile_core::load_scene(&f)?;
+        let desc = raytile_core::load_scene_with(&f, &files)?;
         Scene::build(&desc)
     }) {
         Ok(Ok(scene)) => Ok(scene),

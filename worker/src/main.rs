@@ -27,6 +27,10 @@ struct Args {
     /// however large).
     #[arg(long, env = "RAYTILE_SCENE_CACHE_MB", default_value_t = (raytile_worker::DEFAULT_SCENE_CACHE >> 20) as u64)]
     scene_cache_mb: u64,
+    /// Most memory loading one scene may allocate for its decoded data (texels, vertices), in
+    /// MiB: a larger scene fails its tasks with a message.
+    #[arg(long, env = "RAYTILE_SCENE_MEMORY_MB", default_value_t = raytile_worker::SceneLoadLimits::default().max_memory >> 20)]
+    scene_memory_mb: u64,
 }
 
 #[tokio::main]
@@ -49,6 +53,7 @@ async fn main() {
     }
     let budget = usize::try_from(a.scene_cache_mb.saturating_mul(1 << 20)).unwrap_or(usize::MAX);
     cfg.scene_cache = std::sync::Arc::new(raytile_worker::SceneCache::new(budget));
+    cfg.scene_limits.max_memory = a.scene_memory_mb.saturating_mul(1 << 20);
     if let Err(e) = raytile_worker::run(cfg, raytile_proto::shutdown_signal()).await {
         eprintln!("raytile-worker: {e:#}");
         std::process::exit(1);

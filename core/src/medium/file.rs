@@ -78,8 +78,54 @@ pub struct LoadedGrid {
 
 /// Loads the density grid in `path`, picking the reader by extension: `.vol` (Mitsuba 3) or
 /// `.vdb` (OpenVDB; `grid_name` selects a grid, else the one named `density`, else the only
-/// float grid).
+/// float grid). Only a regular file is read, and at most `limits.max_file_bytes` of it (a
+/// bounded read: a file larger than its metadata says is refused too). A scene front end reads
+/// the file through the scene's resolver instead and calls [`load_grid_bytes`].
 pub fn load_grid_file(
+    path: &Path,
+    grid_name: Option<&str>,
+    limits: &GridLimits,
+) -> Result<LoadedGrid, GridFileError> {
+    use std::io::Read;
+    grid_kind(path)?;
+    let io = |source| GridFileError::Io {
+        path: path.to_owned(),
+        source,
+    };
+    let too_large = |n: u64| GridFileError::Format {
+        path: path.to_owned(),
+        source: GridFormatError::Unsupported(format!(
+            "the file has {n} bytes or more, more than the limit of {}",
+            limits.max_file_bytes
+        )),
+    };
+    // The type before opening: opening a FIFO would wait for a writer.
+    let meta = std::fs::metadata(path).map_err(io)?;
+    if !meta.is_file() {
+        return Err(io(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "not a regular file",
+        )));
+    }
+    if meta.len() > limits.max_file_bytes {
+        return Err(too_large(meta.len()));
+    }
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    std::fs::File::open(path)
+        .map_err(io)?
+        .take(limits.max_file_bytes.saturating_add(1))
+        .read_to_end(&mut bytes)
+        .map_err(io)?;
+    if bytes.len() as u64 > limits.max_file_bytes {
+        return Err(too_large(bytes.len() as u64));
+    }
+    load_grid_bytes(&bytes, path, grid_name, limits)
+}
+
+/// Reads the density grid in `bytes`, the contents of the file `path` (which picks the reader
+/// by extension and names the file in errors), as [`load_grid_file`] does.
+pub fn load_grid_bytes(
+    bytes: &[u8],
     path: &Path,
     grid_name: Option<&str>,
     limits: &GridLimits,
@@ -88,40 +134,40 @@ pub fn load_grid_file(
         path: path.to_owned(),
         source,
     };
-    let io = |source| GridFileError::Io {
-        path: path.to_owned(),
-        source,
-    };
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase);
-    let kind = match ext.as_deref() {
-        Some("vol") => "vol",
-        Some("vdb") => "vdb",
-        _ => {
-            return Err(format(GridFormatError::Unsupported(
-                "unknown grid file extension (expected .vol or .vdb)".into(),
-            )))
-        }
-    };
-    let len = std::fs::metadata(path).map_err(io)?.len();
-    if len > limits.max_file_bytes {
+    if bytes.len() as u64 > limits.max_file_bytes {
         return Err(format(GridFormatError::Unsupported(format!(
-            "the file has {len} bytes, more than the limit of {}",
+            "the file has {} bytes, more than the limit of {}",
+            bytes.len(),
             limits.max_file_bytes
         ))));
     }
-    let bytes = std::fs::read(path).map_err(io)?;
-    if kind == "vol" {
-        let density = super::vol::read_vol(&bytes, limits).map_err(format)?;
+    if grid_kind(path)? == "vol" {
+        let density = super::vol::read_vol(bytes, limits).map_err(format)?;
         Ok(LoadedGrid {
             density,
             transform: Affine3A::IDENTITY,
         })
     } else {
-        let grid = super::vdb::read_vdb(&bytes, grid_name, limits).map_err(format)?;
+        let grid = super::vdb::read_vdb(bytes, grid_name, limits).map_err(format)?;
         grid.to_density(limits).map_err(format)
+    }
+}
+
+/// The reader for `path`'s extension: `vol` or `vdb`.
+fn grid_kind(path: &Path) -> Result<&'static str, GridFileError> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("vol") => Ok("vol"),
+        Some("vdb") => Ok("vdb"),
+        _ => Err(GridFileError::Format {
+            path: path.to_owned(),
+            source: GridFormatError::Unsupported(
+                "unknown grid file extension (expected .vol or .vdb)".into(),
+            ),
+        }),
     }
 }
 
@@ -198,5 +244,58 @@ impl<'a> Cursor<'a> {
 
     pub(crate) fn f64(&mut self, what: &str) -> Result<f64, GridFormatError> {
         Ok(f64::from_le_bytes(self.array(what)?))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grid_files_are_read_bounded_and_regular_only() {
+        let dir = std::env::temp_dir().join(format!("raytile-grid-file-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("folder.vol")).unwrap();
+        let limits = GridLimits {
+            max_voxels: 1 << 20,
+            max_file_bytes: 1 << 20,
+        };
+        let started = std::time::Instant::now();
+        // A sparse file far over the limit: refused from its size, nothing read.
+        let sparse = dir.join("sparse.vol");
+        std::fs::File::create(&sparse)
+            .unwrap()
+            .set_len(10 << 30)
+            .unwrap();
+        let e = load_grid_file(&sparse, None, &limits)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("more than the limit"), "{e}");
+        let e = load_grid_file(&dir.join("folder.vol"), None, &limits)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("not a regular file"), "{e}");
+        #[cfg(unix)]
+        {
+            // A FIFO is refused before it is opened (no writer would ever come).
+            let fifo = dir.join("fifo.vol");
+            let c = std::ffi::CString::new(fifo.to_string_lossy().as_bytes()).unwrap();
+            assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o644) }, 0);
+            let e = load_grid_file(&fifo, None, &limits)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("not a regular file"), "{e}");
+        }
+        assert!(started.elapsed() < std::time::Duration::from_secs(1));
+        // The bytes a resolver read are checked the same way.
+        let e = load_grid_bytes(b"VOL", Path::new("smoke.vol"), None, &limits)
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("smoke.vol"), "{e}");
+        let e = load_grid_bytes(b"", Path::new("smoke.txt"), None, &limits)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("unknown grid file extension"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -56,7 +56,9 @@ pub mod tracking;
 pub mod vdb;
 pub mod vol;
 
-pub use file::{load_grid_file, GridFileError, GridFormatError, GridLimits, LoadedGrid};
+pub use file::{
+    load_grid_bytes, load_grid_file, GridFileError, GridFormatError, GridLimits, LoadedGrid,
+};
 pub use grid::DensityGrid;
 pub use heterogeneous::GridMedium;
 pub use homogeneous::HomogeneousMedium;

@@ -4,11 +4,8 @@
 //!
 //! Limits: at most [`MAX_IMAGE_SIDE`] pixels on a side and [`MAX_IMAGE_PIXELS`] in all (the
 //! texels are kept as f32 RGBA, 16 bytes each: 1 GiB at the limit), the decoder's allocations
-//! capped likewise, files read up to [`MAX_IMAGE_FILE`]. A larger image is an error, never an
-//! allocation failure.
-
-use std::io::Read;
-use std::path::Path;
+//! capped likewise, files read up to [`MAX_IMAGE_FILE`] (by the scene's resolver,
+//! `scene::files`). A larger image is an error, never an allocation failure.
 
 /// Largest accepted image side, in pixels.
 pub const MAX_IMAGE_SIDE: u32 = 16384;
@@ -79,20 +76,6 @@ pub fn decode_image(bytes: &[u8]) -> Result<DecodedImage, String> {
     })
 }
 
-/// Reads and decodes an image file; errors name the file.
-pub fn read_image(path: &Path) -> Result<DecodedImage, String> {
-    let at = |e: String| format!("{}: {e}", path.display());
-    let file = std::fs::File::open(path).map_err(|e| at(e.to_string()))?;
-    let mut bytes = Vec::new();
-    file.take(MAX_IMAGE_FILE + 1)
-        .read_to_end(&mut bytes)
-        .map_err(|e| at(e.to_string()))?;
-    if bytes.len() as u64 > MAX_IMAGE_FILE {
-        return Err(at(format!("larger than {MAX_IMAGE_FILE} bytes")));
-    }
-    decode_image(&bytes).map_err(at)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -150,13 +133,5 @@ mod tests {
         let e = decode_image(&png_header(MAX_IMAGE_SIDE, 4097)).unwrap_err();
         assert!(e.contains("allowed"), "{e}");
         assert!(decode_image(b"not an image").is_err());
-        let dir = std::env::temp_dir().join(format!("raytile-image-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let f = dir.join("t.png");
-        std::fs::write(&f, png(2, 2)).unwrap();
-        assert_eq!(read_image(&f).unwrap().width, 2);
-        let e = read_image(&dir.join("missing.png")).unwrap_err();
-        assert!(e.contains("missing.png"), "{e}");
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -6,6 +6,7 @@
 //! shape) from the conversion below, with the line of the offending value where it can be found.
 
 use super::desc::*;
+use super::files::{folder_of, show, FileError, Resolved, SceneFiles};
 use super::SceneError;
 use crate::geometry::quadric::Quadric;
 use glam::{EulerRot, Mat3, Mat4, Quat, Vec2, Vec3, Vec3A};
@@ -361,17 +362,43 @@ enum JEnvironment {
     },
 }
 
-/// Loads a JSON scene file.
+/// Loads a JSON scene file; its paths may name any file of the user's (the trusted policy).
 pub fn load_json(path: &Path) -> Result<SceneDesc, SceneError> {
-    let text = std::fs::read_to_string(path).map_err(|source| SceneError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    parse_json(&text, path.parent().unwrap_or(Path::new(".")), path)
+    load_json_files(path, &SceneFiles::trusted())
 }
 
-/// Parses JSON scene text; relative paths resolve against `base`; `name` is used in messages.
+/// Loads a JSON scene file, reading it and every file it names (recursively: the files of the
+/// glTF files it includes) through `files`.
+pub fn load_json_files(path: &Path, files: &SceneFiles) -> Result<SceneDesc, SceneError> {
+    let err = |message: String| SceneError::Json {
+        path: path.to_path_buf(),
+        message,
+    };
+    let (r, bytes) = files
+        .read_scene(path, u64::MAX)
+        .map_err(|e| err(e.refusal.to_string()))?;
+    let text = String::from_utf8(bytes).map_err(|_| err("the file is not UTF-8 text".into()))?;
+    files
+        .enter(&r, "")
+        .map_err(|e| err(e.refusal.to_string()))?;
+    let desc = parse_json_files(&text, folder_of(path), path, files);
+    files.leave();
+    desc
+}
+
+/// Parses JSON scene text; relative paths resolve against `base` (the trusted policy); `name`
+/// is used in messages.
 pub fn parse_json(text: &str, base: &Path, name: &Path) -> Result<SceneDesc, SceneError> {
+    parse_json_files(text, base, name, &SceneFiles::trusted())
+}
+
+/// Parses JSON scene text, reading the files it names through `files`.
+fn parse_json_files(
+    text: &str,
+    base: &Path,
+    name: &Path,
+    files: &SceneFiles,
+) -> Result<SceneDesc, SceneError> {
     let err = |message: String| SceneError::Json {
         path: name.to_path_buf(),
         message,
@@ -404,6 +431,7 @@ pub fn parse_json(text: &str, base: &Path, name: &Path) -> Result<SceneDesc, Sce
     Converter {
         base,
         name,
+        files,
         line_of: &line_of,
         desc: SceneDesc::default(),
     }
@@ -413,6 +441,8 @@ pub fn parse_json(text: &str, base: &Path, name: &Path) -> Result<SceneDesc, Sce
 struct Converter<'a> {
     base: &'a Path,
     name: &'a Path,
+    /// Reads every file the scene names.
+    files: &'a SceneFiles,
     line_of: &'a dyn Fn(&str) -> String,
     desc: SceneDesc,
 }
@@ -429,12 +459,69 @@ impl Converter<'_> {
         }
     }
 
-    fn resolve(&self, p: &Path) -> PathBuf {
-        if p.is_absolute() {
-            p.to_path_buf()
-        } else {
-            self.base.join(p)
-        }
+    /// Reads the file the scene names at `at` (a JSON path: `textures.wood.path`), at most
+    /// `cap` bytes.
+    fn read_file(
+        &self,
+        at: &str,
+        path: &Path,
+        cap: u64,
+    ) -> Result<(Resolved, Vec<u8>), SceneError> {
+        let needle = path.to_string_lossy();
+        let refused = |e: FileError| self.err(at, e.describe(), &needle);
+        let r = self
+            .files
+            .resolve_path(self.base, path, at)
+            .map_err(refused)?;
+        let bytes = self.files.read(&r, at, cap).map_err(refused)?;
+        Ok((r, bytes))
+    }
+
+    /// Decodes the image file the scene names at `at` (PNG, JPEG, Radiance HDR, OpenEXR; see
+    /// [`super::image`] for the limits) into a texture: sRGB colour, repeated, bilinear. Its
+    /// texels are charged to the scene's memory budget before they are decoded.
+    fn image(&self, at: &str, path: &Path) -> Result<TextureDesc, SceneError> {
+        let (_, bytes) = self.read_file(at, path, super::image::MAX_IMAGE_FILE)?;
+        let needle = path.to_string_lossy();
+        let shown = show(&needle);
+        let bad = |e: String| self.err(at, format!("{shown}: {e}"), &needle);
+        let (w, h) = super::image::image_size(&bytes).map_err(bad)?;
+        self.files
+            .charge_memory(u64::from(w) * u64::from(h) * 16, &shown)
+            .map_err(|e| self.err(at, e, &needle))?;
+        let img = super::image::decode_image(&bytes).map_err(bad)?;
+        Ok(TextureDesc {
+            name: path.display().to_string(),
+            width: img.width,
+            height: img.height,
+            texels: img.texels,
+            srgb: true,
+            wrap_u: WrapMode::Repeat,
+            wrap_v: WrapMode::Repeat,
+            bilinear: true,
+        })
+    }
+
+    /// Loads the glTF file the scene includes at `at`; a file that is already being loaded
+    /// (the scene itself) is refused rather than loaded again.
+    fn include(&self, at: &str, path: &Path) -> Result<SceneDesc, SceneError> {
+        let needle = path.to_string_lossy();
+        let refused = |e: FileError| self.err(at, e.describe(), &needle);
+        let r = self
+            .files
+            .resolve_path(self.base, path, at)
+            .map_err(refused)?;
+        self.files.enter(&r, at).map_err(refused)?;
+        let desc = self
+            .files
+            .read(&r, at, super::gltf::MAX_FILE_BYTES)
+            .map_err(refused)
+            .and_then(|bytes| {
+                super::gltf::load_gltf_bytes(&bytes, &r.named, &Default::default(), self.files)
+                    .map_err(|e| self.err(at, e, &needle))
+            });
+        self.files.leave();
+        desc
     }
 
     fn convert(mut self, f: File) -> Result<SceneDesc, SceneError> {
@@ -456,9 +543,7 @@ impl Converter<'_> {
                     wrap,
                     bilinear,
                 } => {
-                    let full = self.resolve(path);
-                    let mut d =
-                        load_image(&full).map_err(|e| self.err(&at, e, &path.to_string_lossy()))?;
+                    let mut d = self.image(&format!("{at}.path"), path)?;
                     d.name = name.clone();
                     d.srgb = *srgb;
                     d.wrap_u = *wrap;
@@ -611,10 +696,7 @@ impl Converter<'_> {
             };
             let name = o.name.clone().unwrap_or_else(|| format!("object {i}"));
             if let JShape::Gltf { path } = &o.shape {
-                let full = self.resolve(path);
-                let inc = super::gltf::load_gltf(&full).map_err(|e| {
-                    self.err(&format!("{at}.shape.path"), e, &path.to_string_lossy())
-                })?;
+                let inc = self.include(&format!("{at}.shape.path"), path)?;
                 self.merge(inc, transform);
                 continue;
             }
@@ -703,9 +785,7 @@ impl Converter<'_> {
                     scale,
                     rotation,
                 } => {
-                    let full = self.resolve(path);
-                    let mut texture = load_image(&full)
-                        .map_err(|e| self.err("environment.path", e, &path.to_string_lossy()))?;
+                    let mut texture = self.image("environment.path", path)?;
                     texture.srgb = false;
                     texture.wrap_v = WrapMode::Clamp;
                     EnvironmentDesc::Map {
@@ -1025,22 +1105,6 @@ fn transform(t: &JTransform) -> Result<Mat4, String> {
     ))
 }
 
-/// Decodes an image file (PNG, JPEG, Radiance HDR, OpenEXR; see [`super::image`] for the
-/// limits) into a texture description: sRGB colour, repeated, bilinear.
-pub fn load_image(path: &Path) -> Result<TextureDesc, String> {
-    let img = super::image::read_image(path)?;
-    Ok(TextureDesc {
-        name: path.display().to_string(),
-        width: img.width,
-        height: img.height,
-        texels: img.texels,
-        srgb: true,
-        wrap_u: WrapMode::Repeat,
-        wrap_v: WrapMode::Repeat,
-        bilinear: true,
-    })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1150,6 +1214,122 @@ mod tests {
         };
         let built = Quadric::new(q, clip_min.into(), clip_max.into()).unwrap();
         assert_eq!(built, expected);
+    }
+
+    /// A folder with a scene folder in it, removed when dropped.
+    struct Dir(PathBuf);
+
+    impl Dir {
+        fn new(tag: &str) -> Dir {
+            let d = std::env::temp_dir().join(format!("raytile-json-{tag}-{}", std::process::id()));
+            let _ = std::fs::remove_dir_all(&d);
+            std::fs::create_dir_all(d.join("scene")).unwrap();
+            let img = image::RgbaImage::from_pixel(2, 2, image::Rgba([255, 0, 0, 255]));
+            img.save(d.join("outside.png")).unwrap();
+            img.save(d.join("scene/wood.png")).unwrap();
+            Dir(d)
+        }
+    }
+
+    impl Drop for Dir {
+        fn drop(&mut self) {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+
+    #[test]
+    fn confined_scenes_name_only_files_in_their_folder() {
+        let d = Dir::new("confined");
+        let scene = d.0.join("scene/scene.json");
+        let load = |text: &str| {
+            std::fs::write(&scene, text).unwrap();
+            let files = SceneFiles::confined_to_scene(&scene, 1 << 20, 1 << 20).unwrap();
+            let r = load_json_files(&scene, &files).map_err(|e| e.to_string());
+            (r, files)
+        };
+        let texture = |path: &str| {
+            format!("{{\"textures\": {{\"t\": {{\"type\": \"image\", \"path\": {path:?}}}}}}}")
+        };
+        // Inside: read, and recorded with the scene.
+        let (r, files) = load(&texture("wood.png"));
+        assert_eq!(r.unwrap().textures[0].width, 2);
+        let names: Vec<_> = files.used().into_iter().filter_map(|u| u.name).collect();
+        assert_eq!(
+            names,
+            [PathBuf::from("scene.json"), PathBuf::from("wood.png")]
+        );
+        // Outside, however it is named: refused, naming the JSON path and the path.
+        let outside = d.0.join("outside.png");
+        for (path, why) in [
+            (outside.to_str().unwrap(), "absolute paths are not allowed"),
+            ("../outside.png", "'..' leads out"),
+            ("/dev/zero", "absolute paths are not allowed"),
+        ] {
+            let (r, files) = load(&texture(path));
+            let e = r.unwrap_err();
+            assert!(
+                e.contains("at textures.t.path (line 1)")
+                    && e.contains(&format!("{path:?} refused"))
+                    && e.contains(why),
+                "{path}: {e}"
+            );
+            assert_eq!(files.refusal().unwrap().field, "textures.t.path");
+        }
+        let (r, _) = load(&format!(
+            "{{\"environment\": {{\"type\": \"map\", \"path\": {:?}}}}}",
+            outside.to_str().unwrap()
+        ));
+        assert!(r.unwrap_err().contains("at environment.path"));
+        // The user's own scene may name the user's files.
+        std::fs::write(&scene, texture(outside.to_str().unwrap())).unwrap();
+        assert_eq!(load_json(&scene).unwrap().textures[0].width, 2);
+    }
+
+    #[test]
+    fn a_scene_that_includes_itself_is_refused() {
+        let d = Dir::new("cycle");
+        let scene = d.0.join("scene/scene.json");
+        std::fs::write(
+            &scene,
+            r#"{"objects": [{"shape": {"type": "gltf", "path": "./scene.json"}}]}"#,
+        )
+        .unwrap();
+        for e in [
+            load_json(&scene).unwrap_err().to_string(),
+            load_json_files(
+                &scene,
+                &SceneFiles::confined_to_scene(&scene, 1 << 20, 1 << 20).unwrap(),
+            )
+            .unwrap_err()
+            .to_string(),
+        ] {
+            assert!(
+                e.contains("at objects[0].shape.path")
+                    && e.contains("includes itself (scene.json → scene.json)"),
+                "{e}"
+            );
+        }
+    }
+
+    #[test]
+    fn textures_are_charged_to_the_memory_budget() {
+        let d = Dir::new("memory");
+        let scene = d.0.join("scene/scene.json");
+        std::fs::write(
+            &scene,
+            r#"{"textures": {"a": {"type": "image", "path": "wood.png"},
+                             "b": {"type": "image", "path": "wood.png"}}}"#,
+        )
+        .unwrap();
+        // Two 2×2 textures of 16-byte texels: 128 bytes.
+        let files = SceneFiles::trusted().with_memory_limit(128);
+        assert!(load_json_files(&scene, &files).is_ok());
+        let files = SceneFiles::trusted().with_memory_limit(127);
+        let e = load_json_files(&scene, &files).unwrap_err().to_string();
+        assert!(
+            e.contains("at textures.b.path") && e.contains("more memory"),
+            "{e}"
+        );
     }
 
     #[test]

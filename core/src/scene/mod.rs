@@ -1,5 +1,5 @@
 //! Scenes: plain descriptions ([`desc`]), the front ends that produce them ([`json`], [`gltf`],
-//! with [`image`] decoding their pictures), the builder that turns a description into the
+//! with [`image`] decoding their pictures and [`files`] reading every file they name), the builder that turns a description into the
 //! render-ready [`Scene`] ([`build`]), and the scene at render time: closest- and any-hit
 //! queries ([`aggregate`]), shading of the surfaces they find ([`shading`]), and what one
 //! render job adds to a scene ([`job`]: camera, environment, light selection).
@@ -10,6 +10,7 @@
 pub mod aggregate;
 pub mod build;
 pub mod desc;
+pub mod files;
 pub mod gltf;
 pub mod image;
 pub mod job;
@@ -208,15 +209,25 @@ pub enum SceneError {
     UnknownFormat(PathBuf),
 }
 
-/// Loads a scene file by its extension: `.json` (raytile's format), `.gltf` or `.glb`.
+/// Loads a scene file by its extension: `.json` (raytile's format), `.gltf` or `.glb`. The
+/// scene may name any file of the user's ([`files::FilePolicy::Trusted`]): for `raytile
+/// render` on the user's own machine.
 pub fn load_scene(path: &Path) -> Result<SceneDesc, SceneError> {
+    load_scene_with(path, &files::SceneFiles::trusted())
+}
+
+/// Loads a scene file by its extension, reading it and every file it names through `files`:
+/// [`files::SceneFiles::confined_to_scene`] for a scene that came over the network.
+pub fn load_scene_with(path: &Path, files: &files::SceneFiles) -> Result<SceneDesc, SceneError> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
     match ext.as_deref() {
-        Some("json") => json::load_json(path),
-        Some("gltf") | Some("glb") => gltf::load_gltf(path),
+        Some("json") => json::load_json_files(path, files),
+        Some("gltf") | Some("glb") => {
+            gltf::load_gltf_files(path, &gltf::GltfOptions::default(), files)
+        }
         _ => Err(SceneError::UnknownFormat(path.to_path_buf())),
     }
 }

@@ -1,4 +1,4 @@
-//! Scene packages on disk: content ids, safe archive extraction, folder packing.
+//! Scene packages on disk: content ids, safe archive extraction, packing the files of a scene.
 
 use super::{single_file_name, SceneFormat};
 use sha2::{Digest, Sha256};
@@ -99,13 +99,20 @@ fn safe_relative(name: &str) -> Result<PathBuf, PackageError> {
     Ok(out)
 }
 
-/// Copies at most `budget` bytes from `r` into a new file; errors if there is more.
+/// Copies a member of `declared` bytes (what its header says), at most `budget` bytes of it,
+/// from `r` into a new file. A member declared or found larger is refused before (or as soon
+/// as) it goes over; an error reading the member is the archive's fault, an error writing the
+/// file the disk's.
 fn copy_limited(
     r: &mut dyn Read,
+    declared: u64,
     dest: &Path,
     budget: &mut u64,
     limits: UnpackLimits,
 ) -> Result<(), PackageError> {
+    if declared > *budget {
+        return Err(PackageError::TooLarge(limits.max_bytes, limits.max_files));
+    }
     if let Some(parent) = dest.parent() {
         std::fs::create_dir_all(parent)?;
     }
@@ -114,9 +121,20 @@ fn copy_limited(
         .create_new(true)
         .open(dest)?;
     let mut limited = r.take(*budget + 1);
-    let n = std::io::copy(&mut limited, &mut f)?;
-    if n > *budget {
-        return Err(PackageError::TooLarge(limits.max_bytes, limits.max_files));
+    let mut buf = vec![0u8; 1 << 16];
+    let mut n: u64 = 0;
+    loop {
+        let got = match limited.read(&mut buf) {
+            Ok(0) => break,
+            Ok(got) => got,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(PackageError::Archive(format!("reading a member: {e}"))),
+        };
+        n += got as u64;
+        if n > *budget {
+            return Err(PackageError::TooLarge(limits.max_bytes, limits.max_files));
+        }
+        std::io::Write::write_all(&mut f, &buf[..got])?;
     }
     *budget -= n;
     Ok(())
@@ -176,7 +194,8 @@ pub fn unpack(
                 if files.len() >= limits.max_files {
                     return Err(PackageError::TooLarge(limits.max_bytes, limits.max_files));
                 }
-                copy_limited(&mut e, &dir.join(&rel), &mut budget, limits)?;
+                let declared = e.header().size().unwrap_or(u64::MAX);
+                copy_limited(&mut e, declared, &dir.join(&rel), &mut budget, limits)?;
                 files.push(rel);
             }
         }
@@ -202,7 +221,8 @@ pub fn unpack(
                 if rel.as_os_str().is_empty() {
                     continue;
                 }
-                copy_limited(&mut e, &dir.join(&rel), &mut budget, limits)?;
+                let declared = e.size();
+                copy_limited(&mut e, declared, &dir.join(&rel), &mut budget, limits)?;
                 files.push(rel);
             }
         }
@@ -259,29 +279,107 @@ fn pick_entry(files: &[PathBuf], entry: Option<&str>) -> Result<PathBuf, Package
     }
 }
 
-/// Packs a scene folder into a tar archive in memory (regular files only, relative names).
-pub fn pack_folder(dir: &Path) -> std::io::Result<Vec<u8>> {
-    let mut b = tar::Builder::new(Vec::new());
-    b.follow_symlinks(false);
-    let mut stack = vec![dir.to_path_buf()];
-    let mut files = Vec::new();
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d)? {
-            let e = e?;
-            let ft = e.file_type()?;
-            if ft.is_dir() {
-                stack.push(e.path());
-            } else if ft.is_file() {
-                files.push(e.path());
-            }
-        }
-    }
-    files.sort();
+/// A file to pack: where it is and its name in the archive.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct PackFile {
+    /// The file on disk.
+    pub path: PathBuf,
+    /// Its name in the archive: relative, `/`-separated, no `..`.
+    pub name: String,
+    /// Its size when it was checked: a file that no longer has it is an error.
+    pub size: u64,
+}
+
+/// Writes a tar archive of `files`, in the order given, to `out` as it goes (nothing is held
+/// in memory but a copy buffer). Members are regular files with the names given and fixed
+/// metadata (mode 0644, owner 0, time 0), so the same files always make the same bytes, and so
+/// the same scene id. A name that [`unpack`] would refuse, or a file whose size changed since
+/// it was checked, is an error.
+pub fn pack_files(files: &[PackFile], out: impl std::io::Write) -> std::io::Result<()> {
+    let mut b = tar::Builder::new(out);
     for f in files {
-        let rel = f.strip_prefix(dir).unwrap_or(&f).to_path_buf();
-        b.append_path_with_name(&f, rel)?;
+        let bad = |why: String| std::io::Error::new(std::io::ErrorKind::InvalidInput, why);
+        let rel = safe_relative(&f.name).map_err(|e| bad(e.to_string()))?;
+        // Names as tar writes them (so that `packed_size` is exact): `a/b`, no `.` or empty
+        // components.
+        let normal = rel
+            .components()
+            .map(|c| c.as_os_str().to_string_lossy())
+            .collect::<Vec<_>>()
+            .join("/");
+        if rel.as_os_str().is_empty() || normal != f.name {
+            return Err(bad(format!(
+                "archive member name '{}' is not a plain relative path",
+                f.name
+            )));
+        }
+        let file = std::fs::File::open(&f.path)?;
+        let meta = file.metadata()?;
+        if !meta.is_file() || meta.len() != f.size {
+            return Err(bad(format!(
+                "{} changed since it was checked (it is no longer a regular file of {} bytes)",
+                f.path.display(),
+                f.size
+            )));
+        }
+        let mut h = tar::Header::new_gnu();
+        h.set_entry_type(tar::EntryType::Regular);
+        h.set_size(f.size);
+        h.set_mode(0o644);
+        h.set_mtime(0);
+        h.set_uid(0);
+        h.set_gid(0);
+        let mut data = Exact {
+            inner: file.take(f.size),
+            left: f.size,
+        };
+        // `append_data` writes a GNU long-name record for names over 100 bytes.
+        b.append_data(&mut h, &f.name, &mut data)?;
     }
-    b.into_inner()
+    b.into_inner()?.flush()
+}
+
+/// The size in bytes of the archive [`pack_files`] writes for `files`, known before anything
+/// is read: a streamed upload can say its length, and the coordinator refuse one over its limit
+/// before it is sent.
+pub fn packed_size(files: &[PackFile]) -> u64 {
+    let blocks = |n: u64| n.div_ceil(512) * 512;
+    let members: u64 = files
+        .iter()
+        .map(|f| {
+            // A name longer than the header's 100 bytes goes first in a GNU long-name member:
+            // a header and the name with its NUL.
+            let long_name = if f.name.len() > 100 {
+                512 + blocks(f.name.len() as u64 + 1)
+            } else {
+                0
+            };
+            long_name + 512 + blocks(f.size)
+        })
+        .sum();
+    // The end of the archive: two empty blocks.
+    members + 1024
+}
+
+/// Reads exactly `left` bytes: fewer (the file shrank since its header was written) is an
+/// error rather than a corrupt archive.
+struct Exact<R> {
+    inner: R,
+    left: u64,
+}
+
+impl<R: Read> Read for Exact<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        if n == 0 && self.left > 0 && !buf.is_empty() {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::UnexpectedEof,
+                "a file shrank while it was being packed",
+            ));
+        }
+        self.left -= n as u64;
+        Ok(n)
+    }
 }
 
 #[cfg(test)]
@@ -351,6 +449,91 @@ mod tests {
     }
 
     #[test]
+    fn packs_the_files_given_the_same_way_every_time() {
+        let t = tempfile::tempdir().unwrap();
+        std::fs::create_dir(t.path().join("tex")).unwrap();
+        std::fs::write(t.path().join("s.gltf"), b"{}").unwrap();
+        std::fs::write(t.path().join("tex/a.png"), b"png").unwrap();
+        std::fs::write(t.path().join("unused.bin"), b"no").unwrap();
+        let files = vec![
+            PackFile {
+                path: t.path().join("s.gltf"),
+                name: "s.gltf".into(),
+                size: 2,
+            },
+            PackFile {
+                path: t.path().join("tex/a.png"),
+                name: "tex/a.png".into(),
+                size: 3,
+            },
+        ];
+        let mut a = Vec::new();
+        pack_files(&files, &mut a).unwrap();
+        let mut b = Vec::new();
+        pack_files(&files, &mut b).unwrap();
+        assert_eq!(a, b, "the same files make the same bytes");
+        assert_eq!(sniff(&a), Some(SceneFormat::Tar));
+        // What is unpacked is what was listed, nothing else.
+        let out = t.path().join("out");
+        std::fs::create_dir(&out).unwrap();
+        std::fs::write(t.path().join("blob"), &a).unwrap();
+        let entry = unpack(
+            &t.path().join("blob"),
+            SceneFormat::Tar,
+            None,
+            &out,
+            UnpackLimits::default(),
+        )
+        .unwrap();
+        assert_eq!(entry, out.join("s.gltf"));
+        assert_eq!(std::fs::read(out.join("tex/a.png")).unwrap(), b"png");
+        assert!(!out.join("unused.bin").exists());
+        // A file that changed since it was checked, or a hostile name, is an error.
+        let mut changed = files.clone();
+        changed[1].size = 4;
+        assert!(pack_files(&changed, &mut Vec::new()).is_err());
+        let mut hostile = files.clone();
+        hostile[1].name = "../a.png".into();
+        assert!(pack_files(&hostile, &mut Vec::new()).is_err());
+        hostile[1].name = "tex//./a.png".into();
+        assert!(pack_files(&hostile, &mut Vec::new()).is_err());
+    }
+
+    #[test]
+    fn the_packed_size_is_known_before_packing() {
+        let t = tempfile::tempdir().unwrap();
+        let mut files = Vec::new();
+        for (i, (name_len, size)) in [
+            (1, 0),
+            (99, 1),
+            (100, 511),
+            (101, 512),
+            (511, 513),
+            (512, 1),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            // Names of the given length, in folders so that some have slashes.
+            let name: String = format!("d{i}/")
+                .chars()
+                .chain(std::iter::repeat('n'))
+                .take(name_len.max(4))
+                .collect();
+            let path = t.path().join(format!("f{i}"));
+            std::fs::write(&path, vec![7u8; size]).unwrap();
+            files.push(PackFile {
+                path,
+                name,
+                size: size as u64,
+            });
+            let mut out = Vec::new();
+            pack_files(&files, &mut out).unwrap();
+            assert_eq!(packed_size(&files), out.len() as u64, "{files:?}");
+        }
+    }
+
+    #[test]
     fn refuses_hostile_archives() {
         let t = tar_with(&[("../evil.gltf", b"{}")]);
         assert!(check_unpack(&t, None).unwrap_err().contains(".."));
@@ -359,6 +542,23 @@ mod tests {
         let big = vec![0u8; 2000];
         let t = tar_with(&[("s.gltf", &big)]);
         assert!(check_unpack(&t, None).unwrap_err().contains("too large"));
+        // A member claiming 10 GiB is refused from its header, before anything is written;
+        // one whose data is cut short is the archive's fault, not the disk's.
+        let mut t = tar_with(&[("s.gltf", b"{}")]);
+        let mut h = tar::Header::new_gnu();
+        h.set_size(10 << 30);
+        h.set_mode(0o644);
+        h.set_entry_type(tar::EntryType::Regular);
+        h.set_path("huge.bin").unwrap();
+        h.set_cksum();
+        t.truncate(t.len() - 1024);
+        t.extend_from_slice(h.as_bytes());
+        t.extend_from_slice(&[0u8; 512]);
+        assert!(check_unpack(&t, None).unwrap_err().contains("too large"));
+        let mut cut = tar_with(&[("s.gltf", &[b' '; 600])]);
+        cut.truncate(512 + 100);
+        let e = check_unpack(&cut, None).unwrap_err();
+        assert!(e.contains("bad archive"), "{e}");
         let mut b = tar::Builder::new(Vec::new());
         let mut h = tar::Header::new_gnu();
         h.set_entry_type(tar::EntryType::Symlink);

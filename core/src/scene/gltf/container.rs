@@ -1,9 +1,10 @@
 //! Reading the containers: GLB chunks, buffers and images from data URIs, the GLB binary chunk or
 //! files in the scene's own folder. Nothing here trusts the file: every length is checked before
-//! it is used, and external URIs are confined to the scene's folder.
+//! it is used, and external URIs are read through the scene's resolver (`scene::files`), inside
+//! the glTF file's own folder.
 
+use super::super::files::{Refusal, SceneFiles};
 use base64::Engine as _;
-use std::io::Read as _;
 use std::path::{Component, Path, PathBuf};
 
 /// GLB magic, "glTF" little-endian.
@@ -97,12 +98,16 @@ pub(super) fn show_uri(uri: &str) -> String {
     format!("{short:?}")
 }
 
-/// Decodes a `data:` URI.
-fn decode_data_uri(uri: &str, what: &str) -> Result<Vec<u8>, String> {
+/// Decodes a `data:` URI, after checking that its payload is within the per-file cap.
+fn decode_data_uri(uri: &str, files: &SceneFiles, field: &str) -> Result<Vec<u8>, String> {
     let rest = uri.get(5..).unwrap_or("");
     let (header, data) = rest
         .split_once(',')
-        .ok_or_else(|| format!("{what}: malformed data URI {} (no ',')", show_uri(uri)))?;
+        .ok_or_else(|| format!("{field}: malformed data URI {} (no ',')", show_uri(uri)))?;
+    // Decoding never makes more bytes than the text has.
+    files
+        .check_inline(field, &show_uri(uri), data.len() as u64)
+        .map_err(|e| e.to_string())?;
     if header.ends_with(";base64") {
         let engine = base64::engine::GeneralPurpose::new(
             &base64::alphabet::STANDARD,
@@ -112,50 +117,52 @@ fn decode_data_uri(uri: &str, what: &str) -> Result<Vec<u8>, String> {
         );
         engine
             .decode(data.trim_end())
-            .map_err(|e| format!("{what}: bad base64 in data URI: {e}"))
+            .map_err(|e| format!("{field}: bad base64 in data URI: {e}"))
     } else {
         Ok(percent_encoding::percent_decode_str(data).collect())
     }
 }
 
 /// Checks a relative URI and turns it into a relative path, or says why it is refused.
-fn relative_path(uri: &str) -> Result<PathBuf, String> {
+fn relative_path(uri: &str) -> Result<PathBuf, Refusal> {
     // A scheme (`http:`, `file:`, `C:`) comes before the first '/', '?' or '#'.
     let first_sep = uri.find(['/', '?', '#']).unwrap_or(uri.len());
     if uri[..first_sep].contains(':') {
-        return Err("URIs with a scheme are refused (only data: URIs and relative paths)".into());
+        return Err(Refusal::Scheme);
     }
     let decoded = percent_encoding::percent_decode_str(uri)
         .decode_utf8()
-        .map_err(|_| "percent-encoding decodes to invalid UTF-8".to_string())?;
+        .map_err(|_| Refusal::BadName("percent-encoding decodes to invalid UTF-8"))?;
     if decoded.is_empty() {
-        return Err("empty URI".into());
+        return Err(Refusal::BadName("empty URI"));
     }
     if decoded.contains('\0') || decoded.contains('\\') || decoded.contains(':') {
-        return Err("NUL, backslash or ':' in a relative path is refused".into());
+        return Err(Refusal::BadName(
+            "NUL, backslash or ':' in a relative path is refused",
+        ));
     }
     if decoded.starts_with('/') {
-        return Err("absolute paths are refused".into());
+        return Err(Refusal::Absolute);
     }
     let path = PathBuf::from(decoded.as_ref());
     for c in path.components() {
         match c {
             Component::Normal(_) | Component::CurDir => {}
-            Component::ParentDir => return Err("'..' is refused".into()),
-            Component::RootDir | Component::Prefix(_) => {
-                return Err("absolute paths are refused".into())
-            }
+            Component::ParentDir => return Err(Refusal::ParentInUri),
+            Component::RootDir | Component::Prefix(_) => return Err(Refusal::Absolute),
         }
     }
     Ok(path)
 }
 
-/// Reads the bytes a URI names: a data URI, or a file inside `base_dir` (never outside it).
-/// `what` names the glTF object for messages; `max_len` caps how much is read.
+/// Reads the bytes a URI names: a data URI, or a file inside `base_dir` (never outside it),
+/// through the scene's resolver. `field` names the glTF field for messages
+/// (`buffers[0].uri`); `max_len` caps how much is read.
 pub(super) fn load_uri(
     uri: &str,
     base_dir: Option<&Path>,
-    what: &str,
+    files: &SceneFiles,
+    field: &str,
     max_len: u64,
 ) -> Result<Vec<u8>, String> {
     // `get` rather than slicing: byte 5 may fall inside a multi-byte character.
@@ -163,53 +170,18 @@ pub(super) fn load_uri(
         .get(..5)
         .is_some_and(|s| s.eq_ignore_ascii_case("data:"))
     {
-        return decode_data_uri(uri, what);
+        return decode_data_uri(uri, files, field);
     }
-    let rel = relative_path(uri)
-        .map_err(|why| format!("{what}: URI {} refused: {why}", show_uri(uri)))?;
-    let base = base_dir.ok_or_else(|| {
-        format!(
-            "{what}: external URI {} refused: the scene was not loaded from a folder",
-            show_uri(uri)
-        )
-    })?;
-    let base = std::fs::canonicalize(base)
-        .map_err(|e| format!("{what}: cannot resolve the scene folder: {e}"))?;
-    let full = std::fs::canonicalize(base.join(&rel))
-        .map_err(|e| format!("{what}: cannot read {}: {e}", show_uri(uri)))?;
-    // Symbolic links may still point elsewhere: the resolved path must stay in the folder.
-    if !full.starts_with(&base) {
-        return Err(format!(
-            "{what}: URI {} refused: it resolves outside the scene's folder",
-            show_uri(uri)
-        ));
-    }
-    let file = std::fs::File::open(&full)
-        .map_err(|e| format!("{what}: cannot read {}: {e}", show_uri(uri)))?;
-    let len = file
-        .metadata()
-        .map_err(|e| format!("{what}: cannot read {}: {e}", show_uri(uri)))?
-        .len();
-    if !file_is_regular(&full) {
-        return Err(format!("{what}: {} is not a regular file", show_uri(uri)));
-    }
-    if len > max_len {
-        return Err(format!(
-            "{what}: {} is {len} bytes, more than the {max_len} allowed",
-            show_uri(uri)
-        ));
-    }
-    let mut bytes = Vec::with_capacity(len as usize);
-    file.take(max_len)
-        .read_to_end(&mut bytes)
-        .map_err(|e| format!("{what}: cannot read {}: {e}", show_uri(uri)))?;
-    Ok(bytes)
-}
-
-fn file_is_regular(path: &Path) -> bool {
-    std::fs::metadata(path)
-        .map(|m| m.is_file())
-        .unwrap_or(false)
+    let shown = show_uri(uri);
+    let refused = |r: Refusal| files.refused(field, &shown, r).to_string();
+    let rel = relative_path(uri).map_err(refused)?;
+    let base = base_dir.ok_or_else(|| refused(Refusal::NoFolder))?;
+    let resolved = files
+        .resolve_in_folder(base, &rel, field, &shown)
+        .map_err(|e| e.to_string())?;
+    files
+        .read(&resolved, field, max_len)
+        .map_err(|e| e.to_string())
 }
 
 #[cfg(test)]
@@ -218,42 +190,66 @@ mod tests {
 
     #[test]
     fn hostile_relative_paths_are_refused() {
-        for uri in [
-            "../secret.bin",
-            "a/../../secret.bin",
-            "/etc/passwd",
-            "file:///etc/passwd",
-            "http://x/y.bin",
-            "%2e%2e/x.bin",
-            "%2F%65tc/passwd",
-            "%ff%fe.bin",
-            "C:\\x.bin",
-            "a\\..\\b",
-            "",
+        for (uri, why) in [
+            ("../secret.bin", Refusal::ParentInUri),
+            ("a/../../secret.bin", Refusal::ParentInUri),
+            ("/etc/passwd", Refusal::Absolute),
+            ("file:///etc/passwd", Refusal::Scheme),
+            ("http://x/y.bin", Refusal::Scheme),
+            ("%2e%2e/x.bin", Refusal::ParentInUri),
+            ("%2F%65tc/passwd", Refusal::Absolute),
         ] {
-            assert!(relative_path(uri).is_err(), "{uri} accepted");
+            assert_eq!(relative_path(uri), Err(why), "{uri}");
+        }
+        for uri in ["%ff%fe.bin", "C:\\x.bin", "a\\..\\b", ""] {
+            assert!(
+                matches!(
+                    relative_path(uri),
+                    Err(Refusal::Scheme | Refusal::BadName(_))
+                ),
+                "{uri} accepted"
+            );
         }
         assert!(relative_path("textures/a%20b.png").is_ok());
         // Regression: a multi-byte character across byte 5 must not panic.
-        assert!(load_uri("dataé.bin", None, "buffer 0", 1).is_err());
-        assert!(load_uri("abcdé", None, "buffer 0", 1).is_err());
+        let files = SceneFiles::trusted();
+        assert!(load_uri("dataé.bin", None, &files, "buffers[0].uri", 1).is_err());
+        assert!(load_uri("abcdé", None, &files, "buffers[0].uri", 1).is_err());
         assert_eq!(
             relative_path("a%20b.png").unwrap(),
             PathBuf::from("a b.png")
         );
+        // From memory, an external URI is refused, and the refusal is recorded.
+        let e = load_uri("a.bin", None, &files, "images[2].uri", 1).unwrap_err();
+        assert_eq!(
+            e,
+            "images[2].uri: \"a.bin\" refused: the scene was not loaded from a folder"
+        );
+        assert_eq!(files.refusal().unwrap().field, "buffers[0].uri");
     }
 
     #[test]
-    fn data_uris_decode() {
+    fn data_uris_decode_within_the_cap() {
+        let files = SceneFiles::trusted();
+        let f = "buffers[0].uri";
         assert_eq!(
-            decode_data_uri("data:application/octet-stream;base64,AAEC", "b").unwrap(),
+            decode_data_uri("data:application/octet-stream;base64,AAEC", &files, f).unwrap(),
             vec![0, 1, 2]
         );
         assert_eq!(
-            decode_data_uri("data:,a%20b", "b").unwrap(),
+            decode_data_uri("data:,a%20b", &files, f).unwrap(),
             b"a b".to_vec()
         );
-        assert!(decode_data_uri("data:;base64,@@@", "b").is_err());
+        assert!(decode_data_uri("data:;base64,@@@", &files, f).is_err());
+        let dir = std::env::temp_dir();
+        let small = SceneFiles::new(super::super::super::files::FilePolicy::Confined {
+            root: dir,
+            per_file_cap: 3,
+            scene_budget: 100,
+        })
+        .unwrap();
+        let e = decode_data_uri("data:;base64,AAECAwQF", &small, f).unwrap_err();
+        assert!(e.starts_with(f) && e.contains("over the 3 bytes"), "{e}");
     }
 
     #[test]

@@ -352,7 +352,8 @@ impl Loader<'_> {
         let bytes: Vec<u8> = match image.source() {
             gltf::image::Source::View { view, .. } => self.view_bytes(&view, &what)?.to_vec(),
             gltf::image::Source::Uri { uri, .. } => {
-                container::load_uri(uri, self.base_dir, &what, img::MAX_IMAGE_FILE)?
+                let field = format!("images[{}].uri", image.index());
+                container::load_uri(uri, self.base_dir, self.files, &field, img::MAX_IMAGE_FILE)?
             }
         };
         // The size first: the memory budget is charged before anything is decoded.

@@ -3,7 +3,8 @@
 //!
 //! The `gltf` crate parses and validates the JSON; everything else is done here so that hostile
 //! files are refused with a message instead of a panic or an out-of-memory: GLB chunks, buffer
-//! and image URIs (confined to the scene's folder), accessor byte ranges, index ranges, counts
+//! and image URIs (read through the scene's resolver, `scene::files`, inside the glTF file's
+//! folder), accessor byte ranges, index ranges, counts
 //! against actual buffer sizes and a memory budget, image sizes. See `docs/gltf.md` for the
 //! conventions (units, light intensities, what is supported).
 //!
@@ -21,6 +22,7 @@ mod tests;
 use super::desc::{
     CameraDesc, EnvironmentDesc, LightDesc, ObjectDesc, Projection, SceneDesc, ShapeDesc,
 };
+use super::files::{folder_of, SceneFiles};
 use super::SceneError;
 use glam::{Mat4, Quat, Vec3};
 use serde_json::Value;
@@ -41,7 +43,7 @@ pub const SUPPORTED_EXTENSIONS: &[&str] = &[
 ];
 
 /// Largest glTF/GLB file or external buffer read.
-const MAX_FILE_BYTES: u64 = 1 << 32;
+pub(super) const MAX_FILE_BYTES: u64 = 1 << 32;
 
 /// Options for [`load_gltf_with`] and [`load_gltf_slice`].
 #[derive(Clone, Debug)]
@@ -71,33 +73,45 @@ pub fn load_gltf(path: &Path) -> Result<SceneDesc, SceneError> {
 
 /// Loads a `.gltf` or `.glb` file with the given options.
 pub fn load_gltf_with(path: &Path, opts: &GltfOptions) -> Result<SceneDesc, SceneError> {
+    load_gltf_files(path, opts, &SceneFiles::trusted())
+}
+
+/// Loads a `.gltf` or `.glb` file, reading it and every file it names through `files`
+/// (which applies its policy and budgets and records what was read).
+pub fn load_gltf_files(
+    path: &Path,
+    opts: &GltfOptions,
+    files: &SceneFiles,
+) -> Result<SceneDesc, SceneError> {
+    let (_, bytes) = files
+        .read_scene(path, MAX_FILE_BYTES)
+        .map_err(|e| SceneError::Gltf {
+            path: path.to_path_buf(),
+            message: e.refusal.to_string(),
+        })?;
+    load_gltf_bytes(&bytes, path, opts, files)
+}
+
+/// Loads glTF `bytes` read from `path` (already through `files`): external URIs resolve in
+/// the folder of `path`, through `files`.
+pub(super) fn load_gltf_bytes(
+    bytes: &[u8],
+    path: &Path,
+    opts: &GltfOptions,
+    files: &SceneFiles,
+) -> Result<SceneDesc, SceneError> {
     let err = |message: String| SceneError::Gltf {
         path: path.to_path_buf(),
         message,
     };
-    let io = |source| SceneError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let len = std::fs::metadata(path).map_err(io)?.len();
-    if len > MAX_FILE_BYTES {
-        return Err(err(format!(
-            "the file is {len} bytes, more than the {MAX_FILE_BYTES} allowed"
-        )));
-    }
-    let bytes = std::fs::read(path).map_err(io)?;
     let is_glb_name = path
         .extension()
         .and_then(|e| e.to_str())
         .is_some_and(|e| e.eq_ignore_ascii_case("glb"));
-    if is_glb_name && !container::is_glb(&bytes) {
+    if is_glb_name && !container::is_glb(bytes) {
         return Err(err("not a GLB file: wrong magic (expected \"glTF\")".into()));
     }
-    let base = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    load_inner(&bytes, Some(base), opts).map_err(err)
+    load_inner(bytes, Some(folder_of(path)), opts, files).map_err(err)
 }
 
 /// Loads a glTF or GLB held in memory. `base_dir` is the folder relative URIs resolve in; with
@@ -109,7 +123,7 @@ pub fn load_gltf_slice(
     name: &str,
     opts: &GltfOptions,
 ) -> Result<SceneDesc, SceneError> {
-    load_inner(bytes, base_dir, opts).map_err(|message| SceneError::Gltf {
+    load_inner(bytes, base_dir, opts, &SceneFiles::trusted()).map_err(|message| SceneError::Gltf {
         path: PathBuf::from(name),
         message,
     })
@@ -120,6 +134,8 @@ pub(super) struct Loader<'a> {
     doc: &'a gltf::Document,
     raw: &'a Value,
     base_dir: Option<&'a Path>,
+    /// Reads the files URIs name and holds the scene's memory budget.
+    files: &'a SceneFiles,
     buffers: Vec<Vec<u8>>,
     /// Bytes the loader may still allocate (see [`GltfOptions::memory_limit`]).
     budget: std::cell::Cell<usize>,
@@ -132,7 +148,8 @@ pub(super) struct Loader<'a> {
 }
 
 impl Loader<'_> {
-    /// Takes `bytes` from the memory budget, or refuses the scene.
+    /// Takes `bytes` from the memory budget (the loader's own and the whole scene's), or
+    /// refuses the scene.
     pub(super) fn charge(&self, bytes: usize, what: &str) -> Result<(), String> {
         let left = self.budget.get();
         if bytes > left {
@@ -140,6 +157,7 @@ impl Loader<'_> {
                 "{what}: the scene needs more memory than the loader's limit allows"
             ));
         }
+        self.files.charge_memory(bytes as u64, what)?;
         self.budget.set(left - bytes);
         Ok(())
     }
@@ -272,6 +290,7 @@ fn load_inner(
     bytes: &[u8],
     base_dir: Option<&Path>,
     opts: &GltfOptions,
+    files: &SceneFiles,
 ) -> Result<SceneDesc, String> {
     let container = if container::is_glb(bytes) {
         container::split_glb(bytes)?
@@ -303,6 +322,7 @@ fn load_inner(
         doc: &doc,
         raw: &raw,
         base_dir,
+        files,
         buffers: Vec::new(),
         budget: std::cell::Cell::new(opts.memory_limit),
         desc: SceneDesc {
@@ -361,7 +381,8 @@ impl Loader<'_> {
                     })?
                     .to_vec(),
                 gltf::buffer::Source::Uri(uri) => {
-                    container::load_uri(uri, self.base_dir, &what, MAX_FILE_BYTES)?
+                    let field = format!("buffers[{}].uri", buffer.index());
+                    container::load_uri(uri, self.base_dir, self.files, &field, MAX_FILE_BYTES)?
                 }
             };
             if data.len() < len {

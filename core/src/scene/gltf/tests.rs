@@ -2,6 +2,7 @@
 
 use super::*;
 use crate::scene::desc::{AlphaMode, BsdfDesc, PbrDesc};
+use crate::scene::files::SceneFiles;
 use base64::Engine as _;
 use serde_json::json;
 
@@ -677,7 +678,7 @@ fn hostile_uris_are_refused() {
         std::fs::write(&path, serde_json::to_vec(&scene(uri)).unwrap()).unwrap();
         let e = load_gltf(&path).expect_err(uri).to_string();
         assert!(
-            e.contains("buffer 0") && e.contains("refused"),
+            e.contains("buffers[0].uri") && e.contains("refused"),
             "{uri}: {e}"
         );
         assert!(
@@ -693,9 +694,23 @@ fn hostile_uris_are_refused() {
         let e = load_gltf(&path).unwrap_err().to_string();
         assert!(e.contains("outside"), "{e}");
     }
-    // The same file inside the folder is fine; from memory, external URIs are refused.
+    // The same file inside the folder is fine, and the resolver records it; from memory,
+    // external URIs are refused.
     std::fs::write(&path, serde_json::to_vec(&scene("ok.bin")).unwrap()).unwrap();
     load_gltf(&path).unwrap();
+    let files = SceneFiles::confined_to_scene(&path, 1 << 20, 1 << 20).unwrap();
+    load_gltf_files(&path, &GltfOptions::default(), &files).unwrap();
+    let names: Vec<_> = files.used().into_iter().filter_map(|u| u.name).collect();
+    assert_eq!(
+        names,
+        [PathBuf::from("scene.gltf"), PathBuf::from("ok.bin")]
+    );
+    // Confined to a folder the glTF file is not in, the file itself is refused.
+    std::fs::create_dir_all(root.join("elsewhere")).unwrap();
+    let other = root.join("elsewhere/other.gltf");
+    let files = SceneFiles::confined_to_scene(&other, 1 << 20, 1 << 20).unwrap();
+    let e = load_gltf_files(&path, &GltfOptions::default(), &files).unwrap_err();
+    assert!(e.to_string().contains("outside the scene's folder"), "{e}");
     let e = load(&serde_json::to_vec(&scene("ok.bin")).unwrap()).unwrap_err();
     assert!(e.contains("refused"), "{e}");
     // A missing file names the URI.
