@@ -144,6 +144,7 @@ fn scene() -> SceneDesc {
         shape,
         material,
         transform,
+        media: None,
     };
     d.objects = vec![
         object("floor", ShapeDesc::Mesh { mesh: 0 }, 0, Mat4::IDENTITY),
