@@ -317,3 +317,35 @@ fn media_errors_name_the_json_path() {
     let e = err(r#"{"media": {"a": {"type": "smoke"}}}"#);
     assert!(e.contains("media.a"), "{e}");
 }
+
+#[test]
+fn a_vol_grid_file_fills_its_box_in_the_space_of_its_object() {
+    // A Mitsuba 3 .vol file: 2×2×2 voxels of density 2 over the unit box. The object (an
+    // interface box over the same unit box) is scaled into a slab 0.5 thick across the view,
+    // so the grid's optical depth is σa · 2 · 0.5 = σa.
+    let dir = std::env::temp_dir().join(format!("raytile-volpath-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut vol = b"VOL\x03".to_vec();
+    for v in [1i32, 2, 2, 2, 1] {
+        vol.extend(v.to_le_bytes());
+    }
+    for v in [0f32, 0., 0., 1., 1., 1.].into_iter().chain([2.0; 8]) {
+        vol.extend(v.to_le_bytes());
+    }
+    std::fs::write(dir.join("slab.vol"), vol).unwrap();
+    let json = r#"{
+  "media": {"ink": {"type": "grid", "path": "slab.vol", "sigma_a": [0.4, 1, 2], "sigma_s": [0, 0, 0]}},
+  "materials": {"boundary": {"type": "interface"}},
+  "objects": [{"shape": {"type": "box", "min": [0, 0, 0], "max": [1, 1, 1]},
+               "material": "boundary", "interior": "ink",
+               "transform": {"scale": [10, 10, 0.5], "translate": [-5, -5, -0.25]}}],
+  "environment": {"type": "constant", "radiance": [1, 1, 1]},
+  "camera": {"type": "orthographic", "position": [0, 0, 3], "look_at": [0, 0, 0], "half_height": 1}
+}"#;
+    let desc = parse_json(json, &dir, Path::new("slab.json"));
+    std::fs::remove_dir_all(&dir).unwrap();
+    let scene = Scene::build(&desc.unwrap()).unwrap();
+    let px = image(&scene, &settings(32, 32, IntegratorKind::Volpath));
+    let want = [0.4f64, 1.0, 2.0].map(|s| (-s).exp());
+    assert_mean("grid slab", &px, want, 0.01);
+}
