@@ -2,10 +2,10 @@
 
     python bench/media-compare.py [--raytile target/release/raytile] [--spp 256] [--size 64]
 
-Two scenes, written by this script in both formats (bench/out/media/): a homogeneous
+Three scenes, written by this script in both formats (bench/out/media/): a homogeneous
 chromatic, forward-scattering sphere and a heterogeneous grid (a .vol file both renderers
 read) in a box, each inside a `null`/`interface` boundary under a uniform sky of radiance 1
-and a small area light. Each renderer renders each scene twice (seeds 1 and 2). Reported per
+and a small area light; and a chromatic sphere lit by the area light alone. Each renderer renders each scene twice (seeds 1 and 2). Reported per
 scene and channel: the image means and their relative difference (must be within 2 %), and
 for every 32×32-pixel block the difference of the block means in standard errors (the noise
 of a block mean is measured from the per-pixel differences of the two seeds, so the picture's
@@ -36,10 +36,19 @@ def scenes():
         "sphere": {
             "medium": {"sigma_t": [2.0, 4.0, 6.0], "albedo": [0.9, 0.7, 0.5], "g": 0.6},
             "grid": None,
+            "sky": True,
+        },
+        # Lit by the lamp alone: every pixel's light comes through next-event estimation and
+        # the phase-sampled paths that find the lamp.
+        "sphere-lamp": {
+            "medium": {"sigma_t": [1.0, 2.5, 5.0], "albedo": [0.95, 0.8, 0.6], "g": 0.3},
+            "grid": None,
+            "sky": False,
         },
         "grid": {
             "medium": {"sigma_t": [8.0, 8.0, 8.0], "albedo": [0.8, 0.8, 0.8], "g": 0.2},
             "grid": 24,
+            "sky": True,
         },
     }
 
@@ -72,7 +81,8 @@ def raytile_scene(name, s, vol):
         shape = {"type": "sphere", "radius": 1.0}
         transform = {"scale": 0.8}
     c, e = LIGHT["corner"], LIGHT["size"]
-    return {
+    sky = {"environment": {"type": "constant", "radiance": [1, 1, 1]}} if s["sky"] else {}
+    return sky | {
         "camera": CAMERA,
         "media": {"m": medium},
         "materials": {"b": {"type": "interface"}, "lamp": {"type": "emitter", "emission": LIGHT["emission"]}},
@@ -81,7 +91,6 @@ def raytile_scene(name, s, vol):
             {"shape": {"type": "rectangle", "corner": c, "edge_u": [e, 0, 0], "edge_v": [0, 0, e]},
              "material": "lamp"},
         ],
-        "environment": {"type": "constant", "radiance": [1, 1, 1]},
     }
 
 
@@ -117,7 +126,8 @@ def mitsuba_scene(mi, s, vol, size, spp, seed, depth):
     centre = [c[0] + e / 2, c[1], c[2] + e / 2]
     # Mitsuba's rectangle is [-1, 1]² in z = 0 facing +z: turn it to face down.
     lamp_tf = T().translate(centre) @ T().rotate([1, 0, 0], 90) @ T().scale([e / 2, e / 2, 1])
-    return mi.load_dict({
+    sky = {"sky": {"type": "constant", "radiance": {"type": "rgb", "value": [1, 1, 1]}}}
+    return mi.load_dict((sky if s["sky"] else {}) | {
         "type": "scene",
         "integrator": {"type": "volpath", "max_depth": depth + 1, "rr_depth": 1000},
         "sensor": {
@@ -130,7 +140,6 @@ def mitsuba_scene(mi, s, vol, size, spp, seed, depth):
         "medium_shape": shape,
         "lamp": {"type": "rectangle", "to_world": lamp_tf,
                  "emitter": {"type": "area", "radiance": {"type": "rgb", "value": LIGHT["emission"]}}},
-        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [1, 1, 1]}},
     })
 
 
