@@ -93,6 +93,9 @@ impl Scene {
         // by an object is placed by that object's transform, once per object.
         let mut media: Vec<Medium> = Vec::new();
         let mut in_world: Vec<Option<u32>> = vec![None; desc.media.len()];
+        // Each medium built once; a grid placed by an object is a clone (voxels and majorants
+        // shared) with that object's transform.
+        let mut built: Vec<Option<Medium>> = vec![None; desc.media.len()];
         let mut place_medium = |mi: usize,
                                 to_world: Option<Affine3A>,
                                 at: &dyn Fn() -> String|
@@ -107,9 +110,16 @@ impl Scene {
                     return Ok(i);
                 }
             }
-            let built = build_medium(m, to_world.unwrap_or(Affine3A::IDENTITY))
-                .map_err(|e| invalid(format!("{}: medium '{}': {e}", at(), m.name)))?;
-            media.push(built);
+            let err = |e| invalid(format!("{}: medium '{}': {e}", at(), m.name));
+            if built[mi].is_none() {
+                built[mi] = Some(build_medium(m).map_err(err)?);
+            }
+            let mut placed = built[mi].clone().expect("built just above");
+            if let (Medium::Grid(g), Some(grid)) = (&mut placed, &m.density) {
+                let world = to_world.unwrap_or(Affine3A::IDENTITY) * grid.transform;
+                **g = g.as_ref().clone().with_transform(world).map_err(err)?;
+            }
+            media.push(placed);
             let i = (media.len() - 1) as u32;
             if shared {
                 in_world[mi] = Some(i);
@@ -615,15 +625,14 @@ fn build_light(l: &super::desc::LightDesc) -> Result<Light, String> {
     })
 }
 
-/// The medium `m`, its grid (if any) placed by `to_world` (object to world).
-fn build_medium(m: &MediumDesc, to_world: Affine3A) -> Result<Medium, crate::medium::MediumError> {
+/// The medium `m`, its grid (if any) in its own space (placed by the caller).
+fn build_medium(m: &MediumDesc) -> Result<Medium, crate::medium::MediumError> {
     let sigma_a = Vec3A::from(m.sigma_a) * m.scale;
     let sigma_s = Vec3A::from(m.sigma_s) * m.scale;
     Ok(match &m.density {
         None => Medium::Homogeneous(HomogeneousMedium::new(sigma_a, sigma_s, m.g)?),
         Some(grid) => {
-            let mut gm = GridMedium::new(grid.density.clone(), sigma_a, sigma_s, m.g)?
-                .with_transform(to_world * grid.transform)?;
+            let mut gm = GridMedium::new(grid.density.clone(), sigma_a, sigma_s, m.g)?;
             if let Some(res) = grid.majorant_resolution {
                 if res.iter().any(|&r| r == 0 || r > 256) {
                     return Err(crate::medium::MediumError::Grid(format!(

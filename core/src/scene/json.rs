@@ -319,8 +319,8 @@ fn noise_gain() -> f32 {
     crate::medium::NoiseDensity::default().gain
 }
 
-/// Most voxels a `noise` medium may bake (256³).
-const MAX_NOISE_VOXELS: u64 = 256 * 256 * 256;
+/// Most voxels a `noise` medium may bake (128³): baking costs time when the scene loads.
+const MAX_NOISE_VOXELS: u64 = 128 * 128 * 128;
 
 #[derive(Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
