@@ -121,6 +121,23 @@ fn furnace_a_medium_that_only_scatters_looks_like_the_sky() {
 }
 
 #[test]
+fn furnace_a_scattering_liquid_in_glass_looks_like_the_sky() {
+    // Glass around a medium that only scatters: refraction carries rays into the medium and
+    // out of it (the medium tracked through the dielectric's interior), total internal
+    // reflection keeps some inside for long walks, and nothing is lost.
+    let json = sphere_in_sky(
+        r#"{"type": "homogeneous", "sigma_a": [0, 0, 0], "sigma_s": [1, 2, 4], "g": 0.5}"#,
+    )
+    .replace(
+        r#""boundary": {"type": "interface"}"#,
+        r#""boundary": {"type": "dielectric", "ior": 1.33}"#,
+    );
+    let scene = load(&json);
+    let px = image(&scene, &settings(32, 32, IntegratorKind::Volpath));
+    assert_mean("glass of milk", &px, [1.0; 3], 0.01);
+}
+
+#[test]
 fn beer_lambert_through_an_absorbing_slab() {
     // A slab 1 thick of σa = (0.2, 1, 3), seen face on with an orthographic camera in front of
     // a sky of radiance 1: every pixel's expectation is exp(−σa).
