@@ -332,6 +332,23 @@ fn sample_ld<R: RandomSource>(
     if f_hat.max_element() <= 0.0 {
         return Vec3A::ZERO;
     }
+    let weigh = |t_ray: Vec3A, r_l: Vec3A, r_u: Vec3A| {
+        let r_l = r_l * r_p * light_pdf;
+        let r_u = r_u * r_p * scatter_pdf;
+        if s.delta {
+            f_hat * t_ray * s.li / avg(r_l)
+        } else {
+            f_hat * t_ray * s.li / avg(r_l + r_u)
+        }
+    };
+    // Nothing to cross (no medium, no interface in the scene): one any-hit query.
+    if medium.is_none() && !scene.has_interfaces {
+        return if scene.occluded(&ray, t_max) {
+            Vec3A::ZERO
+        } else {
+            weigh(Vec3A::ONE, Vec3A::ONE, Vec3A::ONE)
+        };
+    }
     // The shadow ray, surface by surface: interfaces let it through (into the medium on their
     // other side), anything else blocks it; each segment in a medium by ratio tracking.
     let mut t_ray = Vec3A::ONE;
@@ -387,13 +404,7 @@ fn sample_ld<R: RandomSource>(
             return Vec3A::ZERO;
         }
         let Some(h) = hit else {
-            let r_l = r_l * r_p * light_pdf;
-            let r_u = r_u * r_p * scatter_pdf;
-            return if s.delta {
-                f_hat * t_ray * s.li / avg(r_l)
-            } else {
-                f_hat * t_ray * s.li / avg(r_l + r_u)
-            };
+            return weigh(t_ray, r_l, r_u);
         };
         let it = scene.interaction(&ray, &h);
         medium = scene.medium_after(it.object, it.ng, ray.d, medium);
@@ -402,13 +413,7 @@ fn sample_ld<R: RandomSource>(
         ray = next;
         if !(t_max > 0.0) {
             // The light is at the interface itself.
-            let r_l = r_l * r_p * light_pdf;
-            let r_u = r_u * r_p * scatter_pdf;
-            return if s.delta {
-                f_hat * t_ray * s.li / avg(r_l)
-            } else {
-                f_hat * t_ray * s.li / avg(r_l + r_u)
-            };
+            return weigh(t_ray, r_l, r_u);
         }
     }
     Vec3A::ZERO
