@@ -359,10 +359,23 @@ fn a_vol_grid_file_fills_its_box_in_the_space_of_its_object() {
   "environment": {"type": "constant", "radiance": [1, 1, 1]},
   "camera": {"type": "orthographic", "position": [0, 0, 3], "look_at": [0, 0, 0], "half_height": 1}
 }"#;
+    // The same grid placed by two objects, each a slab half as thick, one behind the other:
+    // the same optical depth in all (each object places its own copy of the shared grid).
+    let two = json.replace(
+        r#""transform": {"scale": [10, 10, 0.5], "translate": [-5, -5, -0.25]}}],"#,
+        r#""transform": {"scale": [10, 10, 0.25], "translate": [-5, -5, -0.6]}},
+              {"shape": {"type": "box", "min": [0, 0, 0], "max": [1, 1, 1]},
+               "material": "boundary", "interior": "ink",
+               "transform": {"scale": [10, 10, 0.25], "translate": [-5, -5, 0.3]}}],"#,
+    );
+    assert_ne!(two, json);
     let desc = parse_json(json, &dir, Path::new("slab.json"));
+    let desc_two = parse_json(&two, &dir, Path::new("slabs.json"));
     std::fs::remove_dir_all(&dir).unwrap();
-    let scene = Scene::build(&desc.unwrap()).unwrap();
-    let px = image(&scene, &settings(32, 32, IntegratorKind::Volpath));
     let want = [0.4f64, 1.0, 2.0].map(|s| (-s).exp());
-    assert_mean("grid slab", &px, want, 0.01);
+    for (what, desc) in [("grid slab", desc), ("two half slabs", desc_two)] {
+        let scene = Scene::build(&desc.unwrap()).unwrap();
+        let px = image(&scene, &settings(32, 32, IntegratorKind::Volpath));
+        assert_mean(what, &px, want, 0.01);
+    }
 }
