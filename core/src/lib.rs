@@ -55,4 +55,6 @@ pub use settings::{IntegratorKind, RenderOverrides, RenderSettings, SettingsErro
 /// 2: one 4D Sobol set per bounce (2026-11-30).
 /// 3: shading frame about the normal alone, sin/cos by our own polynomials, flat triangles
 /// shaded from world-space data, small scenes' BVH built with the thorough preset (2026-11-30).
-pub const RENDER_VERSION: u32 = 3;
+/// 4: the `volpath` integrator and scene media (2026-12-01); other integrators' images
+/// unchanged.
+pub const RENDER_VERSION: u32 = 4;

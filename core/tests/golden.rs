@@ -144,6 +144,7 @@ fn scene() -> SceneDesc {
         shape,
         material,
         transform,
+        media: None,
     };
     d.objects = vec![
         object("floor", ShapeDesc::Mesh { mesh: 0 }, 0, Mat4::IDENTITY),
@@ -260,8 +261,9 @@ fn image_hash(integrator: IntegratorKind) -> String {
 }
 
 /// The hashes of the current arithmetic, pinned with [`raytile_core::RENDER_VERSION`].
-const GOLDEN: [(IntegratorKind, &str); 6] = [
+const GOLDEN: [(IntegratorKind, &str); 7] = [
     (IntegratorKind::Path, "e42b0dffd5424c36"),
+    (IntegratorKind::Volpath, "40d1d0dd55338aa1"),
     (IntegratorKind::Whitted, "2c57b1f1af7bd9a0"),
     (IntegratorKind::Normals, "7bc0a2763bfb615f"),
     (IntegratorKind::Albedo, "ad105da7432cb490"),

@@ -40,6 +40,7 @@ fn furnace(bsdf: BsdfDesc) -> SceneDesc {
             },
             material: 0,
             transform: Mat4::IDENTITY,
+            media: None,
         }],
         environment: Some(EnvironmentDesc::Constant {
             radiance: Vec3::ONE,
@@ -205,6 +206,7 @@ fn ambient_occlusion_darkens_a_corner() {
         },
         material: 0,
         transform: Mat4::IDENTITY,
+        media: None,
     });
     // Looking straight down at the floor from above, the sphere in the middle.
     desc.cameras = vec![CameraDesc {
@@ -331,6 +333,7 @@ fn bvh_agrees_with_brute_force_on_whole_scenes() {
             shape: ShapeDesc::Mesh { mesh: m0 },
             material: 0,
             transform: t,
+            media: None,
         });
     }
     desc.objects.push(ObjectDesc {
@@ -341,6 +344,7 @@ fn bvh_agrees_with_brute_force_on_whole_scenes() {
         },
         material: 0,
         transform: Mat4::from_scale(Vec3::new(1.0, 1.5, 1.0)),
+        media: None,
     });
     desc.objects.push(ObjectDesc {
         name: "slab".into(),
@@ -350,6 +354,7 @@ fn bvh_agrees_with_brute_force_on_whole_scenes() {
         },
         material: 0,
         transform: Mat4::from_rotation_y(0.7),
+        media: None,
     });
     let scene = Scene::build(&desc).unwrap();
     assert!(scene.stats.instanced_triangles > 0);

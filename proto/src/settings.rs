@@ -15,6 +15,9 @@ pub enum IntegratorKind {
     /// Unidirectional path tracing with next-event estimation and MIS.
     #[default]
     Path,
+    /// Volumetric path tracing (pbrt-v4's `volpath`): `path` plus participating media (fog,
+    /// smoke), with delta tracking, ratio-tracked shadow rays and null-scattering MIS.
+    Volpath,
     /// Whitted's recursive ray tracer: shadow rays, mirror reflection and refraction.
     Whitted,
     /// Shading normals mapped to colours.
@@ -29,8 +32,9 @@ pub enum IntegratorKind {
 
 impl IntegratorKind {
     /// Every integrator, for tests and help texts.
-    pub const ALL: [IntegratorKind; 6] = [
+    pub const ALL: [IntegratorKind; 7] = [
         Self::Path,
+        Self::Volpath,
         Self::Whitted,
         Self::Normals,
         Self::Albedo,
@@ -42,6 +46,7 @@ impl IntegratorKind {
     pub fn name(self) -> &'static str {
         match self {
             Self::Path => "path",
+            Self::Volpath => "volpath",
             Self::Whitted => "whitted",
             Self::Normals => "normals",
             Self::Albedo => "albedo",
@@ -346,7 +351,7 @@ pub struct RenderOverrides {
     #[serde(skip_serializing_if = "Option::is_none")]
     #[cfg_attr(feature = "clap", arg(long))]
     pub max_depth: Option<u32>,
-    /// Integrator: path, whitted, normals, albedo, depth, ao.
+    /// Integrator: path, volpath, whitted, normals, albedo, depth, ao.
     #[serde(skip_serializing_if = "Option::is_none")]
     #[cfg_attr(feature = "clap", arg(long))]
     pub integrator: Option<IntegratorKind>,

@@ -412,6 +412,35 @@ mod determinism {
         check_cluster_matches_local(2, 16).await;
     }
 
+    /// A `volpath` job (fog, smoke and milk in `scenes/fog.json`) is a job like any other.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn volpath_on_two_workers_matches_local_render() {
+        let scene =
+            std::path::PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/fog.json"));
+        let dir = tempfile::tempdir().unwrap();
+        let c = Coord::start(test_config(&dir.path().join("data")), 0).await;
+        let ws: Vec<Worker> = (0..2)
+            .map(|i| Worker::start(&c.base, 1, dir.path(), &format!("w{i}")))
+            .collect();
+        let id = upload(&c.base, std::fs::read(&scene).unwrap()).await;
+        let mut req = job(&id, 16);
+        req.overrides.width = Some(40);
+        req.overrides.height = Some(32);
+        req.overrides.spp = Some(4);
+        req.overrides.integrator = Some(proto::IntegratorKind::Volpath);
+        let j = submit(&c.base, &req).await;
+        let done = wait_for(&c.base, &j.id, 120, |s| s.state.is_final()).await;
+        assert_eq!(done.state, JobState::Done, "{done:?}");
+        assert_eq!(done.settings.integrator, proto::IntegratorKind::Volpath);
+        let got = image(&c.base, &j.id, "exr").await;
+        let want = local_exr(&scene, &done.settings);
+        assert!(got == want, "volpath: EXR differs from the local render");
+        for w in ws {
+            w.stop().await;
+        }
+        c.stop().await;
+    }
+
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn one_and_three_workers_any_tile_size_match_local_render() {
         for (workers, tile) in [(1, 16), (3, 16), (1, 64), (3, 64)] {

@@ -185,6 +185,7 @@ mod tests {
                     },
                     material: 0,
                     transform: glam::Mat4::IDENTITY,
+                    media: None,
                 })
                 .collect(),
             ..Default::default()

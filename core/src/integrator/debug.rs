@@ -51,6 +51,6 @@ pub fn li(
                 Vec3A::ONE
             }
         }
-        IntegratorKind::Path | IntegratorKind::Whitted => Vec3A::ZERO,
+        IntegratorKind::Path | IntegratorKind::Volpath | IntegratorKind::Whitted => Vec3A::ZERO,
     }
 }

@@ -63,7 +63,7 @@ pub(crate) fn light_contribution(
     } else {
         (it.spawn_ray(s.wi), f32::INFINITY)
     };
-    if scene.occluded(&shadow, tmax) {
+    if scene.occluded_past_interfaces(&shadow, tmax) {
         return Vec3A::ZERO;
     }
     if s.delta || !mis {

@@ -3,6 +3,8 @@
 //! - [`path`]: unidirectional path tracing with next-event estimation and multiple importance
 //!   sampling (power heuristic), Russian roulette and a maximum depth: an unbiased estimator of
 //!   Kajiya's rendering equation.
+//! - [`volpath`]: path tracing with participating media (fog, smoke): delta tracking with
+//!   majorant grids, ratio-tracked shadow rays, null-scattering MIS for chromatic media.
 //! - [`whitted`]: the recursive ray tracer: shadow rays to every light, recursive mirror
 //!   reflection and refraction, stopped at max depth, at no hit, or when the ray's contribution
 //!   falls below a threshold.
@@ -19,6 +21,7 @@
 pub mod debug;
 mod direct;
 pub mod path;
+pub mod volpath;
 pub mod whitted;
 
 use crate::geometry::Ray;
@@ -45,6 +48,7 @@ fn li(scene: &Scene, job: &RenderJob, ray: Ray, sampler: &mut Sampler) -> Vec3A 
     let max_depth = job.settings.max_depth;
     match job.settings.integrator {
         IntegratorKind::Path => path::li(scene, job, ray, sampler, max_depth),
+        IntegratorKind::Volpath => volpath::li(scene, job, ray, sampler, max_depth),
         IntegratorKind::Whitted => whitted::li(scene, job, ray, sampler, max_depth),
         k => debug::li(scene, job, ray, sampler, k),
     }

@@ -51,6 +51,11 @@ pub fn li(
                 beta *= (-sigma * hit.t).exp();
             }
         }
+        // An interface (a medium boundary) does not scatter: cross it, as if it were not there.
+        if scene.is_interface(it.object) {
+            ray = it.spawn_ray(ray.d);
+            continue;
+        }
         let le = scene.emitted(&it, wo_world);
         if le != Vec3A::ZERO {
             if specular {

@@ -40,6 +40,18 @@ fn trace(
         return job.environment().map_or(Vec3A::ZERO, |e| e.radiance(ray.d));
     };
     let it = scene.interaction(&ray, &hit);
+    // An interface (a medium boundary) does not scatter: cross it.
+    if scene.is_interface(it.object) {
+        return trace(
+            scene,
+            job,
+            it.spawn_ray(ray.d),
+            sampler,
+            max_depth,
+            depth,
+            weight,
+        );
+    }
     let wo_world = -ray.d;
     let mut transmittance = Vec3A::ONE;
     if it.ng.dot(ray.d) > 0.0 {

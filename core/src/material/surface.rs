@@ -122,6 +122,8 @@ pub struct Material {
     pub alpha_mode: AlphaMode,
     /// Beer–Lambert absorption coefficient inside a solid transmissive body (per metre).
     pub absorption: Vec3A,
+    /// A medium boundary that does not scatter: rays cross it unchanged.
+    pub interface: bool,
 }
 
 impl Material {
@@ -276,6 +278,7 @@ mod tests {
             emission: None,
             alpha_mode: AlphaMode::Opaque,
             absorption: Vec3A::ZERO,
+            interface: false,
         }
     }
 

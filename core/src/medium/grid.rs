@@ -15,12 +15,13 @@ use glam::Vec3A;
 /// border voxels are 0, as OpenVDB fog volumes converted here are, fades to 0 at its faces).
 /// Outside the box the density is 0.
 ///
-/// Storage is x fastest: `values[(z · res_y + y) · res_x + x]`.
+/// Storage is x fastest: `values[(z · res_y + y) · res_x + x]`, shared: a clone (one per
+/// object a grid medium is placed in) costs no copy of the voxels.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DensityGrid {
     res: [usize; 3],
     bounds: Aabb,
-    values: Vec<f32>,
+    values: std::sync::Arc<[f32]>,
     max_value: f32,
 }
 
@@ -69,7 +70,7 @@ impl DensityGrid {
         Ok(Self {
             res,
             bounds,
-            values,
+            values: values.into(),
             max_value,
         })
     }

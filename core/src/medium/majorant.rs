@@ -30,7 +30,8 @@ pub const DEFAULT_MAJORANT_RES: usize = 16;
 #[derive(Clone, Debug, PartialEq)]
 pub struct MajorantGrid {
     res: [usize; 3],
-    max: Vec<f32>,
+    /// Shared, like the density's voxels.
+    max: std::sync::Arc<[f32]>,
 }
 
 impl MajorantGrid {
@@ -50,7 +51,10 @@ impl MajorantGrid {
                 }
             }
         }
-        Self { res, max }
+        Self {
+            res,
+            max: max.into(),
+        }
     }
 
     /// Cells per axis.

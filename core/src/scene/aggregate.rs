@@ -478,6 +478,7 @@ mod tests {
             shape,
             material,
             transform,
+            media: None,
         };
         let at = |x: f32, y: f32, z: f32| Mat4::from_translation(Vec3::new(x, y, z));
         let desc = SceneDesc {

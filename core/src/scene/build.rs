@@ -10,13 +10,16 @@
 //! size, which environment) is left to [`super::RenderJob`].
 
 use super::aggregate::{Aggregate, MeshBlas, Prim};
-use super::desc::{BsdfDesc, EnvironmentDesc, MaterialDesc, SceneDesc, ShapeDesc, TextureRef};
+use super::desc::{
+    BsdfDesc, EnvironmentDesc, MaterialDesc, MediumDesc, SceneDesc, ShapeDesc, TextureRef,
+};
 use super::{Object, ObjectKind, Scene, SceneCamera, SceneError, SceneStats};
 use crate::geometry::triangle::{Mesh, TriangleGeom};
 use crate::geometry::{aabox, plane, polygon, quadric, sphere, Aabb, Analytic};
 use crate::light::area::{Emitter, PlacedShape, TriangleLight};
 use crate::light::{AreaLight, Environment, Light};
 use crate::material::{AlphaMode, Emission, Material, MaterialSlots, Model, PbrParams};
+use crate::medium::{GridMedium, HomogeneousMedium, Medium};
 use crate::texture::{TexSlot, Texture, TextureLookup};
 use glam::{Affine3A, Vec2, Vec3, Vec3A, Vec4};
 use std::f32::consts::PI;
@@ -85,6 +88,49 @@ impl Scene {
         let mut stats = SceneStats {
             objects: desc.objects.len(),
             ..Default::default()
+        };
+        // Media: a homogeneous medium (and a grid in world space) is made once; a grid bounded
+        // by an object is placed by that object's transform, once per object.
+        let mut media: Vec<Medium> = Vec::new();
+        let mut in_world: Vec<Option<u32>> = vec![None; desc.media.len()];
+        // Each medium built once; a grid placed by an object is a clone (voxels and majorants
+        // shared) with that object's transform.
+        let mut built: Vec<Option<Medium>> = vec![None; desc.media.len()];
+        let mut place_medium = |mi: usize,
+                                to_world: Option<Affine3A>,
+                                at: &dyn Fn() -> String|
+         -> Result<u32, SceneError> {
+            let m = desc
+                .media
+                .get(mi)
+                .ok_or_else(|| invalid(format!("{}: medium index {mi} out of range", at())))?;
+            let shared = m.density.is_none() || to_world.is_none();
+            if shared {
+                if let Some(i) = in_world[mi] {
+                    return Ok(i);
+                }
+            }
+            let err = |e| invalid(format!("{}: medium '{}': {e}", at(), m.name));
+            if built[mi].is_none() {
+                built[mi] = Some(build_medium(m).map_err(err)?);
+            }
+            let mut placed = built[mi].clone().expect("built just above");
+            if let (Medium::Grid(g), Some(grid)) = (&mut placed, &m.density) {
+                let world = to_world.unwrap_or(Affine3A::IDENTITY) * grid.transform;
+                **g = g.as_ref().clone().with_transform(world).map_err(err)?;
+            }
+            media.push(placed);
+            let i = (media.len() - 1) as u32;
+            if shared {
+                in_world[mi] = Some(i);
+            }
+            Ok(i)
+        };
+        let camera_medium = match desc.medium {
+            Some(mi) => Some(place_medium(mi, None, &|| {
+                "the scene's medium".to_string()
+            })?),
+            None => None,
         };
         for (oi, o) in desc.objects.iter().enumerate() {
             let ctx = || format!("object {oi} ('{}')", o.name);
@@ -158,9 +204,20 @@ impl Scene {
                     ObjectKind::Analytic(a)
                 }
             };
+            let object_media = match o.media {
+                Some(om) => {
+                    let mut side = |mi: Option<usize>| {
+                        mi.map(|mi| place_medium(mi, Some(to_world), &ctx))
+                            .transpose()
+                    };
+                    Some([side(om.interior)?, side(om.exterior)?])
+                }
+                None => None,
+            };
             objects.push(Object {
                 name: o.name.clone(),
                 kind,
+                media: object_media,
                 material: o.material as u32,
                 to_world,
                 to_object,
@@ -282,7 +339,11 @@ impl Scene {
             })
             .collect();
 
+        let has_interfaces = materials.iter().any(|m| m.interface);
         Ok(Scene {
+            media,
+            camera_medium,
+            has_interfaces,
             objects,
             meshes,
             materials,
@@ -564,6 +625,27 @@ fn build_light(l: &super::desc::LightDesc) -> Result<Light, String> {
     })
 }
 
+/// The medium `m`, its grid (if any) in its own space (placed by the caller).
+fn build_medium(m: &MediumDesc) -> Result<Medium, crate::medium::MediumError> {
+    let sigma_a = Vec3A::from(m.sigma_a) * m.scale;
+    let sigma_s = Vec3A::from(m.sigma_s) * m.scale;
+    Ok(match &m.density {
+        None => Medium::Homogeneous(HomogeneousMedium::new(sigma_a, sigma_s, m.g)?),
+        Some(grid) => {
+            let mut gm = GridMedium::new(grid.density.clone(), sigma_a, sigma_s, m.g)?;
+            if let Some(res) = grid.majorant_resolution {
+                if res.iter().any(|&r| r == 0 || r > 256) {
+                    return Err(crate::medium::MediumError::Grid(format!(
+                        "majorant_resolution must be 1 to 256 cells per axis, got {res:?}"
+                    )));
+                }
+                gm = gm.with_majorant_resolution(res);
+            }
+            Medium::Grid(Box::new(gm))
+        }
+    })
+}
+
 fn build_material(m: &MaterialDesc, n_textures: usize) -> Result<Material, SceneError> {
     let check = |r: &Option<TextureRef>| -> Result<Option<TexSlot>, SceneError> {
         match r {
@@ -588,7 +670,13 @@ fn build_material(m: &MaterialDesc, n_textures: usize) -> Result<Material, Scene
     };
     let mut absorption = Vec3A::ZERO;
     let mut base_color = Vec4::ONE;
+    let mut interface = false;
     let model = match &m.bsdf {
+        BsdfDesc::Interface => {
+            interface = true;
+            base_color = Vec4::ZERO;
+            Model::Diffuse
+        }
         BsdfDesc::Diffuse { albedo, texture } => {
             slots.base = check(texture)?;
             base_color = albedo.extend(1.0);
@@ -656,8 +744,10 @@ fn build_material(m: &MaterialDesc, n_textures: usize) -> Result<Material, Scene
         model,
         base_color,
         slots,
-        emission: (radiance.max_element() > 0.0).then_some(emission),
+        // An interface is no surface: it neither scatters nor emits.
+        emission: (radiance.max_element() > 0.0 && !interface).then_some(emission),
         alpha_mode: m.alpha_mode,
         absorption,
+        interface,
     })
 }

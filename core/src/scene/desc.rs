@@ -41,6 +41,11 @@ pub struct SceneDesc {
     pub cameras: Vec<CameraDesc>,
     /// Render settings the scene file asks for; command-line flags and job settings override them.
     pub render: RenderDefaults,
+    /// Participating media, referenced by [`ObjectDesc::media`] and [`SceneDesc::medium`].
+    pub media: Vec<MediumDesc>,
+    /// Index into [`SceneDesc::media`] of the medium that fills space outside every object
+    /// (global fog), in which the camera stands; `None` is vacuum.
+    pub medium: Option<usize>,
     /// Non-fatal problems found while loading (unsupported optional extensions, skipped
     /// primitives...), to be shown to the user.
     pub warnings: Vec<String>,
@@ -178,6 +183,9 @@ pub enum BsdfDesc {
         /// GGX alpha (perceptual roughness squared); 0 is a perfect mirror with Fresnel.
         alpha: f32,
     },
+    /// A surface that does not scatter: light crosses it unchanged. It bounds a medium
+    /// ([`ObjectDesc::media`]).
+    Interface,
     /// Frosted glass: GGX microfacet reflection and refraction.
     RoughDielectric {
         /// Index of refraction inside relative to outside.
@@ -322,6 +330,52 @@ pub struct ObjectDesc {
     pub material: usize,
     /// Object-to-world transform (affine; may scale non-uniformly or mirror).
     pub transform: Mat4,
+    /// The media on the two sides of the surface; `None`: the surface is no medium boundary
+    /// (a ray crossing it stays in the medium it was in).
+    pub media: Option<ObjectMedia>,
+}
+
+/// The media inside and outside an object's closed surface: indices into
+/// [`SceneDesc::media`], `None` for vacuum.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ObjectMedia {
+    /// The medium inside (behind the surface's front side).
+    pub interior: Option<usize>,
+    /// The medium outside (the side the front normal points to).
+    pub exterior: Option<usize>,
+}
+
+/// A participating medium: absorption and scattering per colour channel (per metre), a
+/// Henyey–Greenstein phase function, and for heterogeneous media a density grid.
+#[derive(Clone, Debug)]
+pub struct MediumDesc {
+    /// Name for messages.
+    pub name: String,
+    /// Absorption coefficient σa per metre, per channel (before `scale`).
+    pub sigma_a: Vec3,
+    /// Scattering coefficient σs per metre, per channel (before `scale`).
+    pub sigma_s: Vec3,
+    /// Henyey–Greenstein asymmetry in (-1, 1); 0 is isotropic.
+    pub g: f32,
+    /// Multiplies `sigma_a` and `sigma_s`.
+    pub scale: f32,
+    /// `None`: homogeneous. Else σa and σs are multiplied by this density, which fills its
+    /// box in the space of the object that holds the medium (world space for the scene's
+    /// global medium).
+    pub density: Option<GridDesc>,
+}
+
+/// A density grid and where it sits in its object's space.
+#[derive(Clone, Debug)]
+pub struct GridDesc {
+    /// The voxels and the box they fill.
+    pub density: crate::medium::DensityGrid,
+    /// From the density's space to the object's space (the identity but for `.vdb` grids
+    /// whose index-to-world map rotates).
+    pub transform: glam::Affine3A,
+    /// Cells of the majorant grid per axis (`None`: the default); `[1, 1, 1]` is one global
+    /// majorant, the slowest but simplest bound.
+    pub majorant_resolution: Option<[usize; 3]>,
 }
 
 /// A light that is not a surface.

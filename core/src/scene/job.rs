@@ -246,6 +246,7 @@ mod tests {
                     shape: ShapeDesc::Mesh { mesh: 0 },
                     material: 0,
                     transform: Mat4::IDENTITY,
+                    media: None,
                 },
                 ObjectDesc {
                     name: "ball".into(),
@@ -256,6 +257,7 @@ mod tests {
                     material: 1,
                     transform: Mat4::from_translation(Vec3::new(1.5, 0.5, 0.0))
                         * Mat4::from_scale(Vec3::new(1.0, 2.0, 1.0)),
+                    media: None,
                 },
             ],
             lights: vec![LightDesc::Point {

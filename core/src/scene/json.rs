@@ -35,6 +35,11 @@ struct File {
     lights: Vec<JLight>,
     #[serde(default)]
     environment: Option<JEnvironment>,
+    #[serde(default)]
+    media: BTreeMap<String, JMedium>,
+    /// The medium outside every object (global fog), where the camera stands.
+    #[serde(default)]
+    medium: Option<String>,
 }
 
 fn default_up() -> [f32; 3] {
@@ -187,6 +192,8 @@ enum JBsdf {
     },
     /// Emits only (black surface): a light.
     Emitter {},
+    /// No scattering: light crosses the surface unchanged (a medium's boundary).
+    Interface {},
 }
 
 fn default_roughness() -> f32 {
@@ -225,7 +232,95 @@ struct JObject {
     material: Option<String>,
     #[serde(default)]
     transform: Option<JTransform>,
+    /// The medium inside the object's closed surface.
+    #[serde(default)]
+    interior: Option<String>,
+    /// The medium outside it (the scene's `medium` if not given).
+    #[serde(default)]
+    exterior: Option<String>,
 }
+
+/// A participating medium; coefficients per metre, multiplied by `scale` (and by the density
+/// of a grid).
+#[derive(Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+enum JMedium {
+    Homogeneous {
+        sigma_a: Rgb,
+        sigma_s: Rgb,
+        #[serde(default)]
+        g: f32,
+        #[serde(default = "one")]
+        scale: f32,
+    },
+    /// A density grid from a file (`.vol` or `.vdb`), filling the box the file states.
+    Grid {
+        path: PathBuf,
+        /// The `.vdb` grid to read (default: `density`, else the only float grid).
+        #[serde(default)]
+        grid: Option<String>,
+        #[serde(default)]
+        majorant_resolution: Option<[u32; 3]>,
+        sigma_a: Rgb,
+        sigma_s: Rgb,
+        #[serde(default)]
+        g: f32,
+        #[serde(default = "one")]
+        scale: f32,
+    },
+    /// A procedural smoke density (fractal value noise) baked into a grid over [min, max].
+    Noise {
+        #[serde(default = "noise_resolution")]
+        resolution: [u32; 3],
+        #[serde(default = "minus_one3")]
+        min: [f32; 3],
+        #[serde(default = "one3")]
+        max: [f32; 3],
+        #[serde(default)]
+        seed: u32,
+        #[serde(default = "noise_frequency")]
+        frequency: f32,
+        #[serde(default = "noise_octaves")]
+        octaves: u32,
+        #[serde(default = "noise_threshold")]
+        threshold: f32,
+        #[serde(default = "noise_gain")]
+        gain: f32,
+        #[serde(default)]
+        majorant_resolution: Option<[u32; 3]>,
+        sigma_a: Rgb,
+        sigma_s: Rgb,
+        #[serde(default)]
+        g: f32,
+        #[serde(default = "one")]
+        scale: f32,
+    },
+}
+
+fn noise_resolution() -> [u32; 3] {
+    [32; 3]
+}
+fn minus_one3() -> [f32; 3] {
+    [-1.0; 3]
+}
+fn one3() -> [f32; 3] {
+    [1.0; 3]
+}
+fn noise_frequency() -> f32 {
+    crate::medium::NoiseDensity::default().frequency
+}
+fn noise_octaves() -> u32 {
+    crate::medium::NoiseDensity::default().octaves
+}
+fn noise_threshold() -> f32 {
+    crate::medium::NoiseDensity::default().threshold
+}
+fn noise_gain() -> f32 {
+    crate::medium::NoiseDensity::default().gain
+}
+
+/// Most voxels a `noise` medium may bake (128³): baking costs time when the scene loads.
+const MAX_NOISE_VOXELS: u64 = 128 * 128 * 128;
 
 #[derive(Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
@@ -672,6 +767,7 @@ impl Converter<'_> {
                     albedo: Vec3::ZERO,
                     texture: None,
                 },
+                JBsdf::Interface {} => BsdfDesc::Interface,
             };
             let mut md = MaterialDesc::new(name.clone(), bsdf);
             md.emission = v3(m.emission);
@@ -686,6 +782,33 @@ impl Converter<'_> {
             mat_index.insert(name.clone(), self.desc.materials.len());
             self.desc.materials.push(md);
         }
+        // Media.
+        let mut medium_index = BTreeMap::new();
+        for (name, m) in &f.media {
+            let desc = self.medium(name, m)?;
+            medium_index.insert(name.clone(), self.desc.media.len());
+            self.desc.media.push(desc);
+        }
+        let find_medium = |this: &Self, at: &str, n: &str| -> Result<usize, SceneError> {
+            medium_index.get(n).copied().ok_or_else(|| {
+                let known: Vec<_> = medium_index.keys().map(String::as_str).collect();
+                this.err(
+                    at,
+                    format!(
+                        "unknown medium '{n}' (known: {})",
+                        if known.is_empty() {
+                            "none: define it under `media`".to_string()
+                        } else {
+                            known.join(", ")
+                        }
+                    ),
+                    &format!("\"{n}\""),
+                )
+            })
+        };
+        if let Some(n) = &f.medium {
+            self.desc.medium = Some(find_medium(&self, "medium", n)?);
+        }
         // Objects.
         for (i, o) in f.objects.iter().enumerate() {
             let at = format!("objects[{i}]");
@@ -696,6 +819,13 @@ impl Converter<'_> {
             };
             let name = o.name.clone().unwrap_or_else(|| format!("object {i}"));
             if let JShape::Gltf { path } = &o.shape {
+                if o.interior.is_some() || o.exterior.is_some() {
+                    return Err(self.err(
+                        &at,
+                        "`interior` and `exterior` apply to one closed shape, not to a glTF include",
+                        "\"interior\"",
+                    ));
+                }
                 let inc = self.include(&format!("{at}.shape.path"), path)?;
                 self.merge(inc, transform);
                 continue;
@@ -714,11 +844,28 @@ impl Converter<'_> {
                 }
             };
             let shape = self.shape(&o.shape, &name, &at)?;
+            let media = if o.interior.is_some() || o.exterior.is_some() {
+                let side = |field: &str, n: &Option<String>| {
+                    n.as_deref()
+                        .map(|n| find_medium(&self, &format!("{at}.{field}"), n))
+                        .transpose()
+                };
+                Some(ObjectMedia {
+                    interior: side("interior", &o.interior)?,
+                    exterior: match &o.exterior {
+                        Some(_) => side("exterior", &o.exterior)?,
+                        None => self.desc.medium,
+                    },
+                })
+            } else {
+                None
+            };
             self.desc.objects.push(ObjectDesc {
                 name,
                 shape,
                 material,
                 transform,
+                media,
             });
         }
         // Lights.
@@ -804,6 +951,164 @@ impl Converter<'_> {
                 .insert(self.desc.cameras.len().min(i), cam);
         }
         Ok(self.desc)
+    }
+
+    /// The medium `media.NAME`: coefficients checked, its grid read (through the scene's
+    /// resolver, charged to its memory budget) or baked.
+    fn medium(&self, name: &str, m: &JMedium) -> Result<MediumDesc, SceneError> {
+        let at = format!("media.{name}");
+        let (sigma_a, sigma_s, g, scale) = match m {
+            JMedium::Homogeneous {
+                sigma_a,
+                sigma_s,
+                g,
+                scale,
+            }
+            | JMedium::Grid {
+                sigma_a,
+                sigma_s,
+                g,
+                scale,
+                ..
+            }
+            | JMedium::Noise {
+                sigma_a,
+                sigma_s,
+                g,
+                scale,
+                ..
+            } => (v3(*sigma_a), v3(*sigma_s), *g, *scale),
+        };
+        let needle = format!("\"{name}\"");
+        for (field, v) in [("sigma_a", sigma_a), ("sigma_s", sigma_s)] {
+            if !(v.is_finite() && v.min_element() >= 0.0) {
+                return Err(self.err(
+                    &format!("{at}.{field}"),
+                    "must be finite and non-negative in every channel",
+                    &needle,
+                ));
+            }
+        }
+        if !(g > -1.0 && g < 1.0) {
+            return Err(self.err(&format!("{at}.g"), "g must be in (-1, 1)", &needle));
+        }
+        if !(scale.is_finite() && scale >= 0.0) {
+            return Err(self.err(
+                &format!("{at}.scale"),
+                "scale must be finite and non-negative",
+                &needle,
+            ));
+        }
+        let density = match m {
+            JMedium::Homogeneous { .. } => None,
+            JMedium::Grid {
+                path,
+                grid,
+                majorant_resolution,
+                ..
+            } => {
+                let field = format!("{at}.path");
+                let limits = crate::medium::GridLimits::default();
+                let (r, bytes) = self.read_file(&field, path, limits.max_file_bytes)?;
+                let path_needle = path.to_string_lossy();
+                let loaded =
+                    crate::medium::load_grid_bytes(&bytes, &r.named, grid.as_deref(), &limits)
+                        .map_err(|e| self.err(&field, e, &path_needle))?;
+                self.files
+                    .charge_memory(
+                        loaded.density.values().len() as u64 * 4,
+                        &show(&path_needle),
+                    )
+                    .map_err(|e| self.err(&field, e, &path_needle))?;
+                Some(GridDesc {
+                    density: loaded.density,
+                    transform: loaded.transform,
+                    majorant_resolution: self.majorant_resolution(&at, majorant_resolution)?,
+                })
+            }
+            JMedium::Noise {
+                resolution,
+                min,
+                max,
+                seed,
+                frequency,
+                octaves,
+                threshold,
+                gain,
+                majorant_resolution,
+                ..
+            } => {
+                let voxels = resolution.iter().map(|&r| u64::from(r)).product::<u64>();
+                if resolution.contains(&0) || voxels > MAX_NOISE_VOXELS {
+                    return Err(self.err(
+                        &format!("{at}.resolution"),
+                        format!(
+                            "between 1 and {MAX_NOISE_VOXELS} voxels in all, each axis at least 1"
+                        ),
+                        &needle,
+                    ));
+                }
+                if !(frequency.is_finite()
+                    && *frequency > 0.0
+                    && threshold.is_finite()
+                    && gain.is_finite())
+                {
+                    return Err(self.err(
+                        &at,
+                        "frequency must be positive, threshold and gain finite",
+                        &needle,
+                    ));
+                }
+                self.files
+                    .charge_memory(voxels * 4, &format!("noise medium '{name}'"))
+                    .map_err(|e| self.err(&at, e, &needle))?;
+                let bounds =
+                    crate::geometry::Aabb::new(Vec3A::from(v3(*min)), Vec3A::from(v3(*max)));
+                let noise = crate::medium::NoiseDensity {
+                    seed: *seed,
+                    frequency: *frequency,
+                    octaves: *octaves,
+                    threshold: *threshold,
+                    gain: *gain,
+                };
+                let density = crate::medium::DensityGrid::from_fn(
+                    resolution.map(|r| r as usize),
+                    bounds,
+                    |p| noise.density(p),
+                )
+                .map_err(|e| self.err(&at, e, &needle))?;
+                Some(GridDesc {
+                    density,
+                    transform: glam::Affine3A::IDENTITY,
+                    majorant_resolution: self.majorant_resolution(&at, majorant_resolution)?,
+                })
+            }
+        };
+        Ok(MediumDesc {
+            name: name.to_string(),
+            sigma_a,
+            sigma_s,
+            g,
+            scale,
+            density,
+        })
+    }
+
+    /// A grid medium's `majorant_resolution`, checked: 1 to 256 cells per axis.
+    fn majorant_resolution(
+        &self,
+        at: &str,
+        res: &Option<[u32; 3]>,
+    ) -> Result<Option<[usize; 3]>, SceneError> {
+        match res {
+            None => Ok(None),
+            Some(r) if r.iter().all(|&c| (1..=256).contains(&c)) => Ok(Some(r.map(|c| c as usize))),
+            Some(_) => Err(self.err(
+                &format!("{at}.majorant_resolution"),
+                "1 to 256 cells per axis",
+                "\"majorant_resolution\"",
+            )),
+        }
     }
 
     fn camera(&self, c: &JCamera, i: usize) -> Result<CameraDesc, SceneError> {

@@ -36,6 +36,12 @@ use std::sync::Arc;
 /// [`Scene::build`]; each render adds a [`RenderJob`].
 pub struct Scene {
     pub(crate) objects: Vec<Object>,
+    /// Participating media, referenced by [`Object::media`] and `camera_medium`.
+    pub(crate) media: Vec<crate::medium::Medium>,
+    /// The medium outside every object (global fog), where camera rays start.
+    pub(crate) camera_medium: Option<u32>,
+    /// Some material is an interface (a medium boundary that does not scatter).
+    pub(crate) has_interfaces: bool,
     pub(crate) meshes: Vec<Mesh>,
     pub(crate) materials: Vec<Material>,
     pub(crate) textures: Vec<Texture>,
@@ -87,6 +93,9 @@ pub(crate) enum ObjectKind {
 pub(crate) struct Object {
     pub name: String,
     pub kind: ObjectKind,
+    /// The media inside and outside (indices into `Scene::media`, `None` for vacuum), if the
+    /// surface bounds media; `None`: a ray crossing it keeps its medium.
+    pub media: Option<[Option<u32>; 2]>,
     pub material: u32,
     pub to_world: Affine3A,
     pub to_object: Affine3A,
@@ -162,6 +171,20 @@ impl Scene {
                 .map(AreaLight::memory_bytes)
                 .sum::<usize>();
         let environment = self.environment.as_ref().map_or(0, |e| e.memory_bytes());
+        let media = vec(&self.media)
+            + self
+                .media
+                .iter()
+                .map(|m| match m {
+                    crate::medium::Medium::Grid(g) => {
+                        let [x, y, z] = g.majorant_grid().resolution();
+                        size_of_val(g.as_ref())
+                            + size_of_val(g.density().values())
+                            + x * y * z * size_of::<f32>()
+                    }
+                    crate::medium::Medium::Homogeneous(_) => 0,
+                })
+                .sum::<usize>();
         size_of::<Self>()
             + objects
             + meshes
@@ -170,6 +193,7 @@ impl Scene {
             + self.aggregate.memory_bytes()
             + lights
             + environment
+            + media
     }
 }
 
@@ -283,6 +307,7 @@ mod tests {
                     shape: ShapeDesc::Mesh { mesh: 0 },
                     material: 0,
                     transform: Mat4::from_translation(Vec3::Z * i as f32),
+                    media: None,
                 })
                 .collect(),
             ..Default::default()

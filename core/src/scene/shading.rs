@@ -155,6 +155,63 @@ impl Scene {
         self.material_of(it.object).bsdf(&self.textures, &it.uv)
     }
 
+    /// Whether `object`'s material is an interface: a medium boundary rays cross unchanged.
+    #[inline]
+    pub(crate) fn is_interface(&self, object: u32) -> bool {
+        self.has_interfaces && self.material_of(object).interface
+    }
+
+    /// The medium a ray is in after leaving the surface of `object` (front normal `ng`) in
+    /// direction `w`, having been in `current`: the object's interior or exterior by the side
+    /// `w` points to, or `current` if the object bounds no medium.
+    #[inline]
+    pub(crate) fn medium_after(
+        &self,
+        object: u32,
+        ng: Vec3A,
+        w: Vec3A,
+        current: Option<u32>,
+    ) -> Option<u32> {
+        match self.objects[object as usize].media {
+            Some([interior, exterior]) => {
+                if w.dot(ng) > 0.0 {
+                    exterior
+                } else {
+                    interior
+                }
+            }
+            None => current,
+        }
+    }
+
+    /// Whether anything but interface surfaces blocks `ray` before `tmax` (interfaces let
+    /// light through unchanged): [`Scene::occluded`] when the scene has none.
+    #[inline]
+    pub(crate) fn occluded_past_interfaces(&self, ray: &Ray, tmax: f32) -> bool {
+        if !self.has_interfaces {
+            return self.occluded(ray, tmax);
+        }
+        let mut ray = *ray;
+        let mut tmax = tmax;
+        // Each step moves past one surface; a bound keeps a degenerate case from looping.
+        for _ in 0..256 {
+            let Some(hit) = self.intersect(&ray, tmax) else {
+                return false;
+            };
+            if !self.is_interface(hit.object) {
+                return true;
+            }
+            let it = self.interaction(&ray, &hit);
+            let next = it.spawn_ray(ray.d);
+            tmax -= (next.o - ray.o).dot(ray.d);
+            ray = next;
+            if !(tmax > 0.0) {
+                return false;
+            }
+        }
+        true
+    }
+
     /// Absorption coefficient of the body behind the surface of `object` (zero if none).
     #[inline]
     pub(crate) fn absorption(&self, object: u32) -> Vec3A {
@@ -206,6 +263,7 @@ mod tests {
             shape: ShapeDesc::Mesh { mesh: 0 },
             material: 0,
             transform,
+            media: None,
         });
         d
     }

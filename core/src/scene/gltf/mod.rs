@@ -515,6 +515,7 @@ impl Loader<'_> {
                 shape: ShapeDesc::Mesh { mesh: mesh_index },
                 material,
                 transform: world,
+                media: None,
             });
         }
         Ok(())
