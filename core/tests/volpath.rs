@@ -379,3 +379,66 @@ fn a_vol_grid_file_fills_its_box_in_the_space_of_its_object() {
         assert_mean(what, &px, want, 0.01);
     }
 }
+
+/// A global absorbing smoke, and a clear interface sphere at (0.3, 0, 0) of radius 0.4 whose
+/// exterior is that smoke (by default), seen through the smoke in front of a white sky.
+fn smoke_around_a_clear_ball(ball: &str) -> String {
+    format!(
+        r#"{{
+  "media": {{
+    "smoke": {{"type": "noise", "resolution": [16, 16, 16], "seed": 5, "threshold": 0.3,
+               "sigma_a": [3, 3, 3], "sigma_s": [0, 0, 0]}},
+    "clear": {{"type": "homogeneous", "sigma_a": [0, 0, 0], "sigma_s": [0, 0, 0]}}
+  }},
+  "medium": "smoke",
+  "materials": {{"boundary": {{"type": "interface"}}}},
+  "objects": [{{{ball}, "material": "boundary", "interior": "clear"}}],
+  "environment": {{"type": "constant", "radiance": [1, 1, 1]}},
+  "camera": {{"type": "orthographic", "position": [0, 0, 3], "look_at": [0, 0, 0], "half_height": 1}}
+}}"#
+    )
+}
+
+#[test]
+fn an_exterior_grid_stays_where_the_scene_puts_it_whatever_the_objects_transform() {
+    // The same ball twice: by its own centre and radius, and as a unit sphere moved and scaled
+    // by its transform. A ray that leaves the ball goes on in the scene's smoke, in world
+    // space, not in a copy of the smoke moved by the ball's transform.
+    let own = load(&smoke_around_a_clear_ball(
+        r#""shape": {"type": "sphere", "center": [0.3, 0, 0], "radius": 0.4}"#,
+    ));
+    let moved = load(&smoke_around_a_clear_ball(
+        r#""shape": {"type": "sphere", "radius": 1},
+           "transform": {"scale": 0.4, "translate": [0.3, 0, 0]}"#,
+    ));
+    let s = settings(32, 16, IntegratorKind::Volpath);
+    let (a, b) = (image(&own, &s), image(&moved, &s));
+    let (mean, _) = stats(&a);
+    assert!(mean[0] < 0.9, "the smoke absorbs: mean {mean:?}");
+    assert_mean(
+        "ball by transform − ball by centre",
+        &differences(&b, &a),
+        [0.0; 3],
+        0.01,
+    );
+}
+
+#[test]
+fn an_exterior_grid_held_by_several_objects_is_refused() {
+    let json = r#"{
+  "media": {"smoke": {"type": "noise", "sigma_a": [1, 1, 1], "sigma_s": [0, 0, 0]}},
+  "materials": {"boundary": {"type": "interface"}},
+  "objects": [
+    {"shape": {"type": "sphere", "center": [-2, 0, 0]}, "material": "boundary", "interior": "smoke"},
+    {"shape": {"type": "sphere", "center": [2, 0, 0]}, "material": "boundary", "interior": "smoke"},
+    {"shape": {"type": "sphere", "radius": 0.1}, "material": "boundary", "exterior": "smoke"}
+  ],
+  "camera": {"position": [0, 0, 5], "look_at": [0, 0, 0]}
+}"#;
+    let desc = parse_json(json, Path::new("."), Path::new("test.json")).unwrap();
+    let Err(err) = Scene::build(&desc) else {
+        panic!("an ambiguous exterior grid is an error");
+    };
+    let msg = err.to_string();
+    assert!(msg.contains("held by several objects"), "{msg}");
+}

@@ -89,43 +89,57 @@ impl Scene {
             objects: desc.objects.len(),
             ..Default::default()
         };
-        // Media: a homogeneous medium (and a grid in world space) is made once; a grid bounded
-        // by an object is placed by that object's transform, once per object.
+        // Media: a homogeneous medium (and a grid in world space) is made once; a grid is placed
+        // by the object that holds it (whose interior it is), once per holder, and an exterior
+        // reference uses the placement of the medium's holder (world space for the scene's medium).
         let mut media: Vec<Medium> = Vec::new();
-        let mut in_world: Vec<Option<u32>> = vec![None; desc.media.len()];
+        let mut placed: std::collections::HashMap<(usize, Option<usize>), u32> =
+            std::collections::HashMap::new();
         // Each medium built once; a grid placed by an object is a clone (voxels and majorants
         // shared) with that object's transform.
         let mut built: Vec<Option<Medium>> = vec![None; desc.media.len()];
         let mut place_medium = |mi: usize,
-                                to_world: Option<Affine3A>,
+                                holder: Option<usize>,
                                 at: &dyn Fn() -> String|
          -> Result<u32, SceneError> {
             let m = desc
                 .media
                 .get(mi)
                 .ok_or_else(|| invalid(format!("{}: medium index {mi} out of range", at())))?;
-            let shared = m.density.is_none() || to_world.is_none();
-            if shared {
-                if let Some(i) = in_world[mi] {
-                    return Ok(i);
-                }
+            let holder = if m.density.is_none() { None } else { holder };
+            if let Some(&i) = placed.get(&(mi, holder)) {
+                return Ok(i);
             }
             let err = |e| invalid(format!("{}: medium '{}': {e}", at(), m.name));
             if built[mi].is_none() {
                 built[mi] = Some(build_medium(m).map_err(err)?);
             }
-            let mut placed = built[mi].clone().expect("built just above");
-            if let (Medium::Grid(g), Some(grid)) = (&mut placed, &m.density) {
-                let world = to_world.unwrap_or(Affine3A::IDENTITY) * grid.transform;
-                **g = g.as_ref().clone().with_transform(world).map_err(err)?;
+            let mut placed_medium = built[mi].clone().expect("built just above");
+            if let (Medium::Grid(g), Some(grid)) = (&mut placed_medium, &m.density) {
+                let to_world = holder
+                    .and_then(|h| desc.objects.get(h))
+                    .map_or(Affine3A::IDENTITY, |o| Affine3A::from_mat4(o.transform));
+                **g = g
+                    .as_ref()
+                    .clone()
+                    .with_transform(to_world * grid.transform)
+                    .map_err(err)?;
             }
-            media.push(placed);
+            media.push(placed_medium);
             let i = (media.len() - 1) as u32;
-            if shared {
-                in_world[mi] = Some(i);
-            }
+            placed.insert((mi, holder), i);
             Ok(i)
         };
+        // The objects whose interior each medium is: an exterior reference to a grid uses the
+        // placement of its one holder.
+        let mut holders: Vec<Vec<usize>> = vec![Vec::new(); desc.media.len()];
+        for (oi, o) in desc.objects.iter().enumerate() {
+            if let Some(mi) = o.media.and_then(|m| m.interior) {
+                if let Some(h) = holders.get_mut(mi) {
+                    h.push(oi);
+                }
+            }
+        }
         let camera_medium = match desc.medium {
             Some(mi) => Some(place_medium(mi, None, &|| {
                 "the scene's medium".to_string()
@@ -206,11 +220,32 @@ impl Scene {
             };
             let object_media = match o.media {
                 Some(om) => {
-                    let mut side = |mi: Option<usize>| {
-                        mi.map(|mi| place_medium(mi, Some(to_world), &ctx))
-                            .transpose()
+                    let interior = om
+                        .interior
+                        .map(|mi| place_medium(mi, Some(oi), &ctx))
+                        .transpose()?;
+                    let exterior = match om.exterior {
+                        None => None,
+                        Some(mi) => {
+                            let grid = desc.media.get(mi).is_some_and(|m| m.density.is_some());
+                            let holder = match holders.get(mi).map(Vec::as_slice) {
+                                _ if !grid || desc.medium == Some(mi) => None,
+                                Some([h]) => Some(*h),
+                                Some([_, _, ..]) => {
+                                    return Err(invalid(format!(
+                                        "{}: exterior medium '{}' is a grid held by several \
+                                         objects; an exterior may name a grid only when it is \
+                                         the scene's medium or the interior of one object",
+                                        ctx(),
+                                        desc.media[mi].name
+                                    )))
+                                }
+                                _ => None,
+                            };
+                            Some(place_medium(mi, holder, &ctx)?)
+                        }
                     };
-                    Some([side(om.interior)?, side(om.exterior)?])
+                    Some([interior, exterior])
                 }
                 None => None,
             };

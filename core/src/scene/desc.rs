@@ -360,8 +360,8 @@ pub struct MediumDesc {
     /// Multiplies `sigma_a` and `sigma_s`.
     pub scale: f32,
     /// `None`: homogeneous. Else σa and σs are multiplied by this density, which fills its
-    /// box in the space of the object that holds the medium (world space for the scene's
-    /// global medium).
+    /// box in the space of the object that holds the medium as its interior (world space for
+    /// the scene's global medium); an exterior reference sees it where its holder put it.
     pub density: Option<GridDesc>,
 }
 
