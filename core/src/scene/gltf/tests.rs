@@ -854,3 +854,115 @@ fn images_need_a_source() {
         expect_err(&bytes, &["image 0"]);
     }
 }
+
+// ---------------------------------------------------------------------------------------------
+// Renders of small documents.
+
+/// A 2 × 2 quad in the plane z = 0 facing +Z (towards the default camera), with normals and
+/// UVs (u left to right, v top to bottom), material 0, plus `extra_attrs` and `extra` members.
+fn quad_scene(mut d: Doc, extra_attrs: Value, extra: Value) -> Vec<u8> {
+    let p = d.positions(&[
+        [-1.0, -1.0, 0.0],
+        [1.0, -1.0, 0.0],
+        [1.0, 1.0, 0.0],
+        [-1.0, 1.0, 0.0],
+    ]);
+    let n = d.floats(&[0.0, 0.0, 1.0].repeat(4), "VEC3", 3);
+    let uv = d.floats(&[0.0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0], "VEC2", 2);
+    let i = d.indices_u16(&[0, 1, 2, 0, 2, 3]);
+    let mut attrs = json!({"POSITION": p, "NORMAL": n, "TEXCOORD_0": uv});
+    if let (Some(o), Value::Object(e)) = (attrs.as_object_mut(), extra_attrs) {
+        o.extend(e);
+    }
+    let prim = json!({"attributes": attrs, "indices": i, "material": 0});
+    one_prim(d, prim, extra)
+}
+
+/// A `w` × `h` PNG as a data URI, texel (x, y) = `f(x, y)` (RGBA, 8 bits).
+fn png_uri(w: u32, h: u32, f: impl Fn(u32, u32) -> [u8; 4]) -> String {
+    let img = image::RgbaImage::from_fn(w, h, |x, y| image::Rgba(f(x, y)));
+    let mut png = Vec::new();
+    img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .unwrap();
+    format!(
+        "data:image/png;base64,{}",
+        base64::engine::general_purpose::STANDARD.encode(png)
+    )
+}
+
+/// Renders a loaded document at `n`² with `spp` (path tracer); linear RGB, row-major from the
+/// top.
+fn render_doc(s: &SceneDesc, n: u32, spp: u32, default_light: bool) -> Vec<Vec3> {
+    let settings = crate::RenderSettings {
+        width: n,
+        height: n,
+        spp,
+        max_depth: 8,
+        default_light,
+        ..Default::default()
+    };
+    let scene = crate::Scene::build(s).unwrap();
+    let job = crate::RenderJob::new(&scene, &settings).unwrap();
+    let film = crate::render(&scene, &job, &());
+    film.resolve().into_iter().map(Vec3::from).collect()
+}
+
+fn mean(px: &[Vec3]) -> f32 {
+    px.iter().map(|p| p.element_sum() / 3.0).sum::<f32>() / px.len() as f32
+}
+
+/// Shaped like DamagedHelmet: no light of its own, an emissive texture on part of it (the left
+/// half of a grey quad glows red). Emissive textures do not light a model, so it gets the
+/// default environment and renders well above black; without the default light only the
+/// glowing half shows.
+#[test]
+fn a_model_lit_only_by_an_emissive_texture_gets_the_default_light() {
+    let bytes = quad_scene(
+        Doc::default(),
+        json!({}),
+        json!({
+            "images": [{"uri": png_uri(2, 1, |x, _| if x == 0 { [255, 0, 0, 255] } else { [0, 0, 0, 255] })}],
+            "samplers": [{"magFilter": 9728, "minFilter": 9728}],
+            "textures": [{"source": 0, "sampler": 0}],
+            "materials": [{
+                "pbrMetallicRoughness": {"baseColorFactor": [0.8, 0.8, 0.8, 1.0], "metallicFactor": 0.0},
+                "emissiveFactor": [1.0, 1.0, 1.0],
+                "emissiveTexture": {"index": 0},
+            }],
+        }),
+    );
+    let s = load(&bytes).unwrap();
+    assert!(s.default_environment, "an emissive texture is not a light");
+    assert!(s.warnings.iter().any(|w| w.contains("has no light")));
+    let n = 24;
+    let lit = render_doc(&s, n, 8, true);
+    let lit_mean = mean(&lit);
+    assert!(lit_mean > 0.5, "lit by default: mean {lit_mean}");
+
+    let dark = render_doc(&s, n, 8, false);
+    let at = |x: u32, y: u32| dark[(y * n + x) as usize];
+    // The right half (non-emissive quad and background) is black; the left half of the quad
+    // glows red (and only red: nothing else lights the scene).
+    for y in 0..n {
+        for x in n / 2 + 1..n {
+            assert_eq!(at(x, y), Vec3::ZERO, "({x}, {y}) should be black");
+        }
+    }
+    assert!(dark.iter().all(|p| p.y == 0.0 && p.z == 0.0));
+    let c = at(n / 2 - 3, n / 2);
+    assert!(c.x > 0.5, "the emissive half glows: {c}");
+    assert!(mean(&dark) < lit_mean / 4.0);
+}
+
+/// An untextured emissive surface with power (a lamp) lights the model: no default light.
+#[test]
+fn an_untextured_emitter_lights_the_model() {
+    let bytes = quad_scene(
+        Doc::default(),
+        json!({}),
+        json!({"materials": [{"emissiveFactor": [1.0, 1.0, 1.0]}]}),
+    );
+    let s = load(&bytes).unwrap();
+    assert!(!s.default_environment);
+    assert!(s.environment.is_none());
+}
