@@ -893,14 +893,21 @@ fn png_uri(w: u32, h: u32, f: impl Fn(u32, u32) -> [u8; 4]) -> String {
 /// Renders a loaded document at `n`² with `spp` (path tracer); linear RGB, row-major from the
 /// top.
 fn render_doc(s: &SceneDesc, n: u32, spp: u32, default_light: bool) -> Vec<Vec3> {
-    let settings = crate::RenderSettings {
-        width: n,
-        height: n,
-        spp,
-        max_depth: 8,
-        default_light,
-        ..Default::default()
-    };
+    render_with(
+        s,
+        crate::RenderSettings {
+            width: n,
+            height: n,
+            spp,
+            max_depth: 8,
+            default_light,
+            ..Default::default()
+        },
+    )
+}
+
+/// Renders a loaded document with `settings`; linear RGB, row-major from the top.
+fn render_with(s: &SceneDesc, settings: crate::RenderSettings) -> Vec<Vec3> {
     let scene = crate::Scene::build(s).unwrap();
     let job = crate::RenderJob::new(&scene, &settings).unwrap();
     let film = crate::render(&scene, &job, &());
@@ -913,8 +920,8 @@ fn mean(px: &[Vec3]) -> f32 {
 
 /// Shaped like DamagedHelmet: no light of its own, an emissive texture on part of it (the left
 /// half of a grey quad glows red). Emissive textures do not light a model, so it gets the
-/// default environment and renders well above black; without the default light only the
-/// glowing half shows.
+/// default environment and renders well above black; without the default light (or with the
+/// job's `--environment none`) only the glowing half shows.
 #[test]
 fn a_model_lit_only_by_an_emissive_texture_gets_the_default_light() {
     let bytes = quad_scene(
@@ -940,6 +947,22 @@ fn a_model_lit_only_by_an_emissive_texture_gets_the_default_light() {
     assert!(lit_mean > 0.5, "lit by default: mean {lit_mean}");
 
     let dark = render_doc(&s, n, 8, false);
+    // The job's `--environment none` gives the same image.
+    let none = render_with(
+        &s,
+        crate::RenderSettings {
+            width: n,
+            height: n,
+            spp: 8,
+            max_depth: 8,
+            environment: Some(crate::EnvironmentChoice::None),
+            ..Default::default()
+        },
+    );
+    assert!(
+        none == dark,
+        "--environment none is the scene without the default light"
+    );
     let at = |x: u32, y: u32| dark[(y * n + x) as usize];
     // The right half (non-emissive quad and background) is black; the left half of the quad
     // glows red (and only red: nothing else lights the scene).
