@@ -618,6 +618,10 @@ fn build_material(m: &MaterialDesc, n_textures: usize) -> Result<Material, Scene
             slots.base = check(&p.base_color_texture)?;
             slots.metallic_roughness = check(&p.metallic_roughness_texture)?;
             slots.transmission = check(&p.transmission_texture)?;
+            slots.specular = check(&p.specular_texture)?;
+            slots.specular_color = check(&p.specular_color_texture)?;
+            slots.clearcoat = check(&p.clearcoat_texture)?;
+            slots.clearcoat_roughness = check(&p.clearcoat_roughness_texture)?;
             base_color = Vec4::from(p.base_color);
             if !p.thin_walled
                 && p.transmission > 0.0

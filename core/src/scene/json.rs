@@ -1001,6 +1001,10 @@ impl Converter<'_> {
                     shift(&mut p.base_color_texture);
                     shift(&mut p.metallic_roughness_texture);
                     shift(&mut p.transmission_texture);
+                    shift(&mut p.specular_texture);
+                    shift(&mut p.specular_color_texture);
+                    shift(&mut p.clearcoat_texture);
+                    shift(&mut p.clearcoat_roughness_texture);
                 }
                 _ => {}
             }

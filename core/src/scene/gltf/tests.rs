@@ -989,3 +989,142 @@ fn an_untextured_emitter_lights_the_model() {
     assert!(!s.default_environment);
     assert!(s.environment.is_none());
 }
+
+/// A 2 × 1 texture (NEAREST) as the members `images`, `samplers` and `textures` of a document:
+/// texel 0 (the quad's left half) `left`, texel 1 (right half) `right`.
+fn two_texels(left: [u8; 4], right: [u8; 4]) -> Value {
+    json!({
+        "images": [{"uri": png_uri(2, 1, |x, _| if x == 0 { left } else { right })}],
+        "samplers": [{"magFilter": 9728, "minFilter": 9728}],
+        "textures": [{"source": 0, "sampler": 0}],
+    })
+}
+
+/// `two_texels` plus `material` and the extensions it uses.
+fn textured_quad(left: [u8; 4], right: [u8; 4], material: Value) -> SceneDesc {
+    let mut extra = two_texels(left, right);
+    extra["materials"] = json!([material]);
+    extra["extensionsUsed"] = json!([
+        "KHR_materials_specular",
+        "KHR_materials_clearcoat",
+        "KHR_materials_emissive_strength"
+    ]);
+    load(&quad_scene(Doc::default(), json!({}), extra)).unwrap()
+}
+
+/// Mean colour of the quad's left and right halves (inner pixels only), rendered at `n`².
+fn halves(px: &[Vec3], n: u32) -> (Vec3, Vec3) {
+    let (mut l, mut r, mut count) = (Vec3::ZERO, Vec3::ZERO, 0.0);
+    for y in n * 2 / 5..n * 3 / 5 {
+        for dx in 2..n / 6 {
+            l += px[(y * n + n / 2 - dx) as usize];
+            r += px[(y * n + n / 2 + dx) as usize];
+            count += 1.0;
+        }
+    }
+    (l / count, r / count)
+}
+
+/// `KHR_materials_specular` textures: the strength (A channel) switches the specular layer of
+/// a black dielectric on the left half and off on the right; the colour texture tints it red.
+#[test]
+fn specular_textures_render() {
+    let n = 40;
+    let settings = |spp| crate::RenderSettings {
+        width: n,
+        height: n,
+        spp,
+        max_depth: 4,
+        ..Default::default()
+    };
+    let black = json!({"baseColorFactor": [0.0, 0.0, 0.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 0.4});
+    let strength = json!({
+        "pbrMetallicRoughness": black.clone(),
+        "extensions": {"KHR_materials_specular": {"specularTexture": {"index": 0}}},
+    });
+    let s = textured_quad([0, 0, 0, 255], [0, 0, 0, 0], strength);
+    let p = pbr(&s.materials[0]);
+    assert!(p.specular_texture.is_some());
+    assert!(!s.textures[p.specular_texture.unwrap().texture].srgb);
+    let (l, r) = halves(&render_with(&s, settings(16)), n);
+    assert!(l.min_element() > 0.02, "specular on the left: {l}");
+    assert_eq!(r, Vec3::ZERO, "no specular and a black base on the right");
+
+    let colour = json!({
+        "pbrMetallicRoughness": black,
+        "extensions": {"KHR_materials_specular": {"specularColorTexture": {"index": 0}}},
+    });
+    let s = textured_quad([255, 0, 0, 255], [255, 255, 255, 255], colour);
+    let p = pbr(&s.materials[0]);
+    assert!(s.textures[p.specular_color_texture.unwrap().texture].srgb);
+    let (l, r) = halves(&render_with(&s, settings(16)), n);
+    assert!(
+        l.x > 1.5 * l.y && l.x > 1.5 * l.z,
+        "red specular on the left: {l}"
+    );
+    assert!(
+        (r.x - r.y).abs() < 0.1 * r.x,
+        "white specular on the right: {r}"
+    );
+}
+
+/// `KHR_materials_clearcoat` textures: the coat (R channel) on the left half of a black,
+/// specular-free surface reflects the environment, the right half stays black; the roughness
+/// texture (G channel) is read as linear data.
+#[test]
+fn clearcoat_textures_render() {
+    let n = 40;
+    let m = json!({
+        "pbrMetallicRoughness": {"baseColorFactor": [0.0, 0.0, 0.0, 1.0], "metallicFactor": 0.0},
+        "extensions": {
+            "KHR_materials_specular": {"specularFactor": 0.0},
+            "KHR_materials_clearcoat": {"clearcoatFactor": 1.0, "clearcoatTexture": {"index": 0},
+                "clearcoatRoughnessFactor": 0.5, "clearcoatRoughnessTexture": {"index": 0, "texCoord": 0}},
+        },
+    });
+    let s = textured_quad([255, 128, 0, 255], [0, 128, 0, 255], m);
+    let p = pbr(&s.materials[0]);
+    let (cc, ccr) = (
+        p.clearcoat_texture.unwrap(),
+        p.clearcoat_roughness_texture.unwrap(),
+    );
+    assert!(!s.textures[cc.texture].srgb && !s.textures[ccr.texture].srgb);
+    let px = render_with(
+        &s,
+        crate::RenderSettings {
+            width: n,
+            height: n,
+            spp: 16,
+            max_depth: 4,
+            ..Default::default()
+        },
+    );
+    let (l, r) = halves(&px, n);
+    assert!(l.min_element() > 0.02, "coated on the left: {l}");
+    assert_eq!(r, Vec3::ZERO, "no coat on the right");
+    // A clearcoat texture that names no texture is an error naming it.
+    let bad = json!({"extensions": {"KHR_materials_clearcoat": {"clearcoatFactor": 1.0, "clearcoatTexture": {"index": 7}}}});
+    let mut extra = two_texels([0; 4], [0; 4]);
+    extra["materials"] = json!([bad]);
+    expect_err(
+        &quad_scene(Doc::default(), json!({}), extra),
+        &["clearcoatTexture", "no texture 7"],
+    );
+}
+
+/// `KHR_materials_emissive_strength` scales an emissive texture: a white texel with strength 5
+/// emits radiance 5 exactly.
+#[test]
+fn emissive_strength_scales_emissive_textures() {
+    let n = 40;
+    let m = json!({
+        "emissiveFactor": [1.0, 1.0, 1.0],
+        "emissiveTexture": {"index": 0},
+        "extensions": {"KHR_materials_emissive_strength": {"emissiveStrength": 5.0}},
+    });
+    let s = textured_quad([255, 255, 255, 255], [0, 0, 0, 255], m);
+    let px = render_doc(&s, n, 4, false);
+    let (l, r) = halves(&px, n);
+    assert!((l - Vec3::splat(5.0)).abs().max_element() < 1e-4, "{l}");
+    assert_eq!(r, Vec3::ZERO);
+}
