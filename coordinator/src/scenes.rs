@@ -375,7 +375,8 @@ pub async fn check_environment_map(
         .map_err(|e| AppError::internal(format!("scene folder: {e}")))?
         .with_memory_limit(limits.max_parse_memory);
         let base = file.parent().unwrap_or(Path::new("."));
-        let check = || raytile_core::scene::job::load_environment_map(&map, base, &files, 1.0, 0.0);
+        let check =
+            || raytile_core::scene::build::load_environment_map(&map, base, &files, 1.0, 0.0);
         match std::panic::catch_unwind(std::panic::AssertUnwindSafe(check)) {
             Ok(Ok(_)) => Ok(()),
             Ok(Err(e)) => Err(AppError::invalid(

@@ -160,16 +160,31 @@ impl Material {
     /// The BSDF at texture coordinates `uv`, with every texture looked up.
     #[inline]
     pub fn bsdf(&self, textures: &[Texture], uv: &[Vec2; 2]) -> Bsdf {
+        self.bsdf_tinted(textures, uv, Vec3A::ONE)
+    }
+
+    /// [`Material::bsdf`] with the base colour multiplied by the vertex colour `color` (white:
+    /// none).
+    #[inline]
+    pub fn bsdf_tinted(&self, textures: &[Texture], uv: &[Vec2; 2], color: Vec3A) -> Bsdf {
+        let base_color = |textures: &[Texture], uv: &[Vec2; 2]| {
+            let c = self.base_color(textures, uv);
+            if color == Vec3A::ONE {
+                c
+            } else {
+                c * color.extend(1.0)
+            }
+        };
         match &self.model {
             Model::Uniform(b) => *b,
             Model::Diffuse => {
-                let c = self.base_color(textures, uv);
+                let c = base_color(textures, uv);
                 Bsdf::Diffuse(Diffuse {
                     albedo: Vec3A::new(c.x, c.y, c.z).clamp(Vec3A::ZERO, Vec3A::ONE),
                 })
             }
             Model::Pbr(p) => {
-                let c = self.base_color(textures, uv);
+                let c = base_color(textures, uv);
                 let (mut metallic, mut roughness) = (p.metallic, p.roughness);
                 if let Some(s) = self.slots.metallic_roughness {
                     let t = s.lookup(textures, uv);

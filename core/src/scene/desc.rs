@@ -59,6 +59,9 @@ pub struct MeshDesc {
     pub tangents: Vec<[f32; 4]>,
     /// Texture coordinate sets 0 and 1; each is empty or has one entry per vertex.
     pub uvs: [Vec<Vec2>; 2],
+    /// Per-vertex colours (glTF `COLOR_0`, linear RGB) multiplying the material's base
+    /// colour; empty or one per vertex.
+    pub colors: Vec<Vec3>,
     /// Triangles as vertex indices, counter-clockwise seen from the front.
     pub indices: Vec<[u32; 3]>,
 }

@@ -3,17 +3,14 @@
 //! that picks lights, which depends on that environment. Cheap to make (the light distribution
 //! is linear in the number of lights), so a scene built once serves every job on it.
 
-use super::desc::WrapMode;
-use super::files::SceneFiles;
 use super::{ObjectKind, Scene, SceneCamera, SceneError};
 use crate::camera::{Camera, Projection};
 use crate::film::FilterSampler;
 use crate::geometry::{Aabb, Interaction};
 use crate::light::{Environment, Light, LightSample, LightSet};
-use crate::texture::{Texture, TextureLookup};
-use crate::{EnvironmentChoice, RenderSettings};
+use crate::settings::EnvironmentChoice;
+use crate::RenderSettings;
 use glam::{Mat4, Vec2, Vec3, Vec3A};
-use std::path::Path;
 use std::sync::Arc;
 
 /// A render of a [`Scene`] with given settings: everything that depends on the job rather than
@@ -61,7 +58,8 @@ impl RenderJob {
             ))),
             Some(EnvironmentChoice::Map(path)) => {
                 return Err(invalid(format!(
-                    "environment {path}: a map is read from files (RenderJob::with_files)"
+                    "environment {path}: a map is read from files (RenderJob::with_files, in \
+                     the builder)"
                 )))
             }
         };
@@ -73,35 +71,6 @@ impl RenderJob {
             lights: LightSet::default(),
         };
         Ok(job.with_environment(scene, environment))
-    }
-
-    /// The job rendering `scene` with `settings`, as [`RenderJob::new`], reading the
-    /// environment map the settings name (if they name one) through `files`, relative to the
-    /// folder `base`: the current folder for `raytile render`, the scene's folder on a farm
-    /// (where `files` confines it to that folder like any file of the scene).
-    pub fn with_files(
-        scene: &Scene,
-        settings: &RenderSettings,
-        files: &SceneFiles,
-        base: &Path,
-    ) -> Result<RenderJob, SceneError> {
-        let Some(EnvironmentChoice::Map(path)) = &settings.environment else {
-            return RenderJob::new(scene, settings);
-        };
-        let map = load_environment_map(
-            Path::new(path),
-            base,
-            files,
-            settings.environment_strength,
-            settings.environment_rotation,
-        )?;
-        let no_map = RenderSettings {
-            environment: Some(EnvironmentChoice::None),
-            ..settings.clone()
-        };
-        let mut job = RenderJob::new(scene, &no_map)?;
-        job.settings = settings.clone();
-        Ok(job.with_environment(scene, Some(Arc::new(map))))
     }
 
     /// This job with `environment` in place of the one it had (`None`: no environment), and
@@ -178,44 +147,6 @@ impl RenderJob {
         };
         pmf * scene.area_lights[light as usize].pdf(prim, it.p, it.ng, from)
     }
-}
-
-/// Reads the equirectangular map at `path` (relative to `base`, through `files`: Radiance
-/// `.hdr` or OpenEXR, linear RGB) as an importance-sampled environment, times `strength`,
-/// turned by `rotation_deg` degrees about +Y. The map's texels are charged to the memory
-/// budget of `files`.
-pub fn load_environment_map(
-    path: &Path,
-    base: &Path,
-    files: &SceneFiles,
-    strength: f32,
-    rotation_deg: f32,
-) -> Result<Environment, SceneError> {
-    const FIELD: &str = "environment";
-    let shown = path.display().to_string();
-    let r = files
-        .resolve_path(base, path, FIELD)
-        .map_err(|e| invalid(format!("environment: {}", e.describe())))?;
-    let bytes = files
-        .read(&r, FIELD, super::image::MAX_IMAGE_FILE)
-        .map_err(|e| invalid(format!("environment: {}", e.describe())))?;
-    let bad = |e: String| invalid(format!("environment {shown}: {e}"));
-    let (w, h) = super::image::image_size(&bytes).map_err(bad)?;
-    files
-        .charge_memory(u64::from(w) * u64::from(h) * 16, &shown)
-        .map_err(bad)?;
-    let img = super::image::decode_image(&bytes).map_err(bad)?;
-    let lookup = TextureLookup {
-        wrap_u: WrapMode::Repeat,
-        wrap_v: WrapMode::Clamp,
-        bilinear: true,
-    };
-    let texture = Texture::new(img.width, img.height, &img.texels, false, lookup);
-    Ok(Environment::map(
-        texture,
-        strength,
-        rotation_deg.to_radians(),
-    ))
 }
 
 fn invalid(msg: impl Into<String>) -> SceneError {
@@ -316,6 +247,7 @@ mod tests {
                     Vec3::new(-1.0, 2.0, 1.0),
                 ],
                 // Facing down (−Y), towards the points the test samples from.
+                colors: Vec::new(),
                 indices: vec![[0, 1, 2], [0, 2, 3]],
                 ..Default::default()
             }],

@@ -950,6 +950,7 @@ impl Converter<'_> {
                     normals: normals.iter().map(|&p| v3(p)).collect(),
                     tangents: Vec::new(),
                     uvs: [uvs.iter().map(|&p| Vec2::from(p)).collect(), Vec::new()],
+                    colors: Vec::new(),
                     indices: indices.clone(),
                 };
                 let n = mesh.positions.len();

@@ -955,7 +955,7 @@ fn a_model_lit_only_by_an_emissive_texture_gets_the_default_light() {
             height: n,
             spp: 8,
             max_depth: 8,
-            environment: Some(crate::EnvironmentChoice::None),
+            environment: Some(crate::settings::EnvironmentChoice::None),
             ..Default::default()
         },
     );
@@ -1127,4 +1127,64 @@ fn emissive_strength_scales_emissive_textures() {
     let (l, r) = halves(&px, n);
     assert!((l - Vec3::splat(5.0)).abs().max_element() < 1e-4, "{l}");
     assert_eq!(r, Vec3::ZERO);
+}
+
+/// `COLOR_0` multiplies the base colour: two quads side by side, the left one's vertices red
+/// (normalized unsigned bytes, RGBA), the right one's white, under a grey material, render
+/// red and grey.
+#[test]
+fn vertex_colours_multiply_the_base_colour() {
+    let mut d = Doc::default();
+    let mut pos = Vec::new();
+    for x0 in [-1.0f32, 0.0] {
+        pos.extend([
+            [x0, -1.0, 0.0],
+            [x0 + 1.0, -1.0, 0.0],
+            [x0 + 1.0, 1.0, 0.0],
+            [x0, 1.0, 0.0],
+        ]);
+    }
+    let p = d.positions(&pos);
+    let colours: Vec<u8> = [[255u8, 0, 0, 255]; 4]
+        .into_iter()
+        .chain([[255u8, 255, 255, 255]; 4])
+        .flatten()
+        .collect();
+    let c = d.accessor(&colours, 5121, "VEC4", 8);
+    d.accessors[c]["normalized"] = json!(true);
+    let i = d.indices_u16(&[0, 1, 2, 0, 2, 3, 4, 5, 6, 4, 6, 7]);
+    let prim = json!({"attributes": {"POSITION": p, "COLOR_0": c}, "indices": i, "material": 0});
+    let bytes = one_prim(
+        d,
+        prim,
+        json!({"materials": [{"pbrMetallicRoughness": {"baseColorFactor": [0.5, 0.5, 0.5, 1.0], "metallicFactor": 0.0}}]}),
+    );
+    let s = load(&bytes).unwrap();
+    assert_eq!(s.meshes[0].colors.len(), 8);
+    assert!(!s.warnings.iter().any(|w| w.contains("COLOR_0")));
+    let n = 40;
+    let px = render_with(
+        &s,
+        crate::RenderSettings {
+            width: n,
+            height: n,
+            spp: 4,
+            integrator: crate::IntegratorKind::Albedo,
+            ..Default::default()
+        },
+    );
+    let (l, r) = halves(&px, n);
+    assert!(
+        (l - Vec3::new(0.5, 0.0, 0.0)).abs().max_element() < 1e-3,
+        "red half: {l}"
+    );
+    assert!(
+        (r - Vec3::splat(0.5)).abs().max_element() < 1e-3,
+        "grey half: {r}"
+    );
+    // Lit by the default light, the red half is red (its white specular layer aside).
+    let lit = render_doc(&s, n, 4, true);
+    let (l, r) = halves(&lit, n);
+    assert!(l.x > 0.2 && l.y < 0.1 * l.x && l.z < 0.1 * l.x, "{l}");
+    assert!(r.min_element() > 0.2, "{r}");
 }
