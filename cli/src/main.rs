@@ -80,6 +80,12 @@ mod tests {
             "--passes",
             "2",
             "--no-default-light",
+            "--environment",
+            "sky.hdr",
+            "--environment-rotation",
+            "-90",
+            "--environment-strength",
+            "2.5",
         ];
         let want = RenderOverrides {
             width: Some(64),
@@ -93,6 +99,9 @@ mod tests {
             tile_size: Some(16),
             passes: Some(2),
             default_light: Some(false),
+            environment: Some(raytile_core::EnvironmentChoice::Map("sky.hdr".into())),
+            environment_rotation: Some(-90.0),
+            environment_strength: Some(2.5),
         };
         for command in [
             &["raytile", "render", "s.json", "-o", "x.png"][..],
@@ -107,6 +116,33 @@ mod tests {
                 "{command:?}"
             );
         }
+    }
+
+    #[test]
+    fn environment_values_parse_or_are_refused_by_the_parser() {
+        for (value, want) in [
+            ("none", raytile_core::EnvironmentChoice::None),
+            (
+                "0.5,0.5,1",
+                raytile_core::EnvironmentChoice::Constant([0.5, 0.5, 1.0]),
+            ),
+        ] {
+            let o = overrides(&["raytile", "submit", "s.json", "--environment", value]);
+            assert_eq!(o.environment, Some(want));
+        }
+        let e = Cli::try_parse_from([
+            "raytile",
+            "render",
+            "s.json",
+            "-o",
+            "x.png",
+            "--environment",
+            "sky.png",
+        ])
+        .err()
+        .unwrap()
+        .to_string();
+        assert!(e.contains("--environment") && e.contains(".hdr"), "{e}");
     }
 
     #[test]

@@ -4,9 +4,10 @@ use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use raytile_core::film::{self, OutputOptions, ToneMap};
+use raytile_core::scene::files::SceneFiles;
 use raytile_core::{load_scene, RenderJob, RenderOverrides, RenderProgress, Scene, SettingsError};
 use std::io::IsTerminal;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 use std::time::Instant;
@@ -81,7 +82,9 @@ pub fn run(args: RenderArgs) -> Result<()> {
     }
     let pool = pool.build().context("starting worker threads")?;
     let scene = pool.install(|| Scene::build(&desc))?;
-    let job = RenderJob::new(&scene, &settings)?;
+    // An environment map given on the command line is read as given (relative to the
+    // current folder).
+    let job = RenderJob::with_files(&scene, &settings, &SceneFiles::trusted(), Path::new("."))?;
     let total = settings.width as u64 * settings.height as u64 * settings.spp as u64;
     let bar = std::io::stderr().is_terminal().then(|| {
         let b = ProgressBar::new(total);

@@ -9,7 +9,9 @@ use raytile_core::film::ImageFormat;
 use raytile_core::scene::files::{self, SceneFiles};
 use raytile_proto::client::{reqwest, Bytes, Client, ClientError};
 use raytile_proto::scene::{self as pkg, SceneFormat};
-use raytile_proto::{JobRequest, JobState, JobStatus, RenderOverrides, SceneCreated};
+use raytile_proto::{
+    EnvironmentChoice, JobRequest, JobState, JobStatus, RenderOverrides, SceneCreated,
+};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 use tokio::io::AsyncReadExt as _;
@@ -147,6 +149,59 @@ impl ScenePack {
             .and_then(|e| e.to_str())
             .and_then(SceneFormat::from_name);
         Ok(ScenePack { format, files })
+    }
+
+    /// Adds the environment map `map` (a path as the user gave it) to the files uploaded and
+    /// returns its name in the scene's folder, as the job names it: its own path there if it
+    /// is inside the folder, otherwise `environment/` and its file name.
+    pub fn add_environment(&mut self, map: &Path) -> anyhow::Result<String> {
+        let meta =
+            std::fs::metadata(map).with_context(|| format!("--environment {}", map.display()))?;
+        if !meta.is_file() {
+            bail!("--environment {}: not a regular file", map.display());
+        }
+        let canonical = std::fs::canonicalize(map)
+            .with_context(|| format!("--environment {}", map.display()))?;
+        let folder = self.files[0]
+            .path
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        let folder = std::fs::canonicalize(folder).context("the scene's folder")?;
+        let inside = canonical
+            .strip_prefix(&folder)
+            .ok()
+            .and_then(|rel| rel.to_str())
+            .map(|rel| rel.replace(std::path::MAIN_SEPARATOR, "/"));
+        let name = match inside {
+            Some(rel) => rel,
+            None => {
+                let file = canonical
+                    .file_name()
+                    .and_then(|n| n.to_str())
+                    .ok_or_else(|| {
+                        anyhow!(
+                            "--environment {}: the file name is not UTF-8",
+                            map.display()
+                        )
+                    })?;
+                format!("environment/{file}")
+            }
+        };
+        match self.files.iter().find(|f| f.name == name) {
+            Some(f)
+                if std::fs::canonicalize(&f.path).ok().as_deref() == Some(canonical.as_path()) => {}
+            Some(_) => bail!(
+                "--environment {}: the scene already uses a file named {name}; rename the map",
+                map.display()
+            ),
+            None => self.files.push(pkg::PackFile {
+                path: canonical,
+                name: name.clone(),
+                size: meta.len(),
+            }),
+        }
+        Ok(name)
     }
 
     /// Bytes of all the files together.
@@ -344,7 +399,13 @@ pub async fn submit_and_follow(
 ) -> anyhow::Result<JobStatus> {
     let format = output.map(ImageFormat::from_path).transpose()?;
     job.overrides.check().map_err(flag_error)?;
-    let pack = ScenePack::check(scene)?;
+    let mut pack = ScenePack::check(scene)?;
+    let mut job = job.clone();
+    if let Some(EnvironmentChoice::Map(map)) = &job.overrides.environment {
+        // The map travels with the scene; the job names it inside the scene's folder.
+        let name = pack.add_environment(Path::new(map))?;
+        job.overrides.environment = Some(EnvironmentChoice::Map(name));
+    }
     let created = pack.upload(c).await.context("uploading the scene")?;
     let mut status = c
         .create_job(&job.request(created.id))
@@ -469,5 +530,48 @@ mod tests {
             );
         }
         let _ = stop.send(true);
+    }
+
+    #[test]
+    fn an_environment_map_is_packed_with_the_scene() {
+        let t = tempfile::tempdir().unwrap();
+        let scene_dir = t.path().join("scene");
+        std::fs::create_dir_all(scene_dir.join("maps")).unwrap();
+        let scene = gltf_folder(&scene_dir, 0);
+        std::fs::write(scene_dir.join("maps/sky.hdr"), b"inside").unwrap();
+        std::fs::write(t.path().join("studio.hdr"), b"outside").unwrap();
+        let mut pack = ScenePack::check(&scene).unwrap();
+        // Inside the scene's folder: its own path there; outside: environment/NAME.
+        assert_eq!(
+            pack.add_environment(&scene_dir.join("maps/sky.hdr"))
+                .unwrap(),
+            "maps/sky.hdr"
+        );
+        assert_eq!(
+            pack.add_environment(&t.path().join("studio.hdr")).unwrap(),
+            "environment/studio.hdr"
+        );
+        // The same map twice is packed once.
+        pack.add_environment(&t.path().join("studio.hdr")).unwrap();
+        let names: Vec<&str> = pack.files.iter().map(|f| f.name.as_str()).collect();
+        assert_eq!(
+            names,
+            [
+                "tri.gltf",
+                "tri.bin",
+                "maps/sky.hdr",
+                "environment/studio.hdr"
+            ]
+        );
+        // Another file of the same name, or no file at all: refused, saying which.
+        let other = t.path().join("other");
+        std::fs::create_dir(&other).unwrap();
+        std::fs::write(other.join("studio.hdr"), b"other").unwrap();
+        let e = pack.add_environment(&other.join("studio.hdr")).unwrap_err();
+        assert!(e.to_string().contains("already uses"), "{e}");
+        let e = pack
+            .add_environment(&t.path().join("none.hdr"))
+            .unwrap_err();
+        assert!(format!("{e:#}").contains("none.hdr"), "{e:#}");
     }
 }

@@ -348,3 +348,79 @@ fn submit_packs_exactly_the_files_the_scene_uses() {
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `--environment MAP` on `raytile cluster` (two workers, the map outside the scene's folder:
+/// packed with the scene as `environment/NAME`) gives the EXR of `raytile render`, byte for
+/// byte; so does a colour.
+#[test]
+fn cluster_with_an_environment_matches_render() {
+    let dir = std::env::temp_dir().join(format!("raytile-cli-env-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(dir.join("scene")).unwrap();
+    let ball = dir.join("scene/ball.json");
+    std::fs::write(
+        &ball,
+        r#"{"camera": {"position": [0, 1, 4], "look_at": [0, 0.5, 0], "fov": 50},
+            "materials": {"grey": {"type": "diffuse", "albedo": [0.6, 0.6, 0.6]}},
+            "objects": [{"shape": {"type": "sphere", "center": [0, 0.5, 0], "radius": 0.5},
+                         "material": "grey"}]}"#,
+    )
+    .unwrap();
+    let map = scene("studio.hdr");
+    let job = [
+        "--width",
+        "32",
+        "--height",
+        "24",
+        "--spp",
+        "4",
+        "--max-depth",
+        "4",
+        "--tile-size",
+        "16",
+    ];
+    for env in [
+        &[
+            "--environment",
+            map.as_str(),
+            "--environment-rotation",
+            "45",
+        ][..],
+        &["--environment", "0.2,0.4,0.6"],
+    ] {
+        let local = dir.join("local.exr");
+        let o = raytile()
+            .arg("render")
+            .arg(&ball)
+            .arg("-o")
+            .arg(&local)
+            .args(job)
+            .args(env)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let farm = dir.join("farm.exr");
+        let o = raytile()
+            .args(["cluster", "--workers", "2", "--threads", "1", "--render"])
+            .arg(&ball)
+            .arg("-o")
+            .arg(&farm)
+            .arg("--data-dir")
+            .arg(dir.join("data"))
+            .args(job)
+            .args(env)
+            .env_remove("RAYTILE_TOKEN")
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{err}");
+        if env[1].ends_with(".hdr") {
+            assert!(err.contains("environment/studio.hdr"), "{err}");
+        }
+        assert!(
+            std::fs::read(&local).unwrap() == std::fs::read(&farm).unwrap(),
+            "{env:?}: the cluster's EXR differs from raytile render's"
+        );
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -241,6 +241,9 @@ async fn create_job(
     let lim = &state.cfg.limits;
     lim.check_job(&settings)
         .map_err(|e| AppError::invalid(e.field, e.message))?;
+    if let Some(proto::EnvironmentChoice::Map(map)) = &settings.environment {
+        scenes::check_environment_map(&state, &m, map).await?;
+    }
     // The layout (every tile, ordered centre-out) is the costly part of a large job: made here,
     // outside the scheduler's lock, which then only stores one row.
     let layout = {

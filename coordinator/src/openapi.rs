@@ -94,7 +94,9 @@ fn settings_schema() -> Value {
         "seed": {"type": "integer"}, "camera": {"type": "string", "nullable": true},
         "filter": {"type": "string", "enum": FilterKind::ALL.map(FilterKind::name)},
         "tile_size": {"type": "integer"}, "passes": {"type": "integer"},
-        "default_light": {"type": "boolean"}}})
+        "default_light": {"type": "boolean"},
+        "environment": {"type": "string", "nullable": true},
+        "environment_rotation": {"type": "number"}, "environment_strength": {"type": "number"}}})
 }
 
 fn schemas() -> Value {
@@ -117,7 +119,11 @@ fn schemas() -> Value {
             "filter": {"type": "string", "enum": FilterKind::ALL.map(FilterKind::name)},
             "tile_size": u32_in(1, MAX_TILE_EDGE), "passes": u32_in(1, MAX_SPP),
             "priority": {"type": "integer", "minimum": i32::MIN, "maximum": i32::MAX},
-            "default_light": {"type": "boolean"}}},
+            "default_light": {"type": "boolean"},
+            "environment": {"type": "string", "example": "0.5,0.5,0.5",
+                "description": "the job's light, replacing the scene's environment: none, R,G,B (constant linear radiance, each ≥ 0) or the path of an equirectangular .hdr or .exr map inside the scene's folder (raytile submit packs it with the scene)"},
+            "environment_rotation": {"type": "number", "description": "rotation of the environment map about +Y, degrees (needs environment)"},
+            "environment_strength": {"type": "number", "minimum": 0, "description": "multiplies the environment (needs environment)"}}},
         "RenderSettings": settings_schema(),
         "JobStatus": {"type": "object", "required": ["id", "scene", "state", "settings", "tasks_total", "tasks_done"], "properties": {
             "id": {"type": "string"}, "scene": {"type": "string"}, "state": {"type": "string", "enum": JobState::ALL.map(JobState::name)},

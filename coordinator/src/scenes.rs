@@ -337,3 +337,57 @@ fn store_scene(
         .insert(id, m.clone());
     Ok(m)
 }
+
+/// Checks the environment map a job names (`map`, relative to the scene file's folder): read
+/// through the scene's confined resolver within `limits`, like any file of the scene, and
+/// decoded once, at most [`SceneLimits::max_parallel_parses`] at a time. The error says why
+/// (a missing file, a path leaving the folder, an undecodable image), for a 422 naming the
+/// `environment` field.
+pub async fn check_environment_map(
+    state: &AppState,
+    m: &SceneMeta,
+    map: &str,
+) -> Result<(), AppError> {
+    let limits = state.cfg.scene_limits.clone();
+    let permit =
+        match tokio::time::timeout(limits.parse_wait, state.parse_slots.clone().acquire_owned())
+            .await
+        {
+            Ok(Ok(permit)) => permit,
+            Ok(Err(_)) => return Err(AppError::Unavailable),
+            Err(_) => {
+                return Err(AppError::Busy(format!(
+                    "{} scenes are being checked and none ended within {} s: try again shortly",
+                    limits.max_parallel_parses,
+                    limits.parse_wait.as_secs_f64()
+                )))
+            }
+        };
+    let file = scene_dir(state, &m.id).join("root").join(&m.entry);
+    let map = PathBuf::from(map);
+    tokio::task::spawn_blocking(move || {
+        let _permit = permit;
+        let files = files::SceneFiles::confined_to_scene(
+            &file,
+            limits.max_file_bytes,
+            limits.max_scene_bytes,
+        )
+        .map_err(|e| AppError::internal(format!("scene folder: {e}")))?
+        .with_memory_limit(limits.max_parse_memory);
+        let base = file.parent().unwrap_or(Path::new("."));
+        let check =
+            || raytile_core::scene::build::load_environment_map(&map, base, &files, 1.0, 0.0);
+        match std::panic::catch_unwind(std::panic::AssertUnwindSafe(check)) {
+            Ok(Ok(_)) => Ok(()),
+            Ok(Err(e)) => Err(AppError::invalid(
+                "environment",
+                format!(
+                    "{e} (a farm reads the map from the scene's folder: submit packs it there)"
+                ),
+            )),
+            Err(_) => Err(AppError::internal("environment map check panicked")),
+        }
+    })
+    .await
+    .map_err(AppError::internal)?
+}

@@ -584,3 +584,21 @@ async fn a_store_fault_is_a_retryable_503_and_the_retry_succeeds() {
     assert_eq!(code, StatusCode::CREATED);
     assert_eq!(st.sched().job_list().len(), 1);
 }
+
+/// Every job setting (the fields of `RenderOverrides`, as `raytile submit` sends them) is
+/// described in the OpenAPI document, in the request and in the settings a job reports.
+#[test]
+fn every_job_setting_is_documented() {
+    let doc = crate::openapi::document();
+    let schemas = &doc["components"]["schemas"];
+    for field in raytile_proto::RenderOverrides::FIELDS {
+        assert!(
+            schemas["JobRequest"]["properties"][field].is_object(),
+            "JobRequest lacks {field}"
+        );
+        assert!(
+            schemas["RenderSettings"]["properties"][field].is_object(),
+            "RenderSettings lacks {field}"
+        );
+    }
+}

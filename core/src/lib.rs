@@ -44,7 +44,9 @@ pub mod texture;
 pub use film::{Film, TileAccum};
 pub use integrator::{render, render_tile, Cancel, Cancelled, RenderProgress};
 pub use scene::{load_scene, load_scene_with, RenderJob, Scene, SceneError};
-pub use settings::{IntegratorKind, RenderOverrides, RenderSettings, SettingsError, Tile};
+pub use settings::{
+    EnvironmentChoice, IntegratorKind, RenderOverrides, RenderSettings, SettingsError, Tile,
+};
 
 /// Version of the renderer's arithmetic: raised whenever a change to the tracer changes the
 /// bits of any image (sampling, intersection, shading). Workers send it when they register and
@@ -55,6 +57,7 @@ pub use settings::{IntegratorKind, RenderOverrides, RenderSettings, SettingsErro
 /// 2: one 4D Sobol set per bounce (2026-11-30).
 /// 3: shading frame about the normal alone, sin/cos by our own polynomials, flat triangles
 /// shaded from world-space data, small scenes' BVH built with the thorough preset (2026-11-30).
-/// 4: the `volpath` integrator and scene media (2026-12-01); other integrators' images
-/// unchanged.
+/// 4: the `volpath` integrator and scene media; a job's own environment (`environment`,
+/// `environment_rotation`, `environment_strength` settings); index-matched glTF transmission
+/// passes straight through; glTF `COLOR_0` is used (2026-12-01).
 pub const RENDER_VERSION: u32 = 4;

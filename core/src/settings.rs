@@ -6,6 +6,6 @@
 //! user's overrides is [`crate::scene::desc::RenderDefaults::resolve`].
 
 pub use raytile_proto::settings::{
-    FilterKind, IntegratorKind, RenderOverrides, RenderSettings, SettingsError, Tile, MAX_DEPTH,
-    MAX_EDGE, MAX_PIXELS, MAX_SPP, MAX_TILE_EDGE,
+    EnvironmentChoice, FilterKind, IntegratorKind, RenderOverrides, RenderSettings, SettingsError,
+    Tile, MAX_DEPTH, MAX_EDGE, MAX_PIXELS, MAX_SPP, MAX_TILE_EDGE,
 };

@@ -49,6 +49,7 @@ fn quad(name: &str, half: f32, uv_scale: f32) -> MeshDesc {
             ],
             vec![],
         ],
+        colors: Vec::new(),
         indices: vec![[0, 2, 1], [0, 3, 2]],
     }
 }
@@ -135,6 +136,7 @@ fn scene() -> SceneDesc {
                 Vec3::new(0.4, 1.6, -1.0),
                 Vec3::new(0.0, 2.0, -1.2),
             ],
+            colors: Vec::new(),
             indices: vec![[0, 1, 2]],
             ..Default::default()
         },

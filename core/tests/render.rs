@@ -484,6 +484,7 @@ fn bad_scenes_are_errors_not_panics() {
     desc.meshes.push(MeshDesc {
         name: "m".into(),
         positions: vec![Vec3::ZERO; 3],
+        colors: Vec::new(),
         indices: vec![[0, 1, 7]],
         ..Default::default()
     });

@@ -24,7 +24,8 @@ pub mod tile;
 
 pub use api::*;
 pub use settings::{
-    FilterKind, IntegratorKind, RenderOverrides, RenderSettings, SettingsError, Tile,
+    EnvironmentChoice, FilterKind, IntegratorKind, RenderOverrides, RenderSettings, SettingsError,
+    Tile,
 };
 #[cfg(feature = "signal")]
 pub use signal::shutdown_signal;

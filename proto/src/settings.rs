@@ -112,6 +112,81 @@ fn unknown_name<const N: usize>(what: &str, got: &str, names: [&str; N]) -> Stri
     )
 }
 
+/// The light a job brings, in place of the scene's own environment (and of the default light
+/// of an unlit glTF model). Written as one string, on the command line as in JSON:
+/// `none`, `R,G,B` (a constant linear radiance) or the path of an equirectangular map ending
+/// in `.hdr` or `.exr`.
+///
+/// A map's path is read as given by `raytile render`; on a farm it names a file inside the
+/// scene's folder (`raytile submit` packs the map with the scene and names it so).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "String", into = "String")]
+pub enum EnvironmentChoice {
+    /// No environment: only the scene's own lights and emitters.
+    None,
+    /// The same radiance from every direction (linear RGB, each component finite and ≥ 0).
+    Constant([f32; 3]),
+    /// An equirectangular (latitude–longitude) map, importance-sampled.
+    Map(String),
+}
+
+impl EnvironmentChoice {
+    /// What a value may be, for error messages.
+    pub const EXPECTED: &'static str = "none, R,G,B (e.g. 0.5,0.5,0.5) or a .hdr or .exr map";
+}
+
+impl std::str::FromStr for EnvironmentChoice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let t = s.trim();
+        if t.eq_ignore_ascii_case("none") {
+            return Ok(EnvironmentChoice::None);
+        }
+        let lower = t.to_ascii_lowercase();
+        if lower.ends_with(".hdr") || lower.ends_with(".exr") {
+            return Ok(EnvironmentChoice::Map(t.to_string()));
+        }
+        let parts: Vec<&str> = t.split(',').map(str::trim).collect();
+        if parts.len() == 3 {
+            let mut c = [0.0f32; 3];
+            for (v, p) in c.iter_mut().zip(&parts) {
+                *v = p
+                    .parse::<f32>()
+                    .ok()
+                    .filter(|v| v.is_finite() && *v >= 0.0)
+                    .ok_or_else(|| {
+                        format!("'{s}': each of R,G,B must be a finite number ≥ 0, got '{p}'")
+                    })?;
+            }
+            return Ok(EnvironmentChoice::Constant(c));
+        }
+        Err(format!("'{s}': expected {}", Self::EXPECTED))
+    }
+}
+
+impl std::fmt::Display for EnvironmentChoice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            EnvironmentChoice::None => f.write_str("none"),
+            EnvironmentChoice::Constant([r, g, b]) => write!(f, "{r},{g},{b}"),
+            EnvironmentChoice::Map(p) => f.write_str(p),
+        }
+    }
+}
+
+impl TryFrom<String> for EnvironmentChoice {
+    type Error = String;
+    fn try_from(s: String) -> Result<Self, String> {
+        s.parse()
+    }
+}
+
+impl From<EnvironmentChoice> for String {
+    fn from(e: EnvironmentChoice) -> String {
+        e.to_string()
+    }
+}
+
 /// A rectangle of pixels `[x0, x1) × [y0, y1)`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 pub struct Tile {
@@ -176,6 +251,13 @@ pub struct RenderSettings {
     /// Whether a glTF scene without any light gets the default white environment its loader
     /// adds (as glTF viewers do). `false` renders such a scene black.
     pub default_light: bool,
+    /// The job's own environment, replacing the scene's (and the default light); `None` keeps
+    /// the scene's lighting.
+    pub environment: Option<EnvironmentChoice>,
+    /// Rotation of the job's environment map about +Y, in degrees.
+    pub environment_rotation: f32,
+    /// Multiplies the job's environment (map or colour).
+    pub environment_strength: f32,
 }
 
 impl Default for RenderSettings {
@@ -192,6 +274,9 @@ impl Default for RenderSettings {
             tile_size: 32,
             passes: 1,
             default_light: true,
+            environment: None,
+            environment_rotation: 0.0,
+            environment_strength: 1.0,
         }
     }
 }
@@ -249,6 +334,21 @@ impl RenderSettings {
                 format!("width × height must be at most {MAX_PIXELS} pixels"),
             ));
         }
+        if self.environment.is_none() {
+            let field = if self.environment_strength != 1.0 {
+                Some("environment_strength")
+            } else if self.environment_rotation != 0.0 {
+                Some("environment_rotation")
+            } else {
+                None
+            };
+            if let Some(field) = field {
+                return Err(SettingsError::new(
+                    field,
+                    "applies to the job's environment: give environment too".into(),
+                ));
+            }
+        }
         if self.passes > self.spp {
             return Err(SettingsError::new(
                 "passes",
@@ -275,6 +375,9 @@ impl RenderSettings {
             tile_size,
             passes,
             default_light,
+            environment,
+            environment_rotation,
+            environment_strength,
         } = self;
         RenderOverrides {
             width: Some(*width),
@@ -288,6 +391,9 @@ impl RenderSettings {
             tile_size: Some(*tile_size),
             passes: Some(*passes),
             default_light: Some(*default_light),
+            environment: environment.clone(),
+            environment_rotation: Some(*environment_rotation),
+            environment_strength: Some(*environment_strength),
         }
     }
 
@@ -389,11 +495,27 @@ pub struct RenderOverrides {
         )
     )]
     pub default_light: Option<bool>,
+    /// The job's light, replacing the scene's environment: `none`, `R,G,B` (constant radiance)
+    /// or an equirectangular `.hdr`/`.exr` map (on a farm, a file of the scene's folder).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(feature = "clap", arg(long, value_name = "none|R,G,B|MAP.hdr|MAP.exr"))]
+    pub environment: Option<EnvironmentChoice>,
+    /// Rotation of the environment map about +Y, in degrees.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(
+        feature = "clap",
+        arg(long, value_name = "DEG", allow_negative_numbers = true)
+    )]
+    pub environment_rotation: Option<f32>,
+    /// Multiplies the environment (map or colour).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(feature = "clap", arg(long, value_name = "X"))]
+    pub environment_strength: Option<f32>,
 }
 
 impl RenderOverrides {
     /// The field names, as in JSON (a `--flag` on the command line, `_` spelt `-`).
-    pub const FIELDS: [&'static str; 11] = [
+    pub const FIELDS: [&'static str; 14] = [
         "width",
         "height",
         "spp",
@@ -405,6 +527,9 @@ impl RenderOverrides {
         "tile_size",
         "passes",
         "default_light",
+        "environment",
+        "environment_rotation",
+        "environment_strength",
     ];
 
     /// Checks each given field on its own (ranges), so that a wrong value is refused before
@@ -422,7 +547,26 @@ impl RenderOverrides {
             tile_size,
             passes,
             default_light: _,
+            environment: _,
+            environment_rotation,
+            environment_strength,
         } = self;
+        if let Some(r) = environment_rotation {
+            if !r.is_finite() {
+                return Err(SettingsError::new(
+                    "environment_rotation",
+                    format!("must be a finite number of degrees, got {r}"),
+                ));
+            }
+        }
+        if let Some(x) = environment_strength {
+            if !(x.is_finite() && *x >= 0.0) {
+                return Err(SettingsError::new(
+                    "environment_strength",
+                    format!("must be a finite number ≥ 0, got {x}"),
+                ));
+            }
+        }
         let checks = [
             ("width", *width, 1, MAX_EDGE),
             ("height", *height, 1, MAX_EDGE),
@@ -454,6 +598,9 @@ impl RenderOverrides {
             tile_size,
             passes,
             default_light,
+            environment,
+            environment_rotation,
+            environment_strength,
         } = self;
         s.width = width.unwrap_or(s.width);
         s.height = height.unwrap_or(s.height);
@@ -468,6 +615,11 @@ impl RenderOverrides {
         s.tile_size = tile_size.unwrap_or(s.tile_size);
         s.passes = passes.unwrap_or(s.passes);
         s.default_light = default_light.unwrap_or(s.default_light);
+        if environment.is_some() {
+            s.environment.clone_from(environment);
+        }
+        s.environment_rotation = environment_rotation.unwrap_or(s.environment_rotation);
+        s.environment_strength = environment_strength.unwrap_or(s.environment_strength);
     }
 }
 
@@ -607,6 +759,7 @@ mod tests {
     fn the_field_list_is_the_json_one() {
         let all = RenderSettings {
             camera: Some("c".into()),
+            environment: Some(EnvironmentChoice::None),
             ..Default::default()
         }
         .to_overrides();
@@ -628,6 +781,9 @@ mod tests {
         let want = [
             "camera",
             "default_light",
+            "environment",
+            "environment_rotation",
+            "environment_strength",
             "filter",
             "height",
             "integrator",
@@ -666,5 +822,75 @@ mod tests {
         }
         let e = "magic".parse::<IntegratorKind>().unwrap_err();
         assert!(e.contains("magic") && e.contains("whitted"), "{e}");
+    }
+
+    #[test]
+    fn environment_choices_parse_and_round_trip() {
+        let cases = [
+            ("none", EnvironmentChoice::None),
+            ("NONE", EnvironmentChoice::None),
+            ("0.5,0.25,1", EnvironmentChoice::Constant([0.5, 0.25, 1.0])),
+            (" 1, 2, 3 ", EnvironmentChoice::Constant([1.0, 2.0, 3.0])),
+            ("studio.hdr", EnvironmentChoice::Map("studio.hdr".into())),
+            (
+                "maps/Sky.EXR",
+                EnvironmentChoice::Map("maps/Sky.EXR".into()),
+            ),
+        ];
+        for (text, want) in cases {
+            let got: EnvironmentChoice = text.parse().unwrap();
+            assert_eq!(got, want, "{text}");
+            let json = serde_json::to_value(&got).unwrap();
+            assert_eq!(
+                serde_json::from_value::<EnvironmentChoice>(json).unwrap(),
+                got
+            );
+        }
+        for bad in ["", "red", "1,2", "1,2,-3", "1,nan,3", "1,inf,3", "sky.png"] {
+            let e = bad.parse::<EnvironmentChoice>().unwrap_err();
+            assert!(e.contains(&format!("'{bad}'")), "{e}");
+        }
+        let e = serde_json::from_str::<RenderOverrides>(r#"{"environment": "1,2"}"#).unwrap_err();
+        assert!(e.to_string().contains(".hdr"), "{e}");
+    }
+
+    #[test]
+    fn environment_strength_and_rotation_need_an_environment() {
+        let d = RenderSettings::default;
+        let s = RenderSettings {
+            environment_strength: 2.0,
+            ..d()
+        };
+        assert_eq!(s.validate().unwrap_err().field, "environment_strength");
+        let s = RenderSettings {
+            environment_rotation: 90.0,
+            ..d()
+        };
+        assert_eq!(s.validate().unwrap_err().field, "environment_rotation");
+        let s = RenderSettings {
+            environment: Some(EnvironmentChoice::Map("sky.hdr".into())),
+            environment_rotation: -90.0,
+            environment_strength: 2.0,
+            ..d()
+        };
+        assert_eq!(s.validate(), Ok(()));
+        for (o, field) in [
+            (
+                RenderOverrides {
+                    environment_strength: Some(-1.0),
+                    ..Default::default()
+                },
+                "environment_strength",
+            ),
+            (
+                RenderOverrides {
+                    environment_rotation: Some(f32::NAN),
+                    ..Default::default()
+                },
+                "environment_rotation",
+            ),
+        ] {
+            assert_eq!(o.check().unwrap_err().field, field);
+        }
     }
 }

@@ -1192,3 +1192,113 @@ mod cancel {
         c.stop().await;
     }
 }
+
+/// A job's own environment (`environment`: a map packed with the scene, or a colour): the
+/// farm's image equals the local render bit for bit, and a map outside the scene's folder or
+/// missing from it is refused with 422 naming the field. (Needs the core.)
+mod environment {
+    use super::*;
+    use raytile_core::scene::files::SceneFiles;
+    use raytile_proto::EnvironmentChoice;
+
+    /// A scene without lights of its own (a diffuse ball on a floor), open to the sky.
+    const SCENE: &str = r#"{
+        "camera": {"position": [0, 1, 4], "look_at": [0, 0.5, 0], "fov": 50},
+        "materials": {"grey": {"type": "diffuse", "albedo": [0.6, 0.6, 0.6]}},
+        "objects": [
+            {"shape": {"type": "sphere", "center": [0, 0.5, 0], "radius": 0.5}, "material": "grey"},
+            {"shape": {"type": "disk", "center": [0, 0, 0], "normal": [0, 1, 0], "radius": 3}, "material": "grey"}
+        ]
+    }"#;
+
+    /// The EXR of `s` rendered locally, the map read from `dir`.
+    fn local(dir: &std::path::Path, s: &RenderSettings) -> Vec<u8> {
+        let desc = raytile_core::load_scene(&dir.join("ball.json")).unwrap();
+        let built = raytile_core::Scene::build(&desc).unwrap();
+        let job =
+            raytile_core::RenderJob::with_files(&built, s, &SceneFiles::trusted(), dir).unwrap();
+        let film = raytile_core::render(&built, &job, &());
+        raytile_coordinator::compose::encode(&film, ImageFormat::Exr).unwrap()
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_jobs_map_and_colour_render_as_locally_on_two_workers() {
+        let dir = tempfile::tempdir().unwrap();
+        let scene_dir = dir.path().join("scene");
+        std::fs::create_dir(&scene_dir).unwrap();
+        std::fs::write(scene_dir.join("ball.json"), SCENE).unwrap();
+        let studio = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/studio.hdr");
+        std::fs::copy(studio, scene_dir.join("studio.hdr")).unwrap();
+        // The scene and its map in one archive, as `raytile submit --environment` packs them.
+        let mut tar = tar::Builder::new(Vec::new());
+        tar.append_path_with_name(scene_dir.join("ball.json"), "ball.json")
+            .unwrap();
+        tar.append_path_with_name(scene_dir.join("studio.hdr"), "studio.hdr")
+            .unwrap();
+        let bytes = tar.into_inner().unwrap();
+
+        let c = Coord::start(test_config(&dir.path().join("data")), 0).await;
+        let ws: Vec<Worker> = (0..2)
+            .map(|i| Worker::start(&c.base, 1, dir.path(), &format!("w{i}")))
+            .collect();
+        let r = reqwest::Client::new()
+            .post(format!("{}/v1/scenes?format=tar&entry=ball.json", c.base))
+            .body(bytes)
+            .send()
+            .await
+            .unwrap();
+        assert!(r.status().is_success(), "{:?}", r.text().await);
+        let id = r.json::<proto::SceneCreated>().await.unwrap().id;
+        let choices = [
+            (
+                EnvironmentChoice::Map("studio.hdr".into()),
+                Some(90.0),
+                Some(1.5),
+            ),
+            (
+                EnvironmentChoice::Constant([0.2, 0.3, 0.4]),
+                None,
+                Some(2.0),
+            ),
+        ];
+        let mut images = Vec::new();
+        for (env, rotation, strength) in choices {
+            let mut req = job(&id, 16);
+            req.overrides.environment = Some(env.clone());
+            req.overrides.environment_rotation = rotation;
+            req.overrides.environment_strength = strength;
+            let j = submit(&c.base, &req).await;
+            let done = wait_for(&c.base, &j.id, 120, |s| s.state.is_final()).await;
+            assert_eq!(done.state, JobState::Done, "{env}: {:?}", done.error);
+            assert_eq!(done.settings.environment, Some(env.clone()));
+            let got = image(&c.base, &j.id, "exr").await;
+            assert!(
+                got == local(&scene_dir, &done.settings),
+                "{env}: the farm's EXR differs from the local render"
+            );
+            images.push(got);
+        }
+        assert_ne!(
+            images[0], images[1],
+            "the job's environment lights the scene"
+        );
+        // A map the scene's folder does not hold, or one outside it: 422 naming the field.
+        for map in ["sky.hdr", "../studio.hdr", "/etc/sky.hdr"] {
+            let mut req = job(&id, 16);
+            req.overrides.environment = Some(EnvironmentChoice::Map(map.into()));
+            let r = reqwest::Client::new()
+                .post(format!("{}/v1/jobs", c.base))
+                .json(&req)
+                .send()
+                .await
+                .unwrap();
+            assert_eq!(r.status(), 422, "{map}");
+            let body: serde_json::Value = r.json().await.unwrap();
+            assert_eq!(body["error"]["field"], "environment", "{map}: {body}");
+        }
+        for w in ws {
+            w.stop().await;
+        }
+        c.stop().await;
+    }
+}

@@ -449,6 +449,20 @@ impl Worker {
             lease.sample_start..lease.sample_end,
         );
         let job = self.jobs.get(&lease.job).cloned();
+        // A job's environment map is a file of the scene's folder, read like the scene's own.
+        let map_base = match (&job, &settings.environment) {
+            (None, Some(raytile_core::EnvironmentChoice::Map(_))) => {
+                match self.scene_file(&lease).await {
+                    Ok(file) => Some(file),
+                    Err(e) => {
+                        self.report_failure(&lease, format!("{e:#}")).await;
+                        return Flow::Continue;
+                    }
+                }
+            }
+            _ => None,
+        };
+        let limits = self.cfg.scene_limits;
         // Set when the coordinator says stop: the render returns within a fraction of a
         // second instead of keeping the render threads busy to the end of the tile.
         let cancel = Arc::new(raytile_core::Cancel::new());
@@ -459,7 +473,8 @@ impl Worker {
                     let job = match job {
                         Some(j) => j,
                         None => Arc::new(
-                            RenderJob::new(&scene, &settings).map_err(|e| format!("job: {e}"))?,
+                            job_for(&scene, &settings, map_base.as_deref(), limits)
+                                .map_err(|e| format!("job: {e}"))?,
                         ),
                     };
                     let accum = raytile_core::render_tile(&scene, &job, tile, samples, &watched);
@@ -619,6 +634,28 @@ struct ResultTarget {
     job: String,
     task: u32,
     worker: String,
+}
+
+/// The job of `settings` on `scene`; an environment map it names is read from the folder of
+/// the scene file `scene_file`, confined to it within `limits` like the scene's own files.
+fn job_for(
+    scene: &Scene,
+    settings: &raytile_core::RenderSettings,
+    scene_file: Option<&Path>,
+    limits: SceneLoadLimits,
+) -> Result<RenderJob, raytile_core::SceneError> {
+    let Some(file) = scene_file else {
+        return RenderJob::new(scene, settings);
+    };
+    let files = raytile_core::scene::files::SceneFiles::confined_to_scene(
+        file,
+        limits.max_file_bytes,
+        limits.max_scene_bytes,
+    )
+    .map_err(|e| raytile_core::SceneError::Invalid(format!("scene folder: {e}")))?
+    .with_memory_limit(limits.max_memory);
+    let base = file.parent().unwrap_or(Path::new("."));
+    RenderJob::with_files(scene, settings, &files, base)
 }
 
 /// Loads (confined to the scene file's folder, within `limits`) and builds a scene, turning

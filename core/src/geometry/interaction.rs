@@ -47,6 +47,9 @@ pub struct Interaction {
     pub object: u32,
     /// Triangle index within the mesh (0 for analytic shapes).
     pub prim: u32,
+    /// Vertex colour at the point (glTF `COLOR_0`), multiplying the base colour; white
+    /// without one.
+    pub color: Vec3A,
 }
 
 impl Interaction {

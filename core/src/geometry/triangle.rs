@@ -15,6 +15,8 @@ pub struct Mesh {
     pub tangents: Vec<[f32; 4]>,
     /// Texture coordinate sets 0 and 1 (each empty or one per vertex).
     pub uvs: [Vec<Vec2>; 2],
+    /// Vertex colours multiplying the base colour (empty or one per vertex).
+    pub colors: Vec<Vec3A>,
     /// Triangles.
     pub indices: Vec<[u32; 3]>,
 }
@@ -34,6 +36,19 @@ impl Mesh {
             }
         };
         [get(&self.uvs[0]), get(&self.uvs[1])]
+    }
+
+    /// The vertex colour at barycentrics (b1, b2) of triangle `tri`; white for a mesh without
+    /// vertex colours.
+    #[inline]
+    pub fn color_at(&self, tri: u32, b1: f32, b2: f32) -> Vec3A {
+        if self.colors.is_empty() {
+            return Vec3A::ONE;
+        }
+        let [a, b, c] = self.indices[tri as usize];
+        self.colors[a as usize] * (1.0 - b1 - b2)
+            + self.colors[b as usize] * b1
+            + self.colors[c as usize] * b2
     }
 
     /// The three corners of triangle `i`.

@@ -56,6 +56,15 @@
 //! ```
 //!
 //! which stays energy conserving because Fc depends on v only.
+//!
+//! **Index-matched surfaces.** A body (not thin-walled) or a transmissive surface with `ior` 1
+//! has no optical interface: as pbrt-v4's dielectric with η = 1, whatever the roughness, its
+//! dielectric specular reflection is zero (F0 = F90 = 0) and its transmission is a delta
+//! pass-through (wi = −wo, weight `transmission · base colour`). The generalised half vector of
+//! the rough refraction lobe degenerates at η = 1 (wo + wi is never a valid microfacet normal),
+//! so without this a body would be black; a rough thin-walled one would lose the energy its
+//! single-scattering lobe loses. Opaque thin-walled surfaces with `ior` 1 keep the glTF
+//! formula (F0 = 0, F90 = specular).
 //! The clearcoat lobe and the transmission lobes are single scattering (not compensated).
 //!
 //! Very smooth surfaces are not delta: alpha is clamped to [`PBR_MIN_ALPHA`], which keeps D
@@ -117,6 +126,9 @@ struct Params {
     transmission: f32,
     ggx: Ggx,
     ior: f32,
+    /// `ior` 1 on a body or a transmissive surface: no dielectric interface, transmission
+    /// passes straight through.
+    pass_through: bool,
     /// Clearcoat factor.
     coat: f32,
     /// Clearcoat distribution.
@@ -195,7 +207,13 @@ impl Pbr {
     #[inline]
     fn params(&self) -> Params {
         let ior = sanitize_eta(self.ior);
-        let specular = unit(self.specular);
+        let pass_through = ior == 1.0 && (!self.thin || self.transmission > 0.0);
+        // No interface, no Fresnel reflection (F0 = F90 = 0).
+        let specular = if pass_through {
+            0.0
+        } else {
+            unit(self.specular)
+        };
         let r0 = ((ior - 1.0) / (ior + 1.0)).powi(2);
         let f0 = (r0 * unit3(self.specular_color)).min(Vec3A::ONE) * specular;
         let base = unit3(self.base_color);
@@ -216,6 +234,7 @@ impl Pbr {
             transmission: unit(self.transmission),
             ggx: Ggx::new(alpha),
             ior,
+            pass_through,
             coat: unit(self.clearcoat),
             coat_ggx: Ggx::new(clamp_alpha(self.clearcoat_alpha)),
             alb,
@@ -327,7 +346,8 @@ impl Pbr {
             return (f, pdf);
         }
         let weight = dielectric * p.transmission * (1.0 - coat);
-        if !(weight > 0.0) {
+        if !(weight > 0.0) || p.pass_through {
+            // The pass-through is a delta: it has no value or density for any given pair.
             return zero;
         }
         if self.thin {
@@ -415,6 +435,17 @@ impl Pbr {
             (cosine_hemisphere(u), Lobe::GlossyReflection, 1.0)
         } else if uc < probs.coat + probs.spec + probs.ms + probs.diffuse || !(probs.trans > 0.0) {
             (cosine_hemisphere(u), Lobe::Diffuse, 1.0)
+        } else if p.pass_through {
+            // Straight through, weight transmission · base colour (base weight 1, as F = 0).
+            let weight = (1.0 - p.metallic) * p.transmission * (1.0 - p.coat_weight(wo_u.z));
+            let f = p.base * (weight * at.base_w / wo_u.z);
+            return finite_sample(BsdfSample {
+                wi: -wo,
+                f,
+                pdf: probs.trans,
+                lobe: Lobe::SpecularTransmission,
+                eta: 1.0,
+            });
         } else if self.thin {
             let wm = p.ggx.sample_wm(wo_u, u);
             let wr = reflect(wo_u, wm);
@@ -445,9 +476,13 @@ impl Pbr {
             eta,
         })
     }
-    /// Never delta: very smooth surfaces are clamped to [`PBR_MIN_ALPHA`].
+    /// Delta only for a fully transmissive, index-matched surface (the pass-through alone);
+    /// very smooth surfaces are otherwise clamped to [`PBR_MIN_ALPHA`], never delta.
     pub fn is_delta(&self) -> bool {
-        false
+        sanitize_eta(self.ior) == 1.0
+            && unit(self.transmission) == 1.0
+            && unit(self.metallic) == 0.0
+            && unit(self.clearcoat) == 0.0
     }
     /// The base colour.
     pub fn albedo(&self) -> Vec3A {

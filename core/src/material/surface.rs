@@ -72,6 +72,14 @@ pub struct MaterialSlots {
     pub metallic_roughness: Option<TexSlot>,
     /// Transmission in R.
     pub transmission: Option<TexSlot>,
+    /// `KHR_materials_specular` strength in A.
+    pub specular: Option<TexSlot>,
+    /// `KHR_materials_specular` colour in RGB.
+    pub specular_color: Option<TexSlot>,
+    /// Clearcoat in R.
+    pub clearcoat: Option<TexSlot>,
+    /// Clearcoat roughness in G.
+    pub clearcoat_roughness: Option<TexSlot>,
     /// Tangent-space normal map and its scale.
     pub normal: Option<(TexSlot, f32)>,
 }
@@ -134,6 +142,10 @@ impl Material {
         s.base.is_some()
             || s.metallic_roughness.is_some()
             || s.transmission.is_some()
+            || s.specular.is_some()
+            || s.specular_color.is_some()
+            || s.clearcoat.is_some()
+            || s.clearcoat_roughness.is_some()
             || s.normal.is_some()
             || self.emission.is_some_and(|e| e.texture.is_some())
     }
@@ -150,16 +162,31 @@ impl Material {
     /// The BSDF at texture coordinates `uv`, with every texture looked up.
     #[inline]
     pub fn bsdf(&self, textures: &[Texture], uv: &[Vec2; 2]) -> Bsdf {
+        self.bsdf_tinted(textures, uv, Vec3A::ONE)
+    }
+
+    /// [`Material::bsdf`] with the base colour multiplied by the vertex colour `color` (white:
+    /// none).
+    #[inline]
+    pub fn bsdf_tinted(&self, textures: &[Texture], uv: &[Vec2; 2], color: Vec3A) -> Bsdf {
+        let base_color = |textures: &[Texture], uv: &[Vec2; 2]| {
+            let c = self.base_color(textures, uv);
+            if color == Vec3A::ONE {
+                c
+            } else {
+                c * color.extend(1.0)
+            }
+        };
         match &self.model {
             Model::Uniform(b) => *b,
             Model::Diffuse => {
-                let c = self.base_color(textures, uv);
+                let c = base_color(textures, uv);
                 Bsdf::Diffuse(Diffuse {
                     albedo: Vec3A::new(c.x, c.y, c.z).clamp(Vec3A::ZERO, Vec3A::ONE),
                 })
             }
             Model::Pbr(p) => {
-                let c = self.base_color(textures, uv);
+                let c = base_color(textures, uv);
                 let (mut metallic, mut roughness) = (p.metallic, p.roughness);
                 if let Some(s) = self.slots.metallic_roughness {
                     let t = s.lookup(textures, uv);
@@ -170,11 +197,28 @@ impl Material {
                 if let Some(s) = self.slots.transmission {
                     transmission *= s.lookup(textures, uv).x;
                 }
+                let (mut specular, mut specular_color) = (p.specular, p.specular_color);
+                if let Some(s) = self.slots.specular {
+                    specular *= s.lookup(textures, uv).w;
+                }
+                if let Some(s) = self.slots.specular_color {
+                    let t = s.lookup(textures, uv);
+                    specular_color *= Vec3A::new(t.x, t.y, t.z);
+                }
+                let (mut clearcoat, mut clearcoat_alpha) = (p.clearcoat, p.clearcoat_alpha);
+                if let Some(s) = self.slots.clearcoat {
+                    clearcoat *= s.lookup(textures, uv).x;
+                }
+                if let Some(s) = self.slots.clearcoat_roughness {
+                    // Alpha is roughness squared: the texture scales the roughness.
+                    let g = s.lookup(textures, uv).y;
+                    clearcoat_alpha *= g * g;
+                }
                 let base_color = Vec3A::new(c.x, c.y, c.z).clamp(Vec3A::ZERO, Vec3A::ONE);
                 if !(metallic > 0.0)
-                    && !(p.specular > 0.0)
+                    && !(specular > 0.0)
                     && !(transmission > 0.0)
-                    && !(p.clearcoat > 0.0)
+                    && !(clearcoat > 0.0)
                 {
                     // No metal, no specular lobe (KHR_materials_specular factor 0), no
                     // transmission, no coat: the model is exactly Lambertian, bit for bit
@@ -187,13 +231,13 @@ impl Material {
                     base_color,
                     metallic: metallic.clamp(0.0, 1.0),
                     alpha: roughness * roughness,
-                    specular: p.specular,
-                    specular_color: p.specular_color,
+                    specular,
+                    specular_color,
                     ior: p.ior,
                     transmission: transmission.clamp(0.0, 1.0),
                     thin: p.thin,
-                    clearcoat: p.clearcoat,
-                    clearcoat_alpha: p.clearcoat_alpha,
+                    clearcoat,
+                    clearcoat_alpha,
                 })
             }
         }

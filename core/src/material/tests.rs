@@ -254,6 +254,29 @@ fn cases(alpha: Option<f32>) -> Vec<Case> {
             ));
         }
     }
+    // Index-matched surfaces (ior 1): a pass-through, alone or beside a diffuse base. Last, so
+    // that the cases before keep their seeds.
+    if alpha.is_none() {
+        for (r, transmission, thin) in [
+            (0.0f32, 1.0f32, false),
+            (0.5, 1.0, false),
+            (0.5, 0.6, false),
+            (0.5, 1.0, true),
+        ] {
+            let b = Bsdf::Pbr(Pbr {
+                transmission,
+                thin,
+                ior: 1.0,
+                ..pbr(r)
+            });
+            v.push(case(
+                format!("pbr index-matched roughness {r} transmission {transmission} thin {thin}"),
+                b,
+                true,
+                true,
+            ));
+        }
+    }
     v
 }
 
@@ -1010,6 +1033,35 @@ fn is_delta_only_when_every_lobe_is() {
     expect(Bsdf::Conductor(gold(0.0)), true);
     expect(Bsdf::Conductor(gold(0.3)), false);
     expect(Bsdf::Pbr(pbr(0.0)), false);
+    let matched = Pbr {
+        transmission: 1.0,
+        thin: false,
+        ior: 1.0,
+        ..pbr(0.5)
+    };
+    expect(Bsdf::Pbr(matched), true);
+    expect(
+        Bsdf::Pbr(Pbr {
+            transmission: 0.6,
+            ..matched
+        }),
+        false,
+    );
+    expect(
+        Bsdf::Pbr(Pbr {
+            thin: true,
+            ..matched
+        }),
+        true,
+    );
+    expect(
+        Bsdf::Pbr(Pbr {
+            transmission: 0.0,
+            thin: true,
+            ..matched
+        }),
+        false,
+    );
     expect(
         Bsdf::Dielectric(Dielectric {
             eta: 1.5,
@@ -1146,4 +1198,46 @@ fn smooth_special_cases() {
     let s = d.sample(Vec3A::Z, 0.0, Vec2::ZERO).unwrap();
     assert_eq!(s.lobe, Lobe::SpecularReflection);
     assert!((s.pdf - thin_r).abs() < 1e-6, "{} vs {thin_r}", s.pdf);
+}
+
+/// A body or a transmissive surface with ior 1 has no interface (pbrt-v4's dielectric at
+/// η = 1), whatever its roughness:
+/// a fully transmissive one passes every ray straight through with weight 1 and reflects
+/// nothing; with transmission t, the pass-through carries exactly t of the energy.
+#[test]
+fn index_matched_pbr_body_is_a_pass_through() {
+    for (r, thin) in [(0.0f32, false), (0.3, false), (1.0, false), (0.5, true)] {
+        for t in [1.0f32, 0.6] {
+            let b = Bsdf::Pbr(Pbr {
+                transmission: t,
+                thin,
+                ior: 1.0,
+                ..pbr(r)
+            });
+            let mut rng = Rng::new(7);
+            for &wo in &wos(true) {
+                let (mut through, n) = (0.0f32, 20_000);
+                for _ in 0..n {
+                    let Some(s) = b.sample(wo, rng.next_f32(), rng.next_2d()) else {
+                        continue;
+                    };
+                    if s.lobe.is_transmission() {
+                        assert_eq!(s.lobe, Lobe::SpecularTransmission, "r {r} t {t}");
+                        assert!((s.wi + wo).length() < 1e-6, "not straight through");
+                        assert_eq!(s.eta, 1.0);
+                        through += (s.f * s.wi.z.abs() / s.pdf).x;
+                    } else {
+                        assert_eq!(s.lobe, Lobe::Diffuse, "r {r} t {t}: no specular reflection");
+                    }
+                    // Light sampling never finds the pass-through.
+                    assert_eq!(b.eval(wo, -wo), Vec3A::ZERO);
+                }
+                let through = through / n as f32;
+                assert!(
+                    (through - t).abs() < 0.02,
+                    "r {r} t {t} wo {wo}: pass-through carries {through}"
+                );
+            }
+        }
+    }
 }

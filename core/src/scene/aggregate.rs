@@ -457,6 +457,7 @@ mod tests {
                 Vec3::new(-0.5, 0.5, 0.0),
             ],
             uvs: [vec![Vec2::ZERO, Vec2::X, Vec2::ONE, Vec2::Y], vec![]],
+            colors: Vec::new(),
             indices: vec![[0, 1, 2], [0, 2, 3]],
             ..Default::default()
         }

@@ -11,18 +11,21 @@
 
 use super::aggregate::{Aggregate, MeshBlas, Prim};
 use super::desc::{
-    BsdfDesc, EnvironmentDesc, MaterialDesc, MediumDesc, SceneDesc, ShapeDesc, TextureRef,
+    BsdfDesc, EnvironmentDesc, MaterialDesc, MediumDesc, SceneDesc, ShapeDesc, TextureRef, WrapMode,
 };
-use super::{Object, ObjectKind, Scene, SceneCamera, SceneError, SceneStats};
+use super::files::SceneFiles;
+use super::{Object, ObjectKind, RenderJob, Scene, SceneCamera, SceneError, SceneStats};
 use crate::geometry::triangle::{Mesh, TriangleGeom};
 use crate::geometry::{aabox, plane, polygon, quadric, sphere, Aabb, Analytic};
 use crate::light::area::{Emitter, PlacedShape, TriangleLight};
 use crate::light::{AreaLight, Environment, Light};
 use crate::material::{AlphaMode, Emission, Material, MaterialSlots, Model, PbrParams};
 use crate::medium::{GridMedium, HomogeneousMedium, Medium};
+use crate::settings::{EnvironmentChoice, RenderSettings};
 use crate::texture::{TexSlot, Texture, TextureLookup};
 use glam::{Affine3A, Vec2, Vec3, Vec3A, Vec4};
 use std::f32::consts::PI;
+use std::path::Path;
 use std::sync::Arc;
 
 fn invalid(msg: impl Into<String>) -> SceneError {
@@ -467,6 +470,16 @@ fn build_mesh(mi: usize, m: &super::desc::MeshDesc) -> Result<Mesh, SceneError> 
             )));
         }
     }
+    if !m.colors.is_empty() && m.colors.len() != n {
+        return Err(invalid(format!(
+            "{}: {} vertex colours for {n} vertices",
+            ctx(),
+            m.colors.len()
+        )));
+    }
+    if m.colors.iter().any(|c| !c.is_finite()) {
+        return Err(invalid(format!("{}: a vertex colour is not finite", ctx())));
+    }
     if !m.tangents.is_empty() && m.tangents.len() != n {
         return Err(invalid(format!(
             "{}: {} tangents for {n} vertices",
@@ -509,6 +522,11 @@ fn build_mesh(mi: usize, m: &super::desc::MeshDesc) -> Result<Mesh, SceneError> 
         normals: m.normals.iter().map(clean_normal).collect(),
         tangents: m.tangents.clone(),
         uvs: [m.uvs[0].clone(), m.uvs[1].clone()],
+        colors: m
+            .colors
+            .iter()
+            .map(|c| Vec3A::from(*c).max(Vec3A::ZERO))
+            .collect(),
         indices,
     })
 }
@@ -741,6 +759,10 @@ fn build_material(m: &MaterialDesc, n_textures: usize) -> Result<Material, Scene
             slots.base = check(&p.base_color_texture)?;
             slots.metallic_roughness = check(&p.metallic_roughness_texture)?;
             slots.transmission = check(&p.transmission_texture)?;
+            slots.specular = check(&p.specular_texture)?;
+            slots.specular_color = check(&p.specular_color_texture)?;
+            slots.clearcoat = check(&p.clearcoat_texture)?;
+            slots.clearcoat_roughness = check(&p.clearcoat_roughness_texture)?;
             base_color = Vec4::from(p.base_color);
             if !p.thin_walled
                 && p.transmission > 0.0
@@ -785,4 +807,73 @@ fn build_material(m: &MaterialDesc, n_textures: usize) -> Result<Material, Scene
         absorption,
         interface,
     })
+}
+
+/// Reads the equirectangular map at `path` (relative to `base`, through `files`: Radiance
+/// `.hdr` or OpenEXR, linear RGB) as an importance-sampled environment, times `strength`,
+/// turned by `rotation_deg` degrees about +Y. The map's texels are charged to the memory
+/// budget of `files`.
+pub fn load_environment_map(
+    path: &Path,
+    base: &Path,
+    files: &SceneFiles,
+    strength: f32,
+    rotation_deg: f32,
+) -> Result<Environment, SceneError> {
+    const FIELD: &str = "environment";
+    let shown = path.display().to_string();
+    let r = files
+        .resolve_path(base, path, FIELD)
+        .map_err(|e| invalid(format!("environment: {}", e.describe())))?;
+    let bytes = files
+        .read(&r, FIELD, super::image::MAX_IMAGE_FILE)
+        .map_err(|e| invalid(format!("environment: {}", e.describe())))?;
+    let bad = |e: String| invalid(format!("environment {shown}: {e}"));
+    let (w, h) = super::image::image_size(&bytes).map_err(bad)?;
+    files
+        .charge_memory(u64::from(w) * u64::from(h) * 16, &shown)
+        .map_err(bad)?;
+    let img = super::image::decode_image(&bytes).map_err(bad)?;
+    let lookup = TextureLookup {
+        wrap_u: WrapMode::Repeat,
+        wrap_v: WrapMode::Clamp,
+        bilinear: true,
+    };
+    let texture = Texture::new(img.width, img.height, &img.texels, false, lookup);
+    Ok(Environment::map(
+        texture,
+        strength,
+        rotation_deg.to_radians(),
+    ))
+}
+
+impl RenderJob {
+    /// The job rendering `scene` with `settings`, as [`RenderJob::new`], reading the
+    /// environment map the settings name (if they name one) through `files`, relative to the
+    /// folder `base`: the current folder for `raytile render`, the scene's folder on a farm
+    /// (where `files` confines it to that folder like any file of the scene).
+    pub fn with_files(
+        scene: &Scene,
+        settings: &RenderSettings,
+        files: &SceneFiles,
+        base: &Path,
+    ) -> Result<RenderJob, SceneError> {
+        let Some(EnvironmentChoice::Map(path)) = &settings.environment else {
+            return RenderJob::new(scene, settings);
+        };
+        let map = load_environment_map(
+            Path::new(path),
+            base,
+            files,
+            settings.environment_strength,
+            settings.environment_rotation,
+        )?;
+        let no_map = RenderSettings {
+            environment: Some(EnvironmentChoice::None),
+            ..settings.clone()
+        };
+        let mut job = RenderJob::new(scene, &no_map)?;
+        job.settings = settings.clone();
+        Ok(job.with_environment(scene, Some(Arc::new(map))))
+    }
 }

@@ -64,6 +64,9 @@ pub struct MeshDesc {
     pub tangents: Vec<[f32; 4]>,
     /// Texture coordinate sets 0 and 1; each is empty or has one entry per vertex.
     pub uvs: [Vec<Vec2>; 2],
+    /// Per-vertex colours (glTF `COLOR_0`, linear RGB) multiplying the material's base
+    /// colour; empty or one per vertex.
+    pub colors: Vec<Vec3>,
     /// Triangles as vertex indices, counter-clockwise seen from the front.
     pub indices: Vec<[u32; 3]>,
 }
@@ -216,6 +219,11 @@ pub struct PbrDesc {
     pub specular: f32,
     /// `KHR_materials_specular.specularColorFactor`.
     pub specular_color: Vec3,
+    /// `KHR_materials_specular.specularTexture`: multiplies `specular` by its A channel
+    /// (linear).
+    pub specular_texture: Option<TextureRef>,
+    /// `KHR_materials_specular.specularColorTexture`: multiplies `specular_color` (sRGB).
+    pub specular_color_texture: Option<TextureRef>,
     /// `KHR_materials_ior.ior` (1.5 if absent).
     pub ior: f32,
     /// `KHR_materials_transmission.transmissionFactor`.
@@ -232,6 +240,11 @@ pub struct PbrDesc {
     pub clearcoat: f32,
     /// `KHR_materials_clearcoat.clearcoatRoughnessFactor`.
     pub clearcoat_roughness: f32,
+    /// `KHR_materials_clearcoat.clearcoatTexture`: multiplies `clearcoat` by its R channel.
+    pub clearcoat_texture: Option<TextureRef>,
+    /// `KHR_materials_clearcoat.clearcoatRoughnessTexture`: multiplies `clearcoat_roughness`
+    /// by its G channel.
+    pub clearcoat_roughness_texture: Option<TextureRef>,
 }
 
 impl Default for PbrDesc {
@@ -244,6 +257,8 @@ impl Default for PbrDesc {
             metallic_roughness_texture: None,
             specular: 1.0,
             specular_color: Vec3::ONE,
+            specular_texture: None,
+            specular_color_texture: None,
             ior: 1.5,
             transmission: 0.0,
             transmission_texture: None,
@@ -252,6 +267,8 @@ impl Default for PbrDesc {
             attenuation_distance: f32::INFINITY,
             clearcoat: 0.0,
             clearcoat_roughness: 0.0,
+            clearcoat_texture: None,
+            clearcoat_roughness_texture: None,
         }
     }
 }

@@ -8,6 +8,7 @@ use crate::camera::{Camera, Projection};
 use crate::film::FilterSampler;
 use crate::geometry::{Aabb, Interaction};
 use crate::light::{Environment, Light, LightSample, LightSet};
+use crate::settings::EnvironmentChoice;
 use crate::RenderSettings;
 use glam::{Mat4, Vec2, Vec3, Vec3A};
 use std::sync::Arc;
@@ -48,10 +49,19 @@ impl RenderJob {
             settings.width,
             settings.height,
         );
-        let environment = if scene.default_environment && !settings.default_light {
-            None
-        } else {
-            scene.environment.clone()
+        let environment = match &settings.environment {
+            None if scene.default_environment && !settings.default_light => None,
+            None => scene.environment.clone(),
+            Some(EnvironmentChoice::None) => None,
+            Some(EnvironmentChoice::Constant(c)) => Some(Arc::new(Environment::constant(
+                Vec3A::from(*c) * settings.environment_strength,
+            ))),
+            Some(EnvironmentChoice::Map(path)) => {
+                return Err(invalid(format!(
+                    "environment {path}: a map is read from files (RenderJob::with_files, in \
+                     the builder)"
+                )))
+            }
         };
         let job = RenderJob {
             settings: settings.clone(),
@@ -237,6 +247,7 @@ mod tests {
                     Vec3::new(-1.0, 2.0, 1.0),
                 ],
                 // Facing down (−Y), towards the points the test samples from.
+                colors: Vec::new(),
                 indices: vec![[0, 1, 2], [0, 2, 3]],
                 ..Default::default()
             }],

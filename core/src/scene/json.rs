@@ -1255,6 +1255,7 @@ impl Converter<'_> {
                     normals: normals.iter().map(|&p| v3(p)).collect(),
                     tangents: Vec::new(),
                     uvs: [uvs.iter().map(|&p| Vec2::from(p)).collect(), Vec::new()],
+                    colors: Vec::new(),
                     indices: indices.clone(),
                 };
                 let n = mesh.positions.len();
@@ -1306,6 +1307,10 @@ impl Converter<'_> {
                     shift(&mut p.base_color_texture);
                     shift(&mut p.metallic_roughness_texture);
                     shift(&mut p.transmission_texture);
+                    shift(&mut p.specular_texture);
+                    shift(&mut p.specular_color_texture);
+                    shift(&mut p.clearcoat_texture);
+                    shift(&mut p.clearcoat_roughness_texture);
                 }
                 _ => {}
             }

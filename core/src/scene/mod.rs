@@ -156,6 +156,7 @@ impl Scene {
                         + vec(&m.normals)
                         + vec(&m.tangents)
                         + m.uvs.iter().map(vec::<Vec2>).sum::<usize>()
+                        + vec(&m.colors)
                         + vec(&m.indices)
                 })
                 .sum::<usize>();

@@ -30,6 +30,7 @@ impl Scene {
                     t: hit.t,
                     object: hit.object,
                     prim: 0,
+                    color: Vec3A::ONE,
                 }
             }
             ObjectKind::Mesh { mesh, .. } => {
@@ -64,6 +65,7 @@ impl Scene {
                     t: hit.t,
                     object: hit.object,
                     prim: hit.prim,
+                    color: m.color_at(hit.prim, b1, b2),
                 };
             }
         }
@@ -131,6 +133,7 @@ impl Scene {
             t: hit.t,
             object: hit.object,
             prim: hit.prim,
+            color: m.color_at(hit.prim, b1, b2),
         }
     }
 
@@ -152,7 +155,8 @@ impl Scene {
     /// The BSDF at `it`, with every texture looked up.
     #[inline]
     pub fn bsdf(&self, it: &Interaction) -> Bsdf {
-        self.material_of(it.object).bsdf(&self.textures, &it.uv)
+        self.material_of(it.object)
+            .bsdf_tinted(&self.textures, &it.uv, it.color)
     }
 
     /// Whether `object`'s material is an interface: a medium boundary rays cross unchanged.
@@ -255,6 +259,7 @@ mod tests {
                 vec![Vec2::ZERO, Vec2::new(1.0, 0.0), Vec2::new(0.0, 1.0)],
                 vec![],
             ],
+            colors: Vec::new(),
             indices: vec![[0, 1, 2]],
             ..Default::default()
         });

@@ -171,10 +171,24 @@ impl Loader<'_> {
                 ],
                 &format!("{what}: KHR_materials_specular"),
             )?;
-            if spec.specular_texture().is_some() || spec.specular_color_texture().is_some() {
-                self.warn(format!(
-                    "{what}: KHR_materials_specular textures are not supported; factors used"
-                ));
+            let raw_spec = raw_ext("KHR_materials_specular");
+            if let Some(info) = spec.specular_texture() {
+                p.specular_texture = self.texture_ref(
+                    &info.texture(),
+                    info.tex_coord(),
+                    raw_spec.and_then(|t| t.get("specularTexture")),
+                    false,
+                    &format!("{what} specularTexture"),
+                )?;
+            }
+            if let Some(info) = spec.specular_color_texture() {
+                p.specular_color_texture = self.texture_ref(
+                    &info.texture(),
+                    info.tex_coord(),
+                    raw_spec.and_then(|t| t.get("specularColorTexture")),
+                    true,
+                    &format!("{what} specularColorTexture"),
+                )?;
             }
         }
         if let Some(ior) = mat.ior() {
@@ -220,12 +234,15 @@ impl Loader<'_> {
             let w = format!("{what}: KHR_materials_clearcoat");
             p.clearcoat = num(Some(cc), "clearcoatFactor", 0.0, &w)?;
             p.clearcoat_roughness = num(Some(cc), "clearcoatRoughnessFactor", 0.0, &w)?;
-            if cc.get("clearcoatTexture").is_some()
-                || cc.get("clearcoatRoughnessTexture").is_some()
-                || cc.get("clearcoatNormalTexture").is_some()
-            {
+            p.clearcoat_texture =
+                self.raw_texture_ref(cc.get("clearcoatTexture"), &format!("{w}.clearcoatTexture"))?;
+            p.clearcoat_roughness_texture = self.raw_texture_ref(
+                cc.get("clearcoatRoughnessTexture"),
+                &format!("{w}.clearcoatRoughnessTexture"),
+            )?;
+            if cc.get("clearcoatNormalTexture").is_some() {
                 self.warn(format!(
-                    "{w}: clearcoat textures are not supported; factors used"
+                    "{w}: clearcoatNormalTexture is not supported; the coat uses the shading normal"
                 ));
             }
         }
@@ -272,6 +289,34 @@ impl Loader<'_> {
     }
 
     /// A reference to texture `tex` decoded as sRGB or linear, with its texture transform.
+    /// A linear texture reference given as raw JSON (`{"index": I, "texCoord": N}`), for
+    /// extensions the `gltf` crate does not parse; `None` when absent.
+    fn raw_texture_ref(
+        &mut self,
+        raw_info: Option<&Value>,
+        what: &str,
+    ) -> Result<Option<TextureRef>, String> {
+        let Some(info) = raw_info else {
+            return Ok(None);
+        };
+        let index = info
+            .get("index")
+            .and_then(Value::as_u64)
+            .ok_or_else(|| format!("{what}: index must be a texture index"))?;
+        let tex = usize::try_from(index)
+            .ok()
+            .and_then(|i| self.doc.textures().nth(i))
+            .ok_or_else(|| format!("{what}: no texture {index}"))?;
+        let tex_coord = match info.get("texCoord") {
+            None => 0,
+            Some(v) => v
+                .as_u64()
+                .and_then(|t| u32::try_from(t).ok())
+                .ok_or_else(|| format!("{what}: texCoord must be a small integer"))?,
+        };
+        self.texture_ref(&tex, tex_coord, Some(info), false, what)
+    }
+
     fn texture_ref(
         &mut self,
         tex: &gltf::Texture,

@@ -105,10 +105,24 @@ impl Loader<'_> {
                 );
             }
         }
-        if prim.get(&Semantic::Colors(0)).is_some() {
-            self.warn(format!(
-                "{label}: vertex colours (COLOR_0) are not supported and are ignored"
-            ));
+        let mut colors = Vec::new();
+        if let Some(acc) = prim.get(&Semantic::Colors(0)) {
+            same_count(&acc, "COLOR_0")?;
+            let what = format!("{label} (COLOR_0)");
+            colors = if acc.dimensions() == Dimensions::Vec4 {
+                // Alpha is not used: the surface's alpha comes from the material.
+                pairs(
+                    self.read_floats(&acc, &what, Dimensions::Vec4)?,
+                    |c| Vec3::new(c[0], c[1], c[2]),
+                    4,
+                )
+            } else {
+                pairs(
+                    self.read_floats(&acc, &what, Dimensions::Vec3)?,
+                    Vec3::from_slice,
+                    3,
+                )
+            };
         }
         if prim.morph_targets().next().is_some() {
             self.warn(format!("{label}: morph targets are ignored (rest pose)"));
@@ -155,6 +169,7 @@ impl Loader<'_> {
             normals,
             tangents,
             uvs,
+            colors,
             indices,
         };
         if let Some(set) = tangent_uv {

@@ -48,8 +48,9 @@ pub(super) const MAX_FILE_BYTES: u64 = 1 << 32;
 /// Options for [`load_gltf_with`] and [`load_gltf_slice`].
 #[derive(Clone, Debug)]
 pub struct GltfOptions {
-    /// Add a constant white environment (with a warning) when the scene has no light at all:
-    /// no punctual light and no emissive material in use. Default: true.
+    /// Add a constant white environment (with a warning) when nothing lights the scene: no
+    /// punctual light and no shown surface that emits without an emissive texture (emissive
+    /// textures are decals and screens, not lamps). Default: true.
     pub default_light: bool,
     /// Upper bound on the memory the loader allocates for decoded vertex, index and texel
     /// data and objects, in bytes; larger scenes are refused. Default: 8 GiB.
@@ -642,19 +643,21 @@ impl Loader<'_> {
             let camera = default_camera(&self.desc);
             self.desc.cameras.push(camera);
         }
-        let emissive = self.desc.objects.iter().any(|o| {
+        // An emitter lights the model only if it glows as a whole: an untextured emissive
+        // surface (a lamp). Emissive textures are decals, screens and LEDs.
+        let lit_by_emitter = self.desc.objects.iter().any(|o| {
             self.desc
                 .materials
                 .get(o.material)
-                .is_some_and(|m| m.emission.max_element() > 0.0)
+                .is_some_and(|m| m.emission.max_element() > 0.0 && m.emission_texture.is_none())
         });
-        if opts.default_light && self.desc.lights.is_empty() && !emissive {
+        if opts.default_light && self.desc.lights.is_empty() && !lit_by_emitter {
             self.desc.environment = Some(EnvironmentDesc::Constant {
                 radiance: Vec3::ONE,
             });
             self.desc.default_environment = true;
             self.warn(
-                "the scene has no light (no punctual light, no emissive material): a constant white environment was added".into(),
+                "the scene has no light (no punctual light, no emissive surface other than emissive textures): a constant white environment was added".into(),
             );
         }
         Ok(())

@@ -854,3 +854,337 @@ fn images_need_a_source() {
         expect_err(&bytes, &["image 0"]);
     }
 }
+
+// ---------------------------------------------------------------------------------------------
+// Renders of small documents.
+
+/// A 2 × 2 quad in the plane z = 0 facing +Z (towards the default camera), with normals and
+/// UVs (u left to right, v top to bottom), material 0, plus `extra_attrs` and `extra` members.
+fn quad_scene(mut d: Doc, extra_attrs: Value, extra: Value) -> Vec<u8> {
+    let p = d.positions(&[
+        [-1.0, -1.0, 0.0],
+        [1.0, -1.0, 0.0],
+        [1.0, 1.0, 0.0],
+        [-1.0, 1.0, 0.0],
+    ]);
+    let n = d.floats(&[0.0, 0.0, 1.0].repeat(4), "VEC3", 3);
+    let uv = d.floats(&[0.0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0], "VEC2", 2);
+    let i = d.indices_u16(&[0, 1, 2, 0, 2, 3]);
+    let mut attrs = json!({"POSITION": p, "NORMAL": n, "TEXCOORD_0": uv});
+    if let (Some(o), Value::Object(e)) = (attrs.as_object_mut(), extra_attrs) {
+        o.extend(e);
+    }
+    let prim = json!({"attributes": attrs, "indices": i, "material": 0});
+    one_prim(d, prim, extra)
+}
+
+/// A `w` × `h` PNG as a data URI, texel (x, y) = `f(x, y)` (RGBA, 8 bits).
+fn png_uri(w: u32, h: u32, f: impl Fn(u32, u32) -> [u8; 4]) -> String {
+    let img = image::RgbaImage::from_fn(w, h, |x, y| image::Rgba(f(x, y)));
+    let mut png = Vec::new();
+    img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .unwrap();
+    format!(
+        "data:image/png;base64,{}",
+        base64::engine::general_purpose::STANDARD.encode(png)
+    )
+}
+
+/// Renders a loaded document at `n`² with `spp` (path tracer); linear RGB, row-major from the
+/// top.
+fn render_doc(s: &SceneDesc, n: u32, spp: u32, default_light: bool) -> Vec<Vec3> {
+    render_with(
+        s,
+        crate::RenderSettings {
+            width: n,
+            height: n,
+            spp,
+            max_depth: 8,
+            default_light,
+            ..Default::default()
+        },
+    )
+}
+
+/// Renders a loaded document with `settings`; linear RGB, row-major from the top.
+fn render_with(s: &SceneDesc, settings: crate::RenderSettings) -> Vec<Vec3> {
+    let scene = crate::Scene::build(s).unwrap();
+    let job = crate::RenderJob::new(&scene, &settings).unwrap();
+    let film = crate::render(&scene, &job, &());
+    film.resolve().into_iter().map(Vec3::from).collect()
+}
+
+fn mean(px: &[Vec3]) -> f32 {
+    px.iter().map(|p| p.element_sum() / 3.0).sum::<f32>() / px.len() as f32
+}
+
+/// Shaped like DamagedHelmet: no light of its own, an emissive texture on part of it (the left
+/// half of a grey quad glows red). Emissive textures do not light a model, so it gets the
+/// default environment and renders well above black; without the default light (or with the
+/// job's `--environment none`) only the glowing half shows.
+#[test]
+fn a_model_lit_only_by_an_emissive_texture_gets_the_default_light() {
+    let bytes = quad_scene(
+        Doc::default(),
+        json!({}),
+        json!({
+            "images": [{"uri": png_uri(2, 1, |x, _| if x == 0 { [255, 0, 0, 255] } else { [0, 0, 0, 255] })}],
+            "samplers": [{"magFilter": 9728, "minFilter": 9728}],
+            "textures": [{"source": 0, "sampler": 0}],
+            "materials": [{
+                "pbrMetallicRoughness": {"baseColorFactor": [0.8, 0.8, 0.8, 1.0], "metallicFactor": 0.0},
+                "emissiveFactor": [1.0, 1.0, 1.0],
+                "emissiveTexture": {"index": 0},
+            }],
+        }),
+    );
+    let s = load(&bytes).unwrap();
+    assert!(s.default_environment, "an emissive texture is not a light");
+    assert!(s.warnings.iter().any(|w| w.contains("has no light")));
+    let n = 24;
+    let lit = render_doc(&s, n, 8, true);
+    let lit_mean = mean(&lit);
+    assert!(lit_mean > 0.5, "lit by default: mean {lit_mean}");
+
+    let dark = render_doc(&s, n, 8, false);
+    // The job's `--environment none` gives the same image.
+    let none = render_with(
+        &s,
+        crate::RenderSettings {
+            width: n,
+            height: n,
+            spp: 8,
+            max_depth: 8,
+            environment: Some(crate::settings::EnvironmentChoice::None),
+            ..Default::default()
+        },
+    );
+    assert!(
+        none == dark,
+        "--environment none is the scene without the default light"
+    );
+    let at = |x: u32, y: u32| dark[(y * n + x) as usize];
+    // The right half (non-emissive quad and background) is black; the left half of the quad
+    // glows red (and only red: nothing else lights the scene).
+    for y in 0..n {
+        for x in n / 2 + 1..n {
+            assert_eq!(at(x, y), Vec3::ZERO, "({x}, {y}) should be black");
+        }
+    }
+    assert!(dark.iter().all(|p| p.y == 0.0 && p.z == 0.0));
+    let c = at(n / 2 - 3, n / 2);
+    assert!(c.x > 0.5, "the emissive half glows: {c}");
+    assert!(mean(&dark) < lit_mean / 4.0);
+}
+
+/// An untextured emissive surface with power (a lamp) lights the model: no default light.
+#[test]
+fn an_untextured_emitter_lights_the_model() {
+    let bytes = quad_scene(
+        Doc::default(),
+        json!({}),
+        json!({"materials": [{"emissiveFactor": [1.0, 1.0, 1.0]}]}),
+    );
+    let s = load(&bytes).unwrap();
+    assert!(!s.default_environment);
+    assert!(s.environment.is_none());
+}
+
+/// A 2 × 1 texture (NEAREST) as the members `images`, `samplers` and `textures` of a document:
+/// texel 0 (the quad's left half) `left`, texel 1 (right half) `right`.
+fn two_texels(left: [u8; 4], right: [u8; 4]) -> Value {
+    json!({
+        "images": [{"uri": png_uri(2, 1, |x, _| if x == 0 { left } else { right })}],
+        "samplers": [{"magFilter": 9728, "minFilter": 9728}],
+        "textures": [{"source": 0, "sampler": 0}],
+    })
+}
+
+/// `two_texels` plus `material` and the extensions it uses.
+fn textured_quad(left: [u8; 4], right: [u8; 4], material: Value) -> SceneDesc {
+    let mut extra = two_texels(left, right);
+    extra["materials"] = json!([material]);
+    extra["extensionsUsed"] = json!([
+        "KHR_materials_specular",
+        "KHR_materials_clearcoat",
+        "KHR_materials_emissive_strength"
+    ]);
+    load(&quad_scene(Doc::default(), json!({}), extra)).unwrap()
+}
+
+/// Mean colour of the quad's left and right halves (inner pixels only), rendered at `n`².
+fn halves(px: &[Vec3], n: u32) -> (Vec3, Vec3) {
+    let (mut l, mut r, mut count) = (Vec3::ZERO, Vec3::ZERO, 0.0);
+    for y in n * 2 / 5..n * 3 / 5 {
+        for dx in 2..n / 6 {
+            l += px[(y * n + n / 2 - dx) as usize];
+            r += px[(y * n + n / 2 + dx) as usize];
+            count += 1.0;
+        }
+    }
+    (l / count, r / count)
+}
+
+/// `KHR_materials_specular` textures: the strength (A channel) switches the specular layer of
+/// a black dielectric on the left half and off on the right; the colour texture tints it red.
+#[test]
+fn specular_textures_render() {
+    let n = 40;
+    let settings = |spp| crate::RenderSettings {
+        width: n,
+        height: n,
+        spp,
+        max_depth: 4,
+        ..Default::default()
+    };
+    let black = json!({"baseColorFactor": [0.0, 0.0, 0.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 0.4});
+    let strength = json!({
+        "pbrMetallicRoughness": black.clone(),
+        "extensions": {"KHR_materials_specular": {"specularTexture": {"index": 0}}},
+    });
+    let s = textured_quad([0, 0, 0, 255], [0, 0, 0, 0], strength);
+    let p = pbr(&s.materials[0]);
+    assert!(p.specular_texture.is_some());
+    assert!(!s.textures[p.specular_texture.unwrap().texture].srgb);
+    let (l, r) = halves(&render_with(&s, settings(16)), n);
+    assert!(l.min_element() > 0.02, "specular on the left: {l}");
+    assert_eq!(r, Vec3::ZERO, "no specular and a black base on the right");
+
+    let colour = json!({
+        "pbrMetallicRoughness": black,
+        "extensions": {"KHR_materials_specular": {"specularColorTexture": {"index": 0}}},
+    });
+    let s = textured_quad([255, 0, 0, 255], [255, 255, 255, 255], colour);
+    let p = pbr(&s.materials[0]);
+    assert!(s.textures[p.specular_color_texture.unwrap().texture].srgb);
+    let (l, r) = halves(&render_with(&s, settings(16)), n);
+    assert!(
+        l.x > 1.5 * l.y && l.x > 1.5 * l.z,
+        "red specular on the left: {l}"
+    );
+    assert!(
+        (r.x - r.y).abs() < 0.1 * r.x,
+        "white specular on the right: {r}"
+    );
+}
+
+/// `KHR_materials_clearcoat` textures: the coat (R channel) on the left half of a black,
+/// specular-free surface reflects the environment, the right half stays black; the roughness
+/// texture (G channel) is read as linear data.
+#[test]
+fn clearcoat_textures_render() {
+    let n = 40;
+    let m = json!({
+        "pbrMetallicRoughness": {"baseColorFactor": [0.0, 0.0, 0.0, 1.0], "metallicFactor": 0.0},
+        "extensions": {
+            "KHR_materials_specular": {"specularFactor": 0.0},
+            "KHR_materials_clearcoat": {"clearcoatFactor": 1.0, "clearcoatTexture": {"index": 0},
+                "clearcoatRoughnessFactor": 0.5, "clearcoatRoughnessTexture": {"index": 0, "texCoord": 0}},
+        },
+    });
+    let s = textured_quad([255, 128, 0, 255], [0, 128, 0, 255], m);
+    let p = pbr(&s.materials[0]);
+    let (cc, ccr) = (
+        p.clearcoat_texture.unwrap(),
+        p.clearcoat_roughness_texture.unwrap(),
+    );
+    assert!(!s.textures[cc.texture].srgb && !s.textures[ccr.texture].srgb);
+    let px = render_with(
+        &s,
+        crate::RenderSettings {
+            width: n,
+            height: n,
+            spp: 16,
+            max_depth: 4,
+            ..Default::default()
+        },
+    );
+    let (l, r) = halves(&px, n);
+    assert!(l.min_element() > 0.02, "coated on the left: {l}");
+    assert_eq!(r, Vec3::ZERO, "no coat on the right");
+    // A clearcoat texture that names no texture is an error naming it.
+    let bad = json!({"extensions": {"KHR_materials_clearcoat": {"clearcoatFactor": 1.0, "clearcoatTexture": {"index": 7}}}});
+    let mut extra = two_texels([0; 4], [0; 4]);
+    extra["materials"] = json!([bad]);
+    expect_err(
+        &quad_scene(Doc::default(), json!({}), extra),
+        &["clearcoatTexture", "no texture 7"],
+    );
+}
+
+/// `KHR_materials_emissive_strength` scales an emissive texture: a white texel with strength 5
+/// emits radiance 5 exactly.
+#[test]
+fn emissive_strength_scales_emissive_textures() {
+    let n = 40;
+    let m = json!({
+        "emissiveFactor": [1.0, 1.0, 1.0],
+        "emissiveTexture": {"index": 0},
+        "extensions": {"KHR_materials_emissive_strength": {"emissiveStrength": 5.0}},
+    });
+    let s = textured_quad([255, 255, 255, 255], [0, 0, 0, 255], m);
+    let px = render_doc(&s, n, 4, false);
+    let (l, r) = halves(&px, n);
+    assert!((l - Vec3::splat(5.0)).abs().max_element() < 1e-4, "{l}");
+    assert_eq!(r, Vec3::ZERO);
+}
+
+/// `COLOR_0` multiplies the base colour: two quads side by side, the left one's vertices red
+/// (normalized unsigned bytes, RGBA), the right one's white, under a grey material, render
+/// red and grey.
+#[test]
+fn vertex_colours_multiply_the_base_colour() {
+    let mut d = Doc::default();
+    let mut pos = Vec::new();
+    for x0 in [-1.0f32, 0.0] {
+        pos.extend([
+            [x0, -1.0, 0.0],
+            [x0 + 1.0, -1.0, 0.0],
+            [x0 + 1.0, 1.0, 0.0],
+            [x0, 1.0, 0.0],
+        ]);
+    }
+    let p = d.positions(&pos);
+    let colours: Vec<u8> = [[255u8, 0, 0, 255]; 4]
+        .into_iter()
+        .chain([[255u8, 255, 255, 255]; 4])
+        .flatten()
+        .collect();
+    let c = d.accessor(&colours, 5121, "VEC4", 8);
+    d.accessors[c]["normalized"] = json!(true);
+    let i = d.indices_u16(&[0, 1, 2, 0, 2, 3, 4, 5, 6, 4, 6, 7]);
+    let prim = json!({"attributes": {"POSITION": p, "COLOR_0": c}, "indices": i, "material": 0});
+    let bytes = one_prim(
+        d,
+        prim,
+        json!({"materials": [{"pbrMetallicRoughness": {"baseColorFactor": [0.5, 0.5, 0.5, 1.0], "metallicFactor": 0.0}}]}),
+    );
+    let s = load(&bytes).unwrap();
+    assert_eq!(s.meshes[0].colors.len(), 8);
+    assert!(!s.warnings.iter().any(|w| w.contains("COLOR_0")));
+    let n = 40;
+    let px = render_with(
+        &s,
+        crate::RenderSettings {
+            width: n,
+            height: n,
+            spp: 4,
+            integrator: crate::IntegratorKind::Albedo,
+            ..Default::default()
+        },
+    );
+    let (l, r) = halves(&px, n);
+    assert!(
+        (l - Vec3::new(0.5, 0.0, 0.0)).abs().max_element() < 1e-3,
+        "red half: {l}"
+    );
+    assert!(
+        (r - Vec3::splat(0.5)).abs().max_element() < 1e-3,
+        "grey half: {r}"
+    );
+    // Lit by the default light, the red half is red (its white specular layer aside).
+    let lit = render_doc(&s, n, 4, true);
+    let (l, r) = halves(&lit, n);
+    assert!(l.x > 0.2 && l.y < 0.1 * l.x && l.z < 0.1 * l.x, "{l}");
+    assert!(r.min_element() > 0.2, "{r}");
+}
