@@ -717,4 +717,17 @@ function start() {
   connectEvents();
 }
 
+// A page left for another may be kept (back-forward cache) with its stream open, and a
+// browser opens only a few connections to one host: close the stream when the page is
+// hidden, open it again (it starts with a resync) when the page comes back.
+window.addEventListener("pagehide", () => {
+  if (source) {
+    source.close();
+    source = null;
+  }
+});
+window.addEventListener("pageshow", (e) => {
+  if (e.persisted) connectEvents();
+});
+
 start();

@@ -357,6 +357,7 @@ async fn until(c: &fantoccini::Client, secs: u64, what: &str, script: &str) -> V
 }
 
 async fn screenshot(c: &fantoccini::Client, name: &str) {
+    eprintln!("web-e2e: {name}");
     let dir = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../target/web-e2e"));
     std::fs::create_dir_all(&dir).unwrap();
     let png = c.screenshot().await.unwrap();
@@ -524,7 +525,7 @@ async fn the_web_page_submits_watches_and_cancels() {
             ("width", "64"),
             ("height", "64"),
             ("spp", "65536"),
-            ("passes", "64"),
+            ("passes", "256"),
         ],
     )
     .await;
