@@ -133,7 +133,9 @@ fn schemas() -> Value {
         "TaskFailure": {"type": "object", "required": ["worker", "task", "tile", "pass", "error", "at_ms"], "properties": {
             "worker": {"type": "string"}, "task": {"type": "integer"}, "tile": {"$ref": "#/components/schemas/Tile"}, "pass": {"type": "integer"},
             "error": {"type": "string"}, "at_ms": {"type": "integer"}}},
-        "TileList": {"type": "object", "required": ["passes", "tiles"], "properties": {"passes": {"type": "integer"}, "tiles": {"type": "array", "items": {
+        "TileList": {"type": "object", "required": ["event_id", "passes", "tiles"], "properties": {
+            "event_id": {"type": "integer", "description": "Id of the last event of /v1/events published before this list: apply only later ones to it"},
+            "passes": {"type": "integer"}, "tiles": {"type": "array", "items": {
             "type": "object", "required": ["tile", "passes_done", "workers"], "properties": {
                 "tile": {"$ref": "#/components/schemas/Tile"}, "passes_done": {"type": "integer"},
                 "workers": {"type": "array", "description": "Workers holding a lease on one of the tile's passes", "items": {"type": "string"}}}}}}},

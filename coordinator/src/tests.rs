@@ -691,6 +691,7 @@ async fn priority_and_tiles_of_a_job() {
     let (code, t) = call(&st, get(&format!("/v1/jobs/{id}/tiles"))).await;
     assert_eq!(code, StatusCode::OK);
     assert_eq!(t["passes"], 2);
+    assert!(t["event_id"].is_u64(), "{t}");
     let tiles = t["tiles"].as_array().unwrap();
     assert_eq!(tiles.len(), 6);
     assert_eq!(tiles[1]["tile"]["x0"], 16);

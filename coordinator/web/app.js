@@ -189,7 +189,8 @@ function connectEvents() {
       return;
     }
     window.raytile.events++;
-    for (const f of listeners) f(ev);
+    const id = m.lastEventId ? Number(m.lastEventId) : null;
+    for (const f of listeners) f(ev, id);
   };
   source.onerror = () => {
     setLive(false, "reconnecting…");
@@ -466,9 +467,9 @@ function jobPage(main, id) {
         h("div", { class: "preview" }, canvas, overlay),
         h("div", { class: "legend" },
           h("label", {}, showOverlay, " tile overlay"),
-          h("span", {}, h("span", { class: "swatch waiting" }), "waiting"),
+          h("span", {}, h("span", { class: "swatch waiting" }), "no pass yet"),
           h("span", {}, h("span", { class: "swatch leased" }), "rendering (worker)"),
-          h("span", {}, h("span", { class: "swatch done" }), "all passes done")),
+          h("span", {}, h("span", { class: "swatch done" }), "refining")),
         h("div", { class: "downloads" }, "Download:",
           ["png", "exr", "hdr"].map((f) => h("a", { class: "button", href: "/v1/jobs/" + enc +
             "/image?format=" + f, download: id + "." + f }, f.toUpperCase())))),
@@ -520,7 +521,6 @@ function jobPage(main, id) {
     const ctx = overlay.getContext("2d");
     ctx.clearRect(0, 0, overlay.width, overlay.height);
     if (!showOverlay.checked) return;
-    const passes = job.passes;
     ctx.font = Math.max(10, Math.round(11 * scale / 2)) + "px sans-serif";
     ctx.textBaseline = "top";
     for (const t of tiles.values()) {
@@ -531,9 +531,9 @@ function jobPage(main, id) {
         ctx.lineWidth = Math.max(2, scale);
         ctx.strokeRect(x + 1, y + 1, w - 2, hgt - 2);
         ctx.fillStyle = "#ffb300";
-        ctx.fillText([...t.workers].map(name).join(", "), x + 4, y + 4, w - 8);
-      } else if (t.passes_done < passes && !isFinal(job.state)) {
-        ctx.fillStyle = t.passes_done ? "rgba(0,0,0,0.25)" : "rgba(0,0,0,0.5)";
+        ctx.fillText([...t.workers].map(name).join(", "), x + 3 + ctx.lineWidth, y + 3 + ctx.lineWidth, w - 8);
+      } else if (t.passes_done === 0 && !isFinal(job.state)) {
+        ctx.fillStyle = "rgba(0,0,0,0.5)";
         ctx.fillRect(x, y, w, hgt);
       }
     }
@@ -569,11 +569,34 @@ function jobPage(main, id) {
     window.raytile.previews.push(before);
   }, 400);
 
+  // Task events that arrive while the tile list is being fetched are kept, and those the
+  // list does not include yet (a larger id than its event_id) are applied to it after.
+  let pending = null;
   const refreshTiles = async () => {
-    const list = await api("/v1/jobs/" + enc + "/tiles");
-    tiles = new Map(list.tiles.map((t) => [tileKey(t.tile),
-      { tile: t.tile, passes_done: t.passes_done, workers: new Set(t.workers) }]));
+    if (pending) return;
+    pending = [];
+    try {
+      const list = await api("/v1/jobs/" + enc + "/tiles");
+      tiles = new Map(list.tiles.map((t) => [tileKey(t.tile),
+        { tile: t.tile, passes_done: t.passes_done, workers: new Set(t.workers) }]));
+      for (const [ev, id] of pending) {
+        if (id !== null && id > list.event_id) applyTask(ev);
+      }
+    } finally {
+      pending = null;
+    }
     drawOverlay();
+  };
+
+  // A task event on the overlay's tiles.
+  const applyTask = (ev) => {
+    const t = tiles.get(tileKey(ev.tile));
+    if (!t) return;
+    if (ev.type === "task_leased") t.workers.add(ev.worker);
+    else if (ev.type === "task_done") {
+      t.passes_done++;
+      t.workers.delete(ev.worker);
+    } else t.workers.clear();
   };
 
   const refreshWorkers = async () => {
@@ -599,7 +622,7 @@ function jobPage(main, id) {
     drawOverlay();
   }, 300);
 
-  listeners.add((ev) => {
+  listeners.add((ev, eventId) => {
     if (ev.type === "resync") {
       refreshJob();
       refreshTiles().catch(console.error);
@@ -607,26 +630,16 @@ function jobPage(main, id) {
       return;
     }
     if (ev.type === "worker_registered") workerNames[ev.worker] = ev.name;
-    if (ev.job !== id || !job) return;
-    const t = ev.tile && tiles.get(tileKey(ev.tile));
+    if (ev.job !== id) return;
+    if (ev.type.startsWith("task_")) {
+      if (pending) pending.push([ev, eventId]);
+      else applyTask(ev);
+      drawOverlay();
+      if (ev.type === "task_failed") refreshJob();
+      return;
+    }
+    if (!job) return;
     switch (ev.type) {
-      case "task_leased":
-        if (t) t.workers.add(ev.worker);
-        drawOverlay();
-        break;
-      case "task_done":
-        if (t) {
-          t.passes_done++;
-          t.workers.delete(ev.worker);
-        }
-        drawOverlay();
-        break;
-      case "task_queued":
-      case "task_failed":
-        if (t) t.workers.clear();
-        drawOverlay();
-        if (ev.type === "task_failed") refreshJob();
-        break;
       case "job_progress":
         Object.assign(job, {
           tiles_done: ev.tiles_done, passes_done: ev.passes_done, tasks_done: ev.tasks_done,

@@ -176,6 +176,10 @@ pub struct TileProgress {
 /// Response of `GET /v1/jobs/{id}/tiles`.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct TileList {
+    /// The id of the last change event (`GET /v1/events`) published before this list was
+    /// made: events with a larger id are not in it yet.
+    #[serde(default)]
+    pub event_id: u64,
     /// Passes of the job.
     pub passes: u32,
     /// Every tile, in row order.

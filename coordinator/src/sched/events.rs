@@ -186,6 +186,11 @@ impl Events {
         }));
     }
 
+    /// The id of the last event published.
+    pub fn last_id(&self) -> u64 {
+        self.last_id
+    }
+
     /// A new subscriber and the id of the last event published before it.
     pub fn subscribe(&self) -> (u64, broadcast::Receiver<Arc<Stamped>>) {
         (self.last_id, self.tx.subscribe())

@@ -112,6 +112,7 @@ impl Sched {
         }
         tiles.sort_by_key(|t| (t.tile.y0, t.tile.x0));
         Some(TileList {
+            event_id: self.events.last_id(),
             passes: layout.pass_count() as u32,
             tiles,
         })
