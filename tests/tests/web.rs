@@ -28,7 +28,12 @@ struct Coord {
 
 impl Coord {
     async fn start(dir: &Path) -> Coord {
+        Self::start_with_token(dir, None).await
+    }
+
+    async fn start_with_token(dir: &Path, token: Option<&str>) -> Coord {
         let mut c = Config::new(dir);
+        c.token = token.map(String::from);
         c.lease_timeout = Duration::from_secs(10);
         c.heartbeat_interval = Duration::from_millis(200);
         c.startup_grace = Duration::from_millis(0);
@@ -582,6 +587,36 @@ async fn the_web_page_submits_watches_and_cancels() {
             assert!(u.starts_with(&format!("{base}/")), "{page} loaded {u}");
         }
     }
+
+    // A coordinator with a token: the page asks for it once, keeps it for the session, and
+    // the event stream gets it as the cookie.
+    let locked = Coord::start_with_token(&dir.path().join("locked"), Some("open sesame")).await;
+    c.goto(&format!("{}/", locked.base)).await.unwrap();
+    until(
+        &c,
+        20,
+        "the token form",
+        "return !document.getElementById('token-box').hidden",
+    )
+    .await;
+    c.find(Locator::Css("#token-input"))
+        .await
+        .unwrap()
+        .send_keys("open sesame")
+        .await
+        .unwrap();
+    c.find(Locator::Css("#token-form button"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+    until(&c, 20, "the jobs of the locked coordinator", "return document.getElementById('live').textContent === 'live' && document.querySelector('#jobs-body td')").await;
+    c.goto(&format!("{}/workers", locked.base)).await.unwrap();
+    until(&c, 20, "the workers page with the kept token", "return document.getElementById('live').textContent === 'live' && document.querySelector('#workers-body td')").await;
+    let asked = js(&c, "return !document.getElementById('token-box').hidden").await;
+    assert_eq!(asked, false, "the token was asked for again");
+    locked.stop().await;
 
     c.close().await.unwrap();
     drop(driver);
