@@ -569,6 +569,27 @@ async fn the_web_page_submits_watches_and_cancels() {
     .await;
     screenshot(&c, "workers").await;
 
+    // Phone-sized: the page itself does not scroll sideways (wide tables scroll in their box).
+    c.set_window_size(390, 844).await.unwrap();
+    for page in ["/", &format!("/jobs/{job}"), "/workers"] {
+        c.goto(&format!("{base}{page}")).await.unwrap();
+        until(
+            &c,
+            20,
+            "the page",
+            "return document.getElementById('live').textContent === 'live'",
+        )
+        .await;
+        let fits = js(
+            &c,
+            "return document.documentElement.scrollWidth <= window.innerWidth",
+        )
+        .await;
+        assert_eq!(fits, true, "{page} is wider than a phone");
+    }
+    screenshot(&c, "job-phone").await;
+    c.set_window_size(1280, 800).await.unwrap();
+
     // Nothing the pages loaded came from anywhere but the coordinator.
     for page in ["/", &format!("/jobs/{job}"), "/workers"] {
         c.goto(&format!("{base}{page}")).await.unwrap();
