@@ -10,7 +10,8 @@
 # small limits, uploads the repository's Cornell box, submits a job, registers a worker and
 # leases a task so that real ids exist, and runs schemathesis on /v1/openapi.json with the checks not_a_server_error,
 # status_code_conformance, content_type_conformance, response_schema_conformance and
-# ignored_auth. The document is fetched from the coordinator and given the ids as examples;
+# ignored_auth. `GET /v1/events` is left out: it is an event stream that never ends, so every
+# request to it would time out (its own test is tests/tests/web.rs). The document is fetched from the coordinator and given the ids as examples;
 # nothing else of it is changed.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -96,5 +97,6 @@ echo "== schemathesis, $seconds s"
 "$venv/bin/st" run "$doc" --url "$base" -H "$auth" \
   --checks not_a_server_error,status_code_conformance,content_type_conformance,response_schema_conformance,ignored_auth \
   --max-time "$seconds" --workers 2 --request-timeout 10 --no-color \
+  --exclude-path /v1/events \
   --report junit --report-dir "$work/report"
 echo "== no findings"

@@ -62,6 +62,9 @@ fn build() -> Routes {
         .add(Method::GET, "/v1/jobs/{id}", get_job)
         .add(Method::DELETE, "/v1/jobs/{id}", cancel_job)
         .add(Method::GET, "/v1/jobs/{id}/image", job_image)
+        .add(Method::GET, "/v1/jobs/{id}/tiles", job_tiles)
+        .add(Method::POST, "/v1/jobs/{id}/priority", set_priority)
+        .add(Method::GET, "/v1/events", events)
         .add(
             Method::PUT,
             "/v1/jobs/{id}/tasks/{task}/result",
@@ -86,6 +89,7 @@ pub fn routes() -> Vec<(Method, &'static str)> {
 pub fn app(state: AppState) -> Router {
     build()
         .router
+        .merge(crate::web::router())
         .fallback(|| async { AppError::NotFound("no such endpoint".into()) })
         .method_not_allowed_fallback(|| async { AppError::MethodNotAllowed })
         .layer(middleware::from_fn_with_state(state.clone(), auth))
@@ -93,21 +97,53 @@ pub fn app(state: AppState) -> Router {
         .with_state(state)
 }
 
+/// The cookie a browser may carry the token in (see [`auth`]).
+pub const TOKEN_COOKIE: &str = "raytile_token";
+
+/// Every request but `/healthz` and the web pages ([`crate::web::is_public`]) needs the
+/// token: as `Authorization: Bearer TOKEN`, or, on GET requests only, as the cookie
+/// `raytile_token` (percent-encoded). The cookie is for what a browser fetches without script
+/// control over headers: the event stream (`EventSource` cannot set headers) and image
+/// downloads. Requests that change something need the header, so another site cannot make a
+/// browser change anything with the cookie (which the page also sets `SameSite=Strict`).
 async fn auth(State(state): State<AppState>, req: Request, next: Next) -> Response {
     if let Some(token) = &state.cfg.token {
-        if req.uri().path() != "/healthz" {
-            let ok = req
+        let path = req.uri().path();
+        if path != "/healthz" && !crate::web::is_public(path) {
+            let matches = |t: &str| constant_time_eq(t.trim().as_bytes(), token.as_bytes());
+            let header_ok = req
                 .headers()
                 .get(header::AUTHORIZATION)
                 .and_then(|v| v.to_str().ok())
                 .and_then(|v| v.strip_prefix("Bearer "))
-                .is_some_and(|t| constant_time_eq(t.trim().as_bytes(), token.as_bytes()));
-            if !ok {
+                .is_some_and(matches);
+            let cookie_ok = req.method() == Method::GET
+                && cookie_token(req.headers()).is_some_and(|t| matches(&t));
+            if !header_ok && !cookie_ok {
                 return AppError::Unauthorized.into_response();
             }
         }
     }
     next.run(req).await
+}
+
+/// The token in the `raytile_token` cookie, percent-decoded.
+fn cookie_token(headers: &HeaderMap) -> Option<String> {
+    headers
+        .get_all(header::COOKIE)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .flat_map(|v| v.split(';'))
+        .find_map(|c| {
+            let (name, value) = c.trim().split_once('=')?;
+            (name == TOKEN_COOKIE).then(|| {
+                let encoded = format!("t={}", value.replace('+', "%2B"));
+                form_urlencoded::parse(encoded.as_bytes())
+                    .next()
+                    .map(|(_, v)| v.into_owned())
+                    .unwrap_or_default()
+            })
+        })
 }
 
 fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
@@ -320,6 +356,67 @@ async fn cancel_job(
     st.map(Json).ok_or_else(|| no_job(&id))
 }
 
+async fn job_tiles(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Json<proto::TileList>, AppError> {
+    let tiles = state.sched().tile_list(&id);
+    tiles.map(Json).ok_or_else(|| no_job(&id))
+}
+
+async fn set_priority(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+    Json(body): Json<serde_json::Map<String, serde_json::Value>>,
+) -> Result<Json<proto::JobStatus>, AppError> {
+    // Read from an object only: serde would take `[5]` for `{"priority": 5}`.
+    let req: proto::PriorityRequest = serde_json::from_value(serde_json::Value::Object(body))
+        .map_err(|e| AppError::invalid("priority", format!("priority: {e}")))?;
+    let st = state.sched().set_priority(&id, req.priority)?;
+    if st.is_some() {
+        state.notify.notify_waiters();
+    }
+    st.map(Json).ok_or_else(|| no_job(&id))
+}
+
+/// The change stream: server-sent events, one JSON object each (see `sched::events`), with
+/// the id the scheduler gave it. It opens with a `resync` (fetch what you show now), and a
+/// subscriber that fell behind by more than the channel holds gets a `resync` instead of what
+/// it missed. Resyncs carry no id. The stream ends when the coordinator shuts down (browsers
+/// reconnect by themselves).
+async fn events(State(state): State<AppState>) -> Response {
+    use axum::response::sse::{Event, KeepAlive, Sse};
+    use tokio::sync::broadcast::error::RecvError;
+    let resync = |reason: &str| {
+        Event::default().data(serde_json::json!({"type": "resync", "reason": reason}).to_string())
+    };
+    let (_, rx) = state.sched().subscribe();
+    let first = resync("connected");
+    let rest = futures_util::stream::unfold(
+        (rx, state.shutdown_rx()),
+        move |(mut rx, mut shutdown)| async move {
+            if *shutdown.borrow() {
+                return None;
+            }
+            let ev = tokio::select! {
+                r = rx.recv() => match r {
+                    Ok(ev) => Event::default().id(ev.id.to_string()).data(&ev.json),
+                    Err(RecvError::Lagged(n)) => resync(&format!("{n} events missed")),
+                    Err(RecvError::Closed) => return None,
+                },
+                _ = shutdown.changed() => return None,
+            };
+            Some((Ok::<_, std::convert::Infallible>(ev), (rx, shutdown)))
+        },
+    );
+    let stream = futures_util::stream::once(async move { Ok(first) }).chain(rest);
+    (
+        [(header::HeaderName::from_static("x-accel-buffering"), "no")],
+        Sse::new(stream).keep_alive(KeepAlive::default()),
+    )
+        .into_response()
+}
+
 #[derive(Deserialize)]
 struct ImageQuery {
     format: Option<String>,
@@ -396,7 +493,7 @@ async fn register(
 
 async fn list_workers(State(state): State<AppState>) -> Json<proto::WorkerList> {
     Json(proto::WorkerList {
-        workers: state.sched().worker_list(),
+        workers: state.sched().worker_list(state.now()),
     })
 }
 

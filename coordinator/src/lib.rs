@@ -9,6 +9,7 @@
 //! - [`store`]: SQLite persistence under the data directory.
 //! - [`api`]: the HTTP handlers; [`scenes`]: scene uploads; [`compose`]: frames from results.
 //! - [`openapi`]: the OpenAPI description served at `/v1/openapi.json`.
+//! - [`web`]: the web pages (`/`, `/jobs/{id}`, `/workers`) and their files, embedded.
 
 pub mod api;
 pub mod clock;
@@ -20,6 +21,7 @@ pub mod sched;
 pub mod store;
 #[cfg(test)]
 mod tests;
+pub mod web;
 
 pub use api::app;
 pub use scenes::{core_scene_loader, LoadError, LoadedScene, SceneLimits, SceneLoader};

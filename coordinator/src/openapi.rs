@@ -133,7 +133,20 @@ fn schemas() -> Value {
             "tasks_leased": {"type": "integer"}, "samples_done": {"type": "integer"}, "samples_total": {"type": "integer"},
             "workers": {"type": "object", "additionalProperties": {"type": "object", "properties": {"tasks": {"type": "integer"}, "samples": {"type": "integer"}}}},
             "created_ms": {"type": "integer"}, "started_ms": {"type": "integer", "nullable": true}, "finished_ms": {"type": "integer", "nullable": true},
-            "error": {"type": "string", "nullable": true}}},
+            "error": {"type": "string", "nullable": true},
+            "failures": {"type": "array", "description": "The last task failures workers reported (at most 20; memory only)", "items": {"$ref": "#/components/schemas/TaskFailure"}}}},
+        "Tile": {"type": "object", "required": ["x0", "y0", "x1", "y1"], "properties": {"x0": {"type": "integer"}, "y0": {"type": "integer"}, "x1": {"type": "integer"}, "y1": {"type": "integer"}}},
+        "TaskFailure": {"type": "object", "required": ["worker", "task", "tile", "pass", "error", "at_ms"], "properties": {
+            "worker": {"type": "string"}, "task": {"type": "integer"}, "tile": {"$ref": "#/components/schemas/Tile"}, "pass": {"type": "integer"},
+            "error": {"type": "string"}, "at_ms": {"type": "integer"}}},
+        "TileList": {"type": "object", "required": ["event_id", "passes", "tiles"], "properties": {
+            "event_id": {"type": "integer", "description": "Id of the last event of /v1/events published before this list: apply only later ones to it"},
+            "passes": {"type": "integer"}, "tiles": {"type": "array", "items": {
+            "type": "object", "required": ["tile", "passes_done", "workers"], "properties": {
+                "tile": {"$ref": "#/components/schemas/Tile"}, "passes_done": {"type": "integer"},
+                "workers": {"type": "array", "description": "Workers holding a lease on one of the tile's passes", "items": {"type": "string"}}}}}}},
+        "PriorityRequest": {"type": "object", "required": ["priority"], "additionalProperties": false, "properties": {
+            "priority": {"type": "integer", "minimum": i32::MIN, "maximum": i32::MAX}}},
         "JobList": {"type": "object", "required": ["jobs"], "properties": {"jobs": {"type": "array", "items": {"$ref": "#/components/schemas/JobStatus"}}}},
         "RegisterRequest": {"type": "object", "required": ["name", "threads"], "properties": {
             "name": {"type": "string", "maxLength": 256}, "threads": u32_in(0, u32::MAX),
@@ -143,7 +156,12 @@ fn schemas() -> Value {
         "WorkerInfo": {"type": "object", "required": ["id", "name"], "properties": {
             "id": {"type": "string"}, "name": {"type": "string"}, "threads": {"type": "integer"},
             "registered_ms": {"type": "integer"}, "last_seen_ms": {"type": "integer"}, "leased": {"type": "integer"},
-            "tasks_done": {"type": "integer"}, "failures": {"type": "integer"}}},
+            "tasks_done": {"type": "integer"}, "failures": {"type": "integer"},
+            "state": {"type": "string", "enum": ["rendering", "idle", "gone"]},
+            "current": {"type": "array", "items": {"type": "object", "required": ["job", "task", "tile", "pass"], "properties": {
+                "job": {"type": "string"}, "task": {"type": "integer"}, "tile": {"$ref": "#/components/schemas/Tile"}, "pass": {"type": "integer"}}}},
+            "samples_per_second": {"type": "number"},
+            "render_version": {"type": "integer"}}},
         "WorkerList": {"type": "object", "required": ["workers"], "properties": {"workers": {"type": "array", "items": {"$ref": "#/components/schemas/WorkerInfo"}}}},
         "Lease": {"type": "object", "required": ["lease_id", "job", "task", "scene", "settings", "tile", "pass", "sample_start", "sample_end"], "properties": {
             "lease_id": {"type": "string"}, "job": {"type": "string"}, "task": {"type": "integer"}, "scene": {"type": "string"},
@@ -156,6 +174,18 @@ fn schemas() -> Value {
         "FailureReport": {"type": "object", "required": ["error"], "properties": {"error": {"type": "string"}}}
     })
 }
+
+const EVENTS_SUMMARY: &str = "Live changes of jobs, tasks and workers (server-sent events)";
+
+const EVENTS_DESCRIPTION: &str = "A text/event-stream that stays open. Each event's data is one JSON object with a `type`; \
+each has an `id` that increases by one with every change the coordinator makes (resyncs have none). Types: \
+`resync` {reason} (sent first, and whenever the subscriber fell behind or many things changed at once: fetch everything again); \
+`job_submitted` {job: JobStatus}; `job_progress` {job, tiles_done, tiles_total, passes_done, passes, tasks_done, tasks_total}; \
+`job_state` {job, state, error?} (running, done, failed, cancelled); `job_priority` {job, priority}; `job_purged` {job}; \
+`task_leased` {job, task, tile, pass, worker}; `task_done` {job, task, tile, pass, worker}; \
+`task_failed` {job, task, tile, pass, worker, error}; `task_queued` {job, task, tile, pass, reason: expired|released}; \
+`worker_registered` {worker, name, threads}; `worker_seen` {worker, last_seen_ms, tasks_done}; `worker_gone` {worker}. \
+A comment line keeps the connection alive every 15 s. Browsers may give the token as the cookie raytile_token.";
 
 /// The whole document.
 pub fn document() -> Value {
@@ -171,7 +201,7 @@ pub fn document() -> Value {
         "info": {
             "title": "raytile coordinator",
             "version": env!("CARGO_PKG_VERSION"),
-            "description": "Distributed path tracing: upload scenes, submit jobs, fetch images; workers lease tile passes and upload binary results. Every endpoint but /healthz needs `Authorization: Bearer TOKEN` when the coordinator has a token. Every error answer is the Error schema; a 405 (known path, other method) and a 404 (unknown path) are too."
+            "description": "Distributed path tracing: upload scenes, submit jobs, fetch images; workers lease tile passes and upload binary results. Every endpoint but /healthz needs `Authorization: Bearer TOKEN` when the coordinator has a token. Every error answer is the Error schema; a 405 (known path, other method) and a 404 (unknown path) are too. GET requests may give the token as the cookie raytile_token instead (for browsers: the event stream and image downloads). The web pages (/, /jobs/{id}, /workers and their files under /ui/) are served without the token and are not part of this API."
         },
         "components": {
             "securitySchemes": {"bearer": {"type": "http", "scheme": "bearer"}},
@@ -213,6 +243,13 @@ pub fn document() -> Value {
                 json!([job_id, {"name": "format", "in": "query", "schema": {"type": "string", "enum": ["png", "exr", "hdr"]}}]), params,
                 json!({"200": {"description": "Image", "content": {"image/png": {"schema": {"type": "string", "format": "binary"}}, "image/x-exr": {"schema": {"type": "string", "format": "binary"}}, "image/vnd.radiance": {"schema": {"type": "string", "format": "binary"}}}},
                     "404": err("Unknown job"), "422": err("Unknown format")}))},
+            "/v1/jobs/{id}/tiles": {"get": op("Each tile of the job: passes done and the workers rendering it", json!([job_id]), params,
+                json!({"200": ok_json("Tiles", "TileList"), "404": err("Unknown job")}))},
+            "/v1/jobs/{id}/priority": {"post": with_body(json_body("PriorityRequest"), op("Change a job's priority (higher runs first)", json!([job_id]),
+                Inputs { params: true, json: true, writes: true },
+                json!({"200": ok_json("Job", "JobStatus"), "404": err("Unknown job")})))},
+            "/v1/events": {"get": op(EVENTS_SUMMARY, json!([]), none,
+                json!({"200": {"description": EVENTS_DESCRIPTION, "content": {"text/event-stream": {"schema": {"type": "string"}}}}}))},
             "/v1/jobs/{id}/tasks/{task}/result": {"put": with_body(binary_body(), op("Upload a tile result (workers): binary, see docs/farm.md",
                 json!([job_id, {"name": "task", "in": "path", "required": true, "description": "Task index", "schema": {"type": "integer", "minimum": 0, "maximum": u32::MAX}},
                     {"name": "worker", "in": "query", "schema": {"type": "string"}}]),

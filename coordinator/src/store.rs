@@ -411,6 +411,13 @@ pub enum Write<'a> {
     },
     /// A job with its tasks, results and failure counts.
     DeleteJob(&'a str),
+    /// A job's priority.
+    Priority {
+        /// Job id.
+        id: &'a str,
+        /// New priority.
+        priority: i32,
+    },
     /// A registered worker.
     Worker {
         /// Worker id.
@@ -445,6 +452,12 @@ fn apply(tx: &Connection, w: &Write<'_>) -> rusqlite::Result<()> {
             tx.execute(
                 "UPDATE jobs SET state = ?2, error = ?3, started_ms = ?4, finished_ms = ?5 WHERE id = ?1",
                 params![id, job_state_name(state), error, started_ms.map(|v| v as i64), finished_ms.map(|v| v as i64)],
+            )?;
+        }
+        Write::Priority { id, priority } => {
+            tx.execute(
+                "UPDATE jobs SET priority = ?2 WHERE id = ?1",
+                params![id, priority],
             )?;
         }
         Write::Task { job, row } => write_task(tx, job, row)?,

@@ -602,3 +602,118 @@ fn every_job_setting_is_documented() {
         );
     }
 }
+
+#[tokio::test]
+async fn pages_are_served_without_the_token_and_load_nothing_from_elsewhere() {
+    let dir = tempfile::tempdir().unwrap();
+    let st = test_state(dir.path(), Some("sesame"));
+    for (uri, ct) in [
+        ("/", "text/html"),
+        ("/jobs/j-1", "text/html"),
+        ("/workers", "text/html"),
+        ("/ui/app.js", "text/javascript"),
+        ("/ui/style.css", "text/css"),
+        ("/ui/icon.svg", "image/svg+xml"),
+    ] {
+        let resp = app(st.clone()).oneshot(get(uri)).await.unwrap();
+        assert_eq!(resp.status(), StatusCode::OK, "{uri}");
+        let h = resp.headers();
+        assert!(h["content-type"].to_str().unwrap().starts_with(ct), "{uri}");
+        let csp = h["content-security-policy"].to_str().unwrap();
+        assert!(csp.contains("default-src 'none'") && csp.contains("connect-src 'self'"));
+        let body = axum::body::to_bytes(resp.into_body(), usize::MAX)
+            .await
+            .unwrap();
+        let text = String::from_utf8(body.to_vec()).unwrap();
+        // No absolute or protocol-relative URL: the SVG's XML namespace names, it loads nothing.
+        let text = text.replace("xmlns=\"http://www.w3.org/2000/svg\"", "");
+        for bad in [
+            "http://",
+            "https://",
+            "src=\"//",
+            "href=\"//",
+            "url(",
+            "@import",
+        ] {
+            assert!(!text.contains(bad), "{uri} contains {bad}");
+        }
+    }
+    // Data still needs the token; a deeper path under /jobs/ is not a page.
+    assert_eq!(call(&st, get("/v1/jobs")).await.0, StatusCode::UNAUTHORIZED);
+    assert_eq!(
+        call(&st, get("/jobs/a/b")).await.0,
+        StatusCode::UNAUTHORIZED
+    );
+}
+
+#[tokio::test]
+async fn the_token_cookie_is_taken_on_get_requests_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let st = test_state(dir.path(), Some("se/same+1"));
+    let with = |method: &str, uri: &str, cookie: &str, auth: Option<&str>| {
+        let mut b = Request::builder()
+            .method(method)
+            .uri(uri)
+            .header("cookie", cookie);
+        if let Some(a) = auth {
+            b = b.header("authorization", a);
+        }
+        b.body(Body::empty()).unwrap()
+    };
+    let good = "a=1; raytile_token=se%2Fsame%2B1";
+    let (code, _) = call(&st, with("GET", "/v1/jobs", good, None)).await;
+    assert_eq!(code, StatusCode::OK);
+    let (code, _) = call(&st, with("GET", "/v1/jobs", "raytile_token=nope", None)).await;
+    assert_eq!(code, StatusCode::UNAUTHORIZED);
+    // A change needs the header: another site cannot make a browser cancel jobs.
+    let (code, _) = call(&st, with("DELETE", "/v1/jobs/x", good, None)).await;
+    assert_eq!(code, StatusCode::UNAUTHORIZED);
+    let auth = Some("Bearer se/same+1");
+    let (code, _) = call(&st, with("DELETE", "/v1/jobs/x", "", auth)).await;
+    assert_eq!(code, StatusCode::NOT_FOUND);
+}
+
+#[tokio::test]
+async fn priority_and_tiles_of_a_job() {
+    let dir = tempfile::tempdir().unwrap();
+    let st = test_state(dir.path(), None);
+    let (_, scene) = call(&st, post("/v1/scenes", r#"{"objects": []}"#)).await;
+    let body = format!(
+        r#"{{"scene": "{}", "width": 48, "height": 32, "tile_size": 16, "passes": 2, "spp": 2}}"#,
+        scene["id"].as_str().unwrap()
+    );
+    let (_, job) = call(&st, post("/v1/jobs", body)).await;
+    let id = job["id"].as_str().unwrap();
+    let (code, j) = call(
+        &st,
+        post(&format!("/v1/jobs/{id}/priority"), r#"{"priority": 5}"#),
+    )
+    .await;
+    assert_eq!((code, j["priority"].as_i64()), (StatusCode::OK, Some(5)));
+    assert_eq!(
+        call(&st, get(&format!("/v1/jobs/{id}"))).await.1["priority"],
+        5
+    );
+    let (code, e) = call(
+        &st,
+        post(
+            &format!("/v1/jobs/{id}/priority"),
+            r#"{"priority": "high"}"#,
+        ),
+    )
+    .await;
+    assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{e}");
+    let (code, _) = call(&st, post("/v1/jobs/nope/priority", r#"{"priority": 1}"#)).await;
+    assert_eq!(code, StatusCode::NOT_FOUND);
+    // 3 × 2 tiles, none started, in row order.
+    let (code, t) = call(&st, get(&format!("/v1/jobs/{id}/tiles"))).await;
+    assert_eq!(code, StatusCode::OK);
+    assert_eq!(t["passes"], 2);
+    assert!(t["event_id"].is_u64(), "{t}");
+    let tiles = t["tiles"].as_array().unwrap();
+    assert_eq!(tiles.len(), 6);
+    assert_eq!(tiles[1]["tile"]["x0"], 16);
+    assert!(tiles
+        .iter()
+        .all(|t| t["passes_done"] == 0 && t["workers"].as_array().unwrap().is_empty()));
+}

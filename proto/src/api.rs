@@ -162,6 +162,38 @@ pub struct WorkerShare {
     pub samples: u64,
 }
 
+/// One tile of a job as `GET /v1/jobs/{id}/tiles` shows it.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct TileProgress {
+    /// Its pixels.
+    pub tile: Tile,
+    /// Passes done.
+    pub passes_done: u32,
+    /// Workers holding a lease on one of its passes now.
+    pub workers: Vec<String>,
+}
+
+/// Response of `GET /v1/jobs/{id}/tiles`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct TileList {
+    /// The id of the last change event (`GET /v1/events`) published before this list was
+    /// made: events with a larger id are not in it yet.
+    #[serde(default)]
+    pub event_id: u64,
+    /// Passes of the job.
+    pub passes: u32,
+    /// Every tile, in row order.
+    pub tiles: Vec<TileProgress>,
+}
+
+/// Body of `POST /v1/jobs/{id}/priority`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PriorityRequest {
+    /// The job's new priority: higher runs first.
+    pub priority: i32,
+}
+
 /// A job as the API shows it.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct JobStatus {
@@ -203,6 +235,10 @@ pub struct JobStatus {
     pub finished_ms: Option<u64>,
     /// Why the job failed.
     pub error: Option<String>,
+    /// The last task failures workers reported (at most 20, newest last; kept in memory
+    /// only, so empty after a restart).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub failures: Vec<TaskFailure>,
 }
 
 /// Response of `GET /v1/jobs`.
@@ -256,6 +292,50 @@ pub struct WorkerInfo {
     pub tasks_done: u64,
     /// Failures reported.
     pub failures: u64,
+    /// `rendering` (holds a lease), `idle`, or `gone` (no contact for longer than three lease
+    /// timeouts, at least a minute).
+    #[serde(default)]
+    pub state: String,
+    /// The tasks it holds now.
+    #[serde(default)]
+    pub current: Vec<CurrentTask>,
+    /// Samples it delivered per second over the last 10 s.
+    #[serde(default)]
+    pub samples_per_second: f64,
+    /// Renderer version it renders with: registration refuses any other than the
+    /// coordinator's, so this is the coordinator's.
+    #[serde(default)]
+    pub render_version: u32,
+}
+
+/// A task a worker holds.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct CurrentTask {
+    /// Job id.
+    pub job: String,
+    /// Task index.
+    pub task: u32,
+    /// Its pixels.
+    pub tile: Tile,
+    /// Its pass.
+    pub pass: u32,
+}
+
+/// A task failure a worker reported, as a job's status lists it.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct TaskFailure {
+    /// Worker id.
+    pub worker: String,
+    /// Task index.
+    pub task: u32,
+    /// Its pixels.
+    pub tile: Tile,
+    /// Its pass.
+    pub pass: u32,
+    /// The worker's message.
+    pub error: String,
+    /// When, ms since the Unix epoch.
+    pub at_ms: u64,
 }
 
 /// Response of `GET /v1/workers`.

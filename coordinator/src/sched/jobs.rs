@@ -30,10 +30,19 @@ pub(super) struct Job {
     tasks: Vec<Task>,
     /// How many tasks are done.
     done: usize,
+    /// Done passes of each tile, by position in the layout's tile order (task `i` is position
+    /// `i % tiles`): the progress events are counted from these, not from every task.
+    tile_passes: Vec<u32>,
+    /// Tiles with every pass done.
+    tiles_full: usize,
+    /// Done tasks of each pass.
+    pass_tasks_done: Vec<u32>,
     /// Lowest task index that may be queued: everything before it is leased or finished.
     cursor: usize,
     /// Failures per worker (a worker with enough is blocked from the job).
     pub worker_failures: HashMap<String, u32>,
+    /// The last task failures reported, newest last (memory only).
+    pub recent_failures: std::collections::VecDeque<raytile_proto::TaskFailure>,
 }
 
 impl Job {
@@ -49,7 +58,11 @@ impl Job {
         layout: Arc<TaskLayout>,
     ) -> Job {
         let tasks = vec![Task::queued(); layout.task_count()];
+        let (tiles, passes) = (layout.tile_count(), layout.pass_count());
         Job {
+            tile_passes: vec![0; tiles],
+            tiles_full: 0,
+            pass_tasks_done: vec![0; passes],
             id,
             seq,
             scene,
@@ -61,6 +74,7 @@ impl Job {
             done: 0,
             cursor: 0,
             worker_failures: HashMap::new(),
+            recent_failures: Default::default(),
         }
     }
 
@@ -113,6 +127,12 @@ impl Job {
                     }
                 }
             };
+        }
+        let done: Vec<usize> = (0..job.tasks.len())
+            .filter(|&i| matches!(job.tasks[i].state, TaskState::Done { .. }))
+            .collect();
+        for i in done {
+            job.count_done(i, 1);
         }
         (job, leases)
     }
@@ -200,10 +220,38 @@ impl Job {
         let was_done = matches!(self.tasks[idx].state, TaskState::Done { .. });
         let is_done = matches!(t.state, TaskState::Done { .. });
         self.done = self.done + usize::from(is_done) - usize::from(was_done);
+        if is_done != was_done {
+            self.count_done(idx, if is_done { 1 } else { -1 });
+        }
         if t.state == TaskState::Queued {
             self.cursor = self.cursor.min(idx);
         }
         self.tasks[idx] = t;
+    }
+
+    /// Counts task `idx` as newly done (`delta` 1) or no longer done (-1).
+    fn count_done(&mut self, idx: usize, delta: i32) {
+        let n = self.layout.tile_count().max(1);
+        let passes = self.layout.pass_count() as u32;
+        let (k, p) = (idx % n, idx / n);
+        let was_full = self.tile_passes[k] == passes;
+        self.tile_passes[k] = self.tile_passes[k].saturating_add_signed(delta);
+        self.pass_tasks_done[p] = self.pass_tasks_done[p].saturating_add_signed(delta);
+        let is_full = self.tile_passes[k] == passes;
+        self.tiles_full = self.tiles_full + usize::from(is_full) - usize::from(was_full);
+    }
+
+    /// Tiles with every pass done, and passes done for every tile (as [`Job::status`] counts
+    /// them), from counters: no walk over the tasks.
+    pub fn progress(&self) -> (u64, u32) {
+        let n = self.layout.tile_count() as u32;
+        let passes = self.pass_tasks_done.iter().take_while(|&&d| d == n).count();
+        (self.tiles_full as u64, passes as u32)
+    }
+
+    /// Done tasks.
+    pub fn tasks_done(&self) -> usize {
+        self.done
     }
 
     /// Renews the lease of task `idx`: the deadline lives in memory only (after a restart

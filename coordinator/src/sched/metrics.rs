@@ -37,6 +37,15 @@ impl Throughput {
         self.recent.push_back((at, samples));
     }
 
+    /// Samples per second over the window before `now`, dropping nothing.
+    pub fn per_second_at(&self, now: Instant) -> f64 {
+        let recent = self
+            .recent
+            .iter()
+            .filter(|(t, _)| now.saturating_duration_since(*t) <= Self::WINDOW);
+        recent.map(|(_, s)| *s).sum::<u64>() as f64 / Self::WINDOW.as_secs_f64()
+    }
+
     /// Samples per second over the window before `now` (older entries are dropped).
     pub fn per_second(&mut self, now: Instant) -> f64 {
         while let Some((t, _)) = self.recent.front() {

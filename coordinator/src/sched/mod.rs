@@ -9,6 +9,7 @@
 //! - `jobs`: a job in memory and its store rows; `workers`: registered workers and liveness;
 //!   `ids`: id generation; `metrics`: counters and throughput.
 //! - `view`: projections of the state to the API's types.
+//! - [`events`]: every change, published as it is made for `GET /v1/events`.
 //!
 //! The scheduler reads no clock: every method that needs the time takes a [`Now`] read by its
 //! caller (lease deadlines from `Now::instant`, times shown to users and worker liveness from
@@ -21,6 +22,7 @@
 //! so no result is lost and no task is handed out twice. A restarted coordinator finds every
 //! change that was answered.
 
+pub mod events;
 mod ids;
 mod jobs;
 mod metrics;
@@ -36,13 +38,14 @@ pub use order::{TaskLayout, TaskWork};
 
 use crate::clock::Now;
 use crate::store::{Store, TaskRow, Write};
+use events::{Event, Events, Stamped};
 use ids::Ids;
 use jobs::Job;
 use metrics::Throughput;
 use raytile_core::{RenderSettings, Tile};
 use raytile_proto::{JobState, JobStatus};
 use state::{JobEvent, JobLife, Outcome, TaskEvent};
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::sync::Arc;
 use std::time::Duration;
 use workers::{WorkerRec, Workers};
@@ -144,6 +147,11 @@ pub struct Sched {
     ids: Ids,
     counters: Counters,
     throughput: Throughput,
+    /// Samples accepted per worker over the throughput window.
+    rates: HashMap<String, Throughput>,
+    /// Workers reported gone (not live) on the event stream.
+    gone: HashSet<String>,
+    events: Events,
 }
 
 /// The store change that records `life` as job `id`'s.
@@ -154,6 +162,15 @@ fn life_write<'a>(id: &'a str, life: &'a JobLife) -> Write<'a> {
         error: life.error.as_deref(),
         started_ms: life.started_ms,
         finished_ms: life.finished_ms,
+    }
+}
+
+/// The event that says job `id` now has `life`'s state.
+fn job_state_event(id: &str, life: &JobLife) -> Event {
+    Event::JobState {
+        job: id.into(),
+        state: life.state,
+        error: life.error.clone(),
     }
 }
 
@@ -177,6 +194,9 @@ impl Sched {
             ids: Ids::new(epoch),
             counters: Counters::default(),
             throughput: Throughput::default(),
+            rates: HashMap::new(),
+            gone: HashSet::new(),
+            events: Events::new(),
         };
         for (id, name, threads, registered_ms) in s.store.workers()? {
             s.workers.insert(
@@ -212,6 +232,11 @@ impl Sched {
     /// hold the scheduler's lock.
     pub fn reader(&self) -> rusqlite::Result<rusqlite::Connection> {
         self.store.reader()
+    }
+
+    /// A subscriber to the change events, and the id of the last event before it.
+    pub fn subscribe(&self) -> (u64, tokio::sync::broadcast::Receiver<Arc<Stamped>>) {
+        self.events.subscribe()
     }
 
     /// Jobs not yet final.
@@ -256,6 +281,9 @@ impl Sched {
         self.next_seq += 1;
         let status = job.status();
         self.jobs.insert(id, job);
+        self.events.emit(|| Event::JobSubmitted {
+            job: Box::new(status.clone()),
+        });
         Ok(status)
     }
 
@@ -279,6 +307,11 @@ impl Sched {
                 failures: 0,
             },
         );
+        self.events.emit(|| Event::WorkerRegistered {
+            worker: id.clone(),
+            name: name.into(),
+            threads,
+        });
         Ok(id)
     }
 
@@ -316,7 +349,16 @@ impl Sched {
             writes.extend(life.as_ref().map(|l| life_write(&id, l)));
             self.store.write(&writes)?;
             job.set_task(idx, task);
+            let work = job.work(idx).expect("a queued task is in the layout");
+            self.events.emit(|| Event::TaskLeased {
+                job: id.clone(),
+                task: idx as u32,
+                tile: work.tile,
+                pass: work.pass,
+                worker: worker.into(),
+            });
             if let Some(l) = life {
+                self.events.emit(|| job_state_event(&id, &l));
                 job.set_life(l);
             }
             self.leases.insert(lease.clone(), (id.clone(), idx));
@@ -327,7 +369,7 @@ impl Sched {
                 task: idx as u32,
                 scene: job.scene.clone(),
                 settings: job.settings.clone(),
-                work: job.work(idx).expect("a queued task is in the layout"),
+                work,
             }));
         }
         Ok(None)
@@ -352,7 +394,14 @@ impl Sched {
         };
         if job.renew(idx, ev) {
             if let Some(w) = worker {
-                self.workers.touch(&w, now.wall_ms);
+                if let Some(rec) = self.workers.touch(&w, now.wall_ms) {
+                    let (last_seen_ms, tasks_done) = (rec.last_seen_ms, rec.tasks_done);
+                    self.events.emit(|| Event::WorkerSeen {
+                        worker: w,
+                        last_seen_ms,
+                        tasks_done,
+                    });
+                }
             }
             Heartbeat::Renewed
         } else {
@@ -433,7 +482,26 @@ impl Sched {
             self.leases.remove(lease);
         }
         job.set_task(i, task);
+        self.events.emit(|| Event::TaskDone {
+            job: job_id.into(),
+            task: idx,
+            tile: work.tile,
+            pass: work.pass,
+            worker: d.worker.into(),
+        });
+        let (tiles_done, passes_done) = job.progress();
+        let layout = &job.layout;
+        self.events.emit(|| Event::JobProgress {
+            job: job_id.into(),
+            tiles_done,
+            tiles_total: layout.tile_count() as u64,
+            passes_done,
+            passes: layout.pass_count() as u32,
+            tasks_done: job.tasks_done() as u64,
+            tasks_total: layout.task_count() as u64,
+        });
         if let Some(l) = finished {
+            self.events.emit(|| job_state_event(job_id, &l));
             job.set_life(l);
         }
         let samples = work.sample_count();
@@ -442,6 +510,10 @@ impl Sched {
         self.throughput.record(now.instant, samples);
         if let Some(w) = self.workers.touch(d.worker, now.wall_ms) {
             w.tasks_done += 1;
+            self.rates
+                .entry(d.worker.to_string())
+                .or_default()
+                .record(now.instant, samples);
         }
         Ok(ResultOutcome::Accepted)
     }
@@ -475,6 +547,7 @@ impl Sched {
             return Ok(false);
         }
         let wf = job.failures_of(&worker) + 1;
+        let reported = error.to_string();
         let work = job.work(idx).expect("a leased task is in the layout");
         let (t, pass) = (work.tile, work.pass);
         // A job every live worker is blocked from would wait for ever: fail it instead.
@@ -517,7 +590,27 @@ impl Sched {
         self.leases.remove(lease);
         job.set_task(idx, task);
         job.worker_failures.insert(worker.clone(), wf);
+        if job.recent_failures.len() == 20 {
+            job.recent_failures.pop_front();
+        }
+        job.recent_failures.push_back(raytile_proto::TaskFailure {
+            worker: worker.clone(),
+            task: idx as u32,
+            tile: t,
+            pass,
+            error: reported.clone(),
+            at_ms: now.wall_ms,
+        });
+        self.events.emit(|| Event::TaskFailed {
+            job: job_id.clone(),
+            task: idx as u32,
+            tile: t,
+            pass,
+            worker: worker.clone(),
+            error: reported,
+        });
         if let Some(l) = failed {
+            self.events.emit(|| job_state_event(&job_id, &l));
             job.set_life(l);
         }
         self.counters.failed += 1;
@@ -551,6 +644,15 @@ impl Sched {
         }])?;
         self.leases.remove(lease);
         job.set_task(idx, task);
+        if let Some(work) = job.work(idx) {
+            self.events.emit(|| Event::TaskQueued {
+                job: job_id.clone(),
+                task: idx as u32,
+                tile: work.tile,
+                pass: work.pass,
+                reason: "released",
+            });
+        }
         Ok(true)
     }
 
@@ -580,10 +682,24 @@ impl Sched {
             .collect();
         self.store.write(&writes)?;
         let n = expired.len();
+        if n > events::RESYNC_OVER {
+            self.events.emit(|| Event::Resync {
+                reason: format!("{n} leases expired"),
+            });
+        }
         for (job_id, i, lease, task) in expired {
             self.leases.remove(&lease);
             if let Some(job) = self.jobs.get_mut(&job_id) {
                 job.set_task(i, task);
+                if let Some(work) = job.work(i).filter(|_| n <= events::RESYNC_OVER) {
+                    self.events.emit(|| Event::TaskQueued {
+                        job: job_id.clone(),
+                        task: i as u32,
+                        tile: work.tile,
+                        pass: work.pass,
+                        reason: "expired",
+                    });
+                }
             }
             tracing::info!(job = %job_id, task = i, "lease expired; task re-queued");
         }
@@ -617,9 +733,24 @@ impl Sched {
         self.store.write(&writes)?;
         for (id, life) in stuck {
             tracing::warn!(job = %id, "failed: every live worker is blocked from it");
+            self.events.emit(|| job_state_event(&id, &life));
             if let Some(job) = self.jobs.get_mut(&id) {
                 job.set_life(life);
             }
+        }
+        // Workers that went quiet, or came back.
+        let (gone, back) = self.workers.liveness_changes(&self.gone, now.wall_ms);
+        for w in gone {
+            self.events.emit(|| Event::WorkerGone { worker: w.clone() });
+            self.gone.insert(w);
+        }
+        for (w, last_seen_ms, tasks_done) in back {
+            self.gone.remove(&w);
+            self.events.emit(|| Event::WorkerSeen {
+                worker: w,
+                last_seen_ms,
+                tasks_done,
+            });
         }
         Ok(n)
     }
@@ -631,6 +762,7 @@ impl Sched {
         };
         if let Some(life) = job.next_life(JobEvent::Cancel, now.wall_ms) {
             self.store.write(&[life_write(job_id, &life)])?;
+            self.events.emit(|| job_state_event(job_id, &life));
             job.set_life(life);
         }
         Ok(Some(job.status()))
@@ -649,6 +781,30 @@ impl Sched {
             job.set_life(life);
         }
         self.leases.retain(|_, (j, _)| j != job_id);
+        self.events.emit(|| Event::JobPurged { job: job_id.into() });
+        Ok(Some(job.status()))
+    }
+
+    /// Sets the priority of job `job_id`. Returns its status, or `None` if unknown.
+    pub fn set_priority(
+        &mut self,
+        job_id: &str,
+        priority: i32,
+    ) -> Result<Option<JobStatus>, SchedError> {
+        let Some(job) = self.jobs.get_mut(job_id) else {
+            return Ok(None);
+        };
+        if job.priority != priority {
+            self.store.write(&[Write::Priority {
+                id: job_id,
+                priority,
+            }])?;
+            job.priority = priority;
+            self.events.emit(|| Event::JobPriority {
+                job: job_id.into(),
+                priority,
+            });
+        }
         Ok(Some(job.status()))
     }
 

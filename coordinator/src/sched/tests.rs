@@ -143,7 +143,7 @@ fn timestamps_come_from_the_callers_clock() {
         (st.created_ms, st.started_ms, st.finished_ms),
         (ms(2), Some(ms(3)), Some(ms(4)))
     );
-    let info = &s.worker_list()[0];
+    let info = &s.worker_list(t0())[0];
     assert_eq!((info.registered_ms, info.last_seen_ms), (ms(1), ms(4)));
     let cancelled = s
         .new_job("s".into(), small(1), 0, start.after(secs(5)))
@@ -230,7 +230,7 @@ fn repeated_failures_fail_the_job_and_block_the_worker() {
         "{err}"
     );
     assert!(s.lease(&good, now).unwrap().is_none());
-    let failures: Vec<u64> = s.worker_list().iter().map(|w| w.failures).collect();
+    let failures: Vec<u64> = s.worker_list(t0()).iter().map(|w| w.failures).collect();
     assert_eq!(failures, [2, 1]);
 }
 
@@ -561,7 +561,7 @@ fn a_failed_write_changes_nothing_and_the_retry_applies_once() {
     // Fail: counted once.
     let g = s.lease(&w, now).unwrap().unwrap();
     assert!(with_one_fault(&mut s, dir.path(), |s| s.fail(&g.lease, "oops", now)));
-    assert_eq!(s.worker_list()[0].failures, 1);
+    assert_eq!(s.worker_list(t0())[0].failures, 1);
     // Release.
     let g = s.lease(&w, now).unwrap().unwrap();
     assert!(with_one_fault(&mut s, dir.path(), |s| s.release(&g.lease)));
@@ -673,4 +673,61 @@ fn leases_of_cancelled_jobs_are_forgotten_at_the_next_expiry_tick() {
     assert!(s.leases.is_empty());
     assert!(matches!(s.heartbeat(&g.lease, now), Heartbeat::Stop { .. }));
     assert!(!s.fail(&g.lease, "late", now).unwrap());
+}
+
+/// The progress the events carry is counted incrementally; it must agree with the status
+/// (which walks every task) at every step, out of order, and after a restart.
+#[test]
+fn progress_counters_agree_with_the_status_and_events_are_numbered() {
+    let dir = tempfile::tempdir().unwrap();
+    let now = t0();
+    let mut s = open(dir.path(), now);
+    let (last, mut rx) = s.subscribe();
+    assert_eq!(last, 0);
+    let w = s.register("w", 1, now).unwrap();
+    let job = s.new_job("s".into(), small(3), 0, now).unwrap().id;
+    let mut grants = Vec::new();
+    while let Some(g) = s.lease(&w, now).unwrap() {
+        grants.push(g);
+    }
+    assert_eq!(grants.len(), 12);
+    // Pass 2 first, then pass 0, then pass 1: tiles fill up only at the end.
+    let order = grants[8..].iter().chain(&grants[..4]).chain(&grants[4..8]);
+    for (i, g) in order.enumerate() {
+        assert_eq!(
+            deliver(&mut s, &job, g.task, &w, now),
+            ResultOutcome::Accepted
+        );
+        let st = s.job_status(&job).unwrap();
+        assert_eq!(s.jobs[&job].progress(), (st.tiles_done, st.passes_done));
+        assert_eq!(s.jobs[&job].tasks_done(), i + 1);
+    }
+    let mut events = Vec::new();
+    while let Ok(ev) = rx.try_recv() {
+        events.push(ev);
+    }
+    let ids: Vec<u64> = events.iter().map(|e| e.id).collect();
+    assert_eq!(ids, (1..=ids.len() as u64).collect::<Vec<_>>());
+    let kinds: Vec<serde_json::Value> = events
+        .iter()
+        .map(|e| serde_json::from_str::<serde_json::Value>(&e.json).unwrap()["type"].clone())
+        .collect();
+    let count = |k: &str| kinds.iter().filter(|t| *t == k).count();
+    assert_eq!(kinds[0], "worker_registered");
+    assert_eq!(kinds[1], "job_submitted");
+    assert_eq!(
+        (
+            count("task_leased"),
+            count("task_done"),
+            count("job_progress")
+        ),
+        (12, 12, 12)
+    );
+    assert_eq!(kinds.last().unwrap(), "job_state");
+    let last: serde_json::Value = serde_json::from_str(&events.last().unwrap().json).unwrap();
+    assert_eq!(last["state"], "done");
+    drop(s);
+    // Restored: the counters are rebuilt from the stored tasks.
+    let s = open(dir.path(), now);
+    assert_eq!(s.jobs[&job].progress(), (4, 3));
 }

@@ -7,7 +7,9 @@ use super::order::TaskLayout;
 use super::state::TaskState;
 use super::Sched;
 use crate::clock::Now;
-use raytile_proto::{JobState, JobStatus, WorkerInfo, WorkerShare};
+use raytile_proto::{
+    CurrentTask, JobState, JobStatus, TileList, TileProgress, WorkerInfo, WorkerShare,
+};
 use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
 
@@ -64,6 +66,7 @@ impl Job {
             started_ms: life.started_ms,
             finished_ms: life.finished_ms,
             error: life.error.clone(),
+            failures: self.recent_failures.iter().cloned().collect(),
         }
     }
 }
@@ -81,33 +84,92 @@ impl Sched {
         jobs.into_iter().map(Job::status).collect()
     }
 
+    /// Each tile of job `id` with its passes done and the workers rendering it, or `None`.
+    pub fn tile_list(&self, id: &str) -> Option<TileList> {
+        let j = self.jobs.get(id)?;
+        let layout = &j.layout;
+        let mut tiles: Vec<TileProgress> = Vec::with_capacity(layout.tile_count());
+        let mut by_index: Vec<usize> = vec![usize::MAX; layout.tile_count()];
+        for (i, t) in j.tasks().iter().enumerate() {
+            let work = layout.task(i).expect("one task per layout slot");
+            let slot = &mut by_index[work.tile_index as usize];
+            if *slot == usize::MAX {
+                *slot = tiles.len();
+                tiles.push(TileProgress {
+                    tile: work.tile,
+                    passes_done: 0,
+                    workers: Vec::new(),
+                });
+            }
+            let tp = &mut tiles[*slot];
+            match &t.state {
+                TaskState::Done { .. } => tp.passes_done += 1,
+                TaskState::Leased { worker, .. } if !tp.workers.contains(worker) => {
+                    tp.workers.push(worker.clone())
+                }
+                _ => {}
+            }
+        }
+        tiles.sort_by_key(|t| (t.tile.y0, t.tile.x0));
+        Some(TileList {
+            event_id: self.events.last_id(),
+            passes: layout.pass_count() as u32,
+            tiles,
+        })
+    }
+
     /// The task layout of job `id` (to compose its frame outside the lock), or `None`.
     pub fn layout(&self, id: &str) -> Option<Arc<TaskLayout>> {
         self.jobs.get(id).map(|j| j.layout.clone())
     }
 
-    /// Every registered worker, in registration order.
-    pub fn worker_list(&self) -> Vec<WorkerInfo> {
-        let mut leased: HashMap<&str, u64> = HashMap::new();
-        for j in self.jobs.values() {
-            for t in j.tasks() {
+    /// Every registered worker at `now`, in registration order.
+    pub fn worker_list(&self, now: Now) -> Vec<WorkerInfo> {
+        let mut current: HashMap<&str, Vec<CurrentTask>> = HashMap::new();
+        let mut jobs: Vec<&Job> = self.jobs.values().filter(|j| !j.is_final()).collect();
+        jobs.sort_by_key(|j| j.seq);
+        for j in jobs {
+            for (i, t) in j.tasks().iter().enumerate() {
                 if let TaskState::Leased { worker, .. } = &t.state {
-                    *leased.entry(worker).or_insert(0) += 1;
+                    let work = j.work(i).expect("one task per layout slot");
+                    current.entry(worker).or_default().push(CurrentTask {
+                        job: j.id.clone(),
+                        task: i as u32,
+                        tile: work.tile,
+                        pass: work.pass,
+                    });
                 }
             }
         }
         let mut workers: Vec<WorkerInfo> = self
             .workers
             .iter()
-            .map(|(id, w)| WorkerInfo {
-                id: id.clone(),
-                name: w.name.clone(),
-                threads: w.threads,
-                registered_ms: w.registered_ms,
-                last_seen_ms: w.last_seen_ms,
-                leased: leased.get(id.as_str()).copied().unwrap_or(0),
-                tasks_done: w.tasks_done,
-                failures: w.failures,
+            .map(|(id, w)| {
+                let current = current.remove(id.as_str()).unwrap_or_default();
+                let state = if !self.workers.is_live_id(id, now.wall_ms) {
+                    "gone"
+                } else if current.is_empty() {
+                    "idle"
+                } else {
+                    "rendering"
+                };
+                WorkerInfo {
+                    id: id.clone(),
+                    name: w.name.clone(),
+                    threads: w.threads,
+                    registered_ms: w.registered_ms,
+                    last_seen_ms: w.last_seen_ms,
+                    leased: current.len() as u64,
+                    tasks_done: w.tasks_done,
+                    failures: w.failures,
+                    state: state.into(),
+                    current,
+                    samples_per_second: self
+                        .rates
+                        .get(id)
+                        .map_or(0.0, |r| r.per_second_at(now.instant)),
+                    render_version: raytile_core::RENDER_VERSION,
+                }
             })
             .collect();
         workers.sort_by(|a, b| a.registered_ms.cmp(&b.registered_ms).then(a.id.cmp(&b.id)));

@@ -73,6 +73,32 @@ impl Workers {
         now_ms.saturating_sub(w.last_seen_ms.max(self.started_ms)) <= self.live_ms
     }
 
+    /// Workers not live at `now_ms` that are not in `gone` yet, and workers in `gone` that
+    /// are live again (with their last contact and tasks done).
+    #[allow(clippy::type_complexity)]
+    pub fn liveness_changes(
+        &self,
+        gone: &std::collections::HashSet<String>,
+        now_ms: u64,
+    ) -> (Vec<String>, Vec<(String, u64, u64)>) {
+        let (mut newly_gone, mut back) = (Vec::new(), Vec::new());
+        for (id, w) in &self.recs {
+            match (self.is_live(w, now_ms), gone.contains(id)) {
+                (false, false) => newly_gone.push(id.clone()),
+                (true, true) => back.push((id.clone(), w.last_seen_ms, w.tasks_done)),
+                _ => {}
+            }
+        }
+        newly_gone.sort();
+        back.sort();
+        (newly_gone, back)
+    }
+
+    /// Whether `id` is live at `now_ms`.
+    pub fn is_live_id(&self, id: &str, now_ms: u64) -> bool {
+        self.recs.get(id).is_some_and(|w| self.is_live(w, now_ms))
+    }
+
     /// Whether every live worker has `block_after` failures or more in `failures` (and at least
     /// one worker is live): a job in that state would wait for ever.
     pub fn all_live_blocked(

@@ -1,0 +1,746 @@
+// The raytile coordinator's web pages: jobs (/), one job (/jobs/ID) and workers (/workers).
+// Plain JavaScript, no build step, nothing loaded from anywhere but the coordinator. Data
+// comes from the HTTP API (/v1/...), live changes from the server-sent events of /v1/events.
+"use strict";
+
+const TOKEN_KEY = "raytile-token";
+const STATES = ["queued", "running", "done", "failed", "cancelled"];
+const INTEGRATORS = ["path", "whitted", "normals", "albedo", "depth", "ao"];
+
+// What the pages did, for people debugging them and for the end-to-end test.
+window.raytile = { previews: [], events: 0 };
+
+// ---------------------------------------------------------------- small helpers
+
+function h(tag, attrs, ...kids) {
+  const el = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs || {})) {
+    if (v === null || v === undefined || v === false) continue;
+    if (k.startsWith("on")) el.addEventListener(k.slice(2), v);
+    else if (k === "class") el.className = v;
+    else el.setAttribute(k, v === true ? "" : v);
+  }
+  for (const kid of kids.flat()) {
+    if (kid === null || kid === undefined || kid === false) continue;
+    el.append(kid instanceof Node ? kid : String(kid));
+  }
+  return el;
+}
+
+function fmtTime(ms) {
+  return ms ? new Date(ms).toLocaleString() : "—";
+}
+
+function fmtDur(ms) {
+  if (ms === null || ms === undefined || !isFinite(ms) || ms < 0) return "—";
+  const s = Math.round(ms / 1000);
+  if (s < 60) return s + " s";
+  if (s < 3600) return Math.floor(s / 60) + " min " + (s % 60) + " s";
+  return Math.floor(s / 3600) + " h " + Math.floor((s % 3600) / 60) + " min";
+}
+
+function fmtAgo(ms) {
+  return ms ? fmtDur(Date.now() - ms) + " ago" : "—";
+}
+
+function fmtRate(x) {
+  if (!x) return "0";
+  if (x >= 1e6) return (x / 1e6).toFixed(2) + " M";
+  if (x >= 1e3) return (x / 1e3).toFixed(1) + " k";
+  return x.toFixed(0);
+}
+
+function isFinal(state) {
+  return state === "done" || state === "failed" || state === "cancelled";
+}
+
+// Runs `fn` at most once every `ms`, and once more after the last call.
+function throttle(fn, ms) {
+  let timer = null;
+  let again = false;
+  let last = 0;
+  return function run() {
+    if (timer) {
+      again = true;
+      return;
+    }
+    const wait = Math.max(0, last + ms - Date.now());
+    timer = setTimeout(async () => {
+      last = Date.now();
+      again = false;
+      try {
+        await fn();
+      } catch (e) {
+        console.error(e);
+      } finally {
+        timer = null;
+        if (again) run();
+      }
+    }, wait);
+  };
+}
+
+function tileKey(t) {
+  return t.x0 + "," + t.y0;
+}
+
+function tileText(t) {
+  return "[" + t.x0 + "," + t.x1 + ")×[" + t.y0 + "," + t.y1 + ")";
+}
+
+// ---------------------------------------------------------------- the token and the API
+
+let tokenAsked = null;
+
+function token() {
+  return sessionStorage.getItem(TOKEN_KEY);
+}
+
+// Asks for the token (once for every request waiting on it), keeps it for the browser
+// session, and sets it as a cookie for what cannot send a header: the event stream and
+// image downloads (GET only; the coordinator takes the cookie on nothing else).
+function askToken(refused) {
+  if (tokenAsked) return tokenAsked;
+  tokenAsked = new Promise((resolve) => {
+    const box = document.getElementById("token-box");
+    const form = document.getElementById("token-form");
+    const input = document.getElementById("token-input");
+    document.getElementById("token-error").textContent = refused
+      ? "The coordinator refused that token."
+      : "";
+    box.hidden = false;
+    input.focus();
+    form.onsubmit = (e) => {
+      e.preventDefault();
+      const t = input.value.trim();
+      if (!t) return;
+      sessionStorage.setItem(TOKEN_KEY, t);
+      document.cookie =
+        "raytile_token=" + encodeURIComponent(t) + "; path=/; SameSite=Strict";
+      box.hidden = true;
+      tokenAsked = null;
+      resolve();
+    };
+  });
+  return tokenAsked;
+}
+
+class ApiError extends Error {
+  constructor(status, body) {
+    super((body && body.error && body.error.message) || "the coordinator answered " + status);
+    this.status = status;
+    this.field = body && body.error ? body.error.field : undefined;
+  }
+}
+
+async function api(path, opts = {}) {
+  for (;;) {
+    const headers = Object.assign({}, opts.headers || {});
+    const t = token();
+    if (t) headers["Authorization"] = "Bearer " + t;
+    const r = await fetch(path, Object.assign({}, opts, { headers }));
+    if (r.status === 401) {
+      await askToken(!!t);
+      continue;
+    }
+    if (!r.ok) {
+      let body = null;
+      try {
+        body = await r.json();
+      } catch (_) {
+        // not JSON
+      }
+      throw new ApiError(r.status, body);
+    }
+    if (opts.raw) return r;
+    if (r.status === 204) return null;
+    return r.json();
+  }
+}
+
+function postJson(path, body) {
+  return api(path, {
+    method: "POST",
+    headers: { "Content-Type": "application/json" },
+    body: JSON.stringify(body),
+  });
+}
+
+// ---------------------------------------------------------------- live events
+
+const listeners = new Set();
+let source = null;
+
+function setLive(on, text) {
+  const el = document.getElementById("live");
+  el.className = on ? "on" : "";
+  el.textContent = text;
+}
+
+function connectEvents() {
+  if (source) source.close();
+  source = new EventSource("/v1/events");
+  source.onopen = () => setLive(true, "live");
+  source.onmessage = (m) => {
+    let ev;
+    try {
+      ev = JSON.parse(m.data);
+    } catch (_) {
+      return;
+    }
+    window.raytile.events++;
+    const id = m.lastEventId ? Number(m.lastEventId) : null;
+    for (const f of listeners) f(ev, id);
+  };
+  source.onerror = () => {
+    setLive(false, "reconnecting…");
+    if (source.readyState === EventSource.CLOSED) {
+      // Refused (a token is needed or changed): ask through the API, then open again.
+      setTimeout(async () => {
+        try {
+          await api("/v1/workers");
+        } catch (_) {
+          // shown elsewhere
+        }
+        connectEvents();
+      }, 1500);
+    }
+  };
+}
+
+// ---------------------------------------------------------------- job actions
+
+function jobRequest(job) {
+  const s = job.settings;
+  const req = { scene: job.scene, priority: job.priority };
+  for (const k of ["width", "height", "spp", "max_depth", "integrator", "seed", "camera",
+                   "filter", "tile_size", "passes", "default_light"]) {
+    if (s[k] !== null && s[k] !== undefined) req[k] = s[k];
+  }
+  return req;
+}
+
+async function act(button, what) {
+  button.disabled = true;
+  try {
+    await what();
+  } catch (e) {
+    alert(e.message);
+  } finally {
+    button.disabled = false;
+  }
+}
+
+function jobActions(job, onChange) {
+  const id = job.id;
+  const out = [];
+  if (!isFinal(job.state)) {
+    out.push(h("button", {
+      type: "button", class: "cancel", "aria-label": "Cancel job " + id,
+      onclick: (e) => act(e.target, async () => {
+        await api("/v1/jobs/" + encodeURIComponent(id), { method: "DELETE" });
+        onChange();
+      }),
+    }, "Cancel"));
+  }
+  out.push(h("button", {
+    type: "button", "aria-label": "Raise the priority of job " + id, title: "Raise priority",
+    onclick: (e) => act(e.target, async () => {
+      await postJson("/v1/jobs/" + encodeURIComponent(id) + "/priority", { priority: job.priority + 1 });
+      onChange();
+    }),
+  }, "▲"));
+  out.push(h("button", {
+    type: "button", "aria-label": "Lower the priority of job " + id, title: "Lower priority",
+    onclick: (e) => act(e.target, async () => {
+      await postJson("/v1/jobs/" + encodeURIComponent(id) + "/priority", { priority: job.priority - 1 });
+      onChange();
+    }),
+  }, "▼"));
+  out.push(h("button", {
+    type: "button", "aria-label": "Submit job " + id + " again with the same settings",
+    onclick: (e) => act(e.target, async () => {
+      const created = await postJson("/v1/jobs", jobRequest(job));
+      location.assign("/jobs/" + encodeURIComponent(created.id));
+    }),
+  }, "Re-submit"));
+  out.push(h("button", {
+    type: "button", class: "danger", "aria-label": "Delete job " + id,
+    onclick: (e) => act(e.target, async () => {
+      if (!confirm("Delete job " + id + " and its rendered tiles? This cannot be undone.")) return;
+      await api("/v1/jobs/" + encodeURIComponent(id) + "?purge=true", { method: "DELETE" });
+      onChange(true);
+    }),
+  }, "Delete"));
+  return h("div", { class: "actions" }, out);
+}
+
+function progressCell(job) {
+  return [
+    h("progress", { max: job.tasks_total || 1, value: job.tasks_done,
+      "aria-label": "Tasks done of job " + job.id }),
+    h("span", { class: "progress-text" },
+      job.tiles_done + "/" + job.tiles_total + " tiles · pass " + job.passes_done + "/" + job.passes),
+  ];
+}
+
+function timing(job) {
+  const start = job.started_ms;
+  const end = job.finished_ms || Date.now();
+  const elapsed = start ? end - start : null;
+  let eta = null;
+  if (job.state === "running" && job.samples_done > 0 && elapsed !== null) {
+    eta = (elapsed * (job.samples_total - job.samples_done)) / job.samples_done;
+  } else if (job.state === "done") {
+    eta = 0;
+  }
+  return { elapsed, eta };
+}
+
+// ---------------------------------------------------------------- jobs page
+
+function field(name, label, input) {
+  input.id = "f-" + name;
+  input.name = name;
+  input.setAttribute("aria-describedby", "err-" + name);
+  return h("div", { class: "field" + (name === "scene" ? " wide" : "") },
+    h("label", { for: input.id }, label), input,
+    h("span", { class: "error", id: "err-" + name, role: "alert" }));
+}
+
+function submitForm() {
+  const num = (name, placeholder) =>
+    h("input", { type: "number", inputmode: "numeric", step: "1", placeholder });
+  const integrator = h("select", {},
+    h("option", { value: "" }, "scene's own"), INTEGRATORS.map((i) => h("option", { value: i }, i)));
+  const form = h("form", { class: "submit", id: "submit-form", novalidate: true },
+    field("scene", "Scene (.gltf, .glb, .json, or a .zip/.tar of a scene folder)",
+      h("input", { type: "file", accept: ".gltf,.glb,.json,.zip,.tar", required: true })),
+    field("width", "Width", num("width", "scene's")),
+    field("height", "Height", num("height", "scene's")),
+    field("spp", "Samples per pixel", num("spp", "scene's")),
+    field("passes", "Passes", num("passes", "scene's")),
+    field("integrator", "Integrator", integrator),
+    field("seed", "Seed", num("seed", "scene's")),
+    field("priority", "Priority", num("priority", "0")),
+    h("div", { class: "buttons" },
+      h("button", { type: "submit", id: "submit-button" }, "Submit"),
+      h("span", { class: "error", id: "err-form", role: "alert" }),
+      h("span", { class: "muted", id: "submit-status", role: "status" })));
+  form.addEventListener("submit", async (e) => {
+    e.preventDefault();
+    for (const el of form.querySelectorAll(".error")) el.textContent = "";
+    const status = form.querySelector("#submit-status");
+    const show = (fieldName, message) => {
+      const el = form.querySelector("#err-" + fieldName) || form.querySelector("#err-form");
+      el.textContent = message;
+    };
+    const file = form.elements.scene.files[0];
+    if (!file) {
+      show("scene", "Choose a scene file.");
+      return;
+    }
+    const button = form.querySelector("#submit-button");
+    button.disabled = true;
+    try {
+      status.textContent = "uploading " + file.name + "…";
+      const ext = file.name.toLowerCase().split(".").pop();
+      const format = ["gltf", "glb", "json", "zip", "tar"].includes(ext) ? "?format=" + ext : "";
+      let scene;
+      try {
+        scene = await api("/v1/scenes" + format, {
+          method: "POST", headers: { "Content-Type": "application/octet-stream" }, body: file,
+        });
+      } catch (err) {
+        show("scene", err.message);
+        return;
+      }
+      const req = { scene: scene.id };
+      for (const name of ["width", "height", "spp", "passes", "seed", "priority"]) {
+        const v = form.elements[name].value.trim();
+        if (v !== "") req[name] = Number(v);
+      }
+      if (form.elements.integrator.value) req.integrator = form.elements.integrator.value;
+      status.textContent = "submitting…";
+      try {
+        const job = await postJson("/v1/jobs", req);
+        location.assign("/jobs/" + encodeURIComponent(job.id));
+      } catch (err) {
+        show(err.field === "scene" ? "scene" : err.field || "form", err.message);
+      }
+    } finally {
+      status.textContent = "";
+      button.disabled = false;
+    }
+  });
+  return form;
+}
+
+function jobsPage(main) {
+  document.title = "Jobs · raytile";
+  const params = new URLSearchParams(location.search);
+  const filter = h("select", { id: "state-filter" },
+    h("option", { value: "" }, "all"), STATES.map((s) => h("option", { value: s }, s)));
+  filter.value = params.get("state") || "";
+  const body = h("tbody", { id: "jobs-body" });
+  let jobs = [];
+  const render = () => {
+    const shown = jobs.filter((j) => !filter.value || j.state === filter.value).reverse();
+    body.replaceChildren(...shown.map((j) => {
+      const t = timing(j);
+      const s = j.settings;
+      return h("tr", { "data-job": j.id },
+        h("td", {}, h("a", { href: "/jobs/" + encodeURIComponent(j.id) }, j.id)),
+        h("td", {}, h("span", { class: "state state-" + j.state }, j.state)),
+        h("td", {}, progressCell(j)),
+        h("td", { class: "num" }, s.spp),
+        h("td", { class: "num opt" }, s.width + "×" + s.height),
+        h("td", { class: "opt" }, s.integrator),
+        h("td", { class: "num" }, j.priority),
+        h("td", { class: "opt" }, fmtTime(j.created_ms)),
+        h("td", { class: "num opt" }, fmtDur(t.elapsed)),
+        h("td", { class: "num opt" }, isFinal(j.state) && j.state !== "done" ? "—" : fmtDur(t.eta)),
+        h("td", {}, jobActions(j, refresh)));
+    }));
+    if (!shown.length) {
+      body.append(h("tr", {}, h("td", { colspan: 11, class: "muted" },
+        jobs.length ? "No job is " + filter.value + "." : "No jobs yet: submit one above.")));
+    }
+  };
+  const refresh = throttle(async () => {
+    jobs = (await api("/v1/jobs")).jobs;
+    render();
+  }, 500);
+  filter.addEventListener("change", () => {
+    const u = new URL(location.href);
+    if (filter.value) u.searchParams.set("state", filter.value);
+    else u.searchParams.delete("state");
+    history.replaceState(null, "", u);
+    render();
+  });
+  main.append(
+    h("h1", {}, "Jobs"),
+    h("h2", {}, "Submit a scene"),
+    submitForm(),
+    h("h2", {}, "Jobs"),
+    h("div", { class: "filter" }, h("label", { for: "state-filter" }, "Show"), filter),
+    h("div", { class: "table-wrap" }, h("table", { id: "jobs" },
+      h("thead", {}, h("tr", {},
+        ["Job", "State", "Progress", "spp", "Resolution", "Integrator", "Priority", "Submitted",
+          "Elapsed", "ETA", "Actions"].map((c, i) =>
+          h("th", { scope: "col", class: [4, 5, 7, 8, 9].includes(i) ? "opt" : null }, c)))),
+      body)));
+  listeners.add((ev) => {
+    if (ev.type === "resync" || ev.type.startsWith("job_")) refresh();
+  });
+  refresh();
+  // Elapsed times and ETAs move on without events.
+  setInterval(render, 1000);
+}
+
+// ---------------------------------------------------------------- job page
+
+function jobPage(main, id) {
+  document.title = "Job " + id + " · raytile";
+  const enc = encodeURIComponent(id);
+  let job = null;
+  let workerNames = {};
+  let tiles = new Map();
+  let gone = false;
+  const title = h("h1", {}, "Job " + id + " ", h("span", { id: "job-state", class: "state" }));
+  const actions = h("div", { id: "job-actions" });
+  const canvas = h("canvas", { id: "preview", width: 1, height: 1,
+    "aria-label": "The frame so far" , role: "img" });
+  const overlay = h("canvas", { class: "overlay", id: "overlay", width: 1, height: 1,
+    "aria-hidden": "true" });
+  const progress = h("div", { id: "job-progress" });
+  const settings = h("dl", { class: "settings", id: "job-settings" });
+  const shares = h("tbody", { id: "job-workers" });
+  const failures = h("ul", { class: "failures", id: "job-failures" });
+  const errorBox = h("p", { class: "error", id: "job-error", role: "alert" });
+  const showOverlay = h("input", { type: "checkbox", id: "show-overlay", checked: true });
+  main.append(
+    h("p", {}, h("a", { href: "/" }, "← all jobs")),
+    title, actions, errorBox,
+    h("div", { class: "job-layout" },
+      h("section", { "aria-label": "Preview" },
+        h("div", { class: "preview" }, canvas, overlay),
+        h("div", { class: "legend" },
+          h("label", {}, showOverlay, " tile overlay"),
+          h("span", {}, h("span", { class: "swatch waiting" }), "no pass yet"),
+          h("span", {}, h("span", { class: "swatch leased" }), "rendering (worker)"),
+          h("span", {}, h("span", { class: "swatch done" }), "refining")),
+        h("div", { class: "downloads" }, "Download:",
+          ["png", "exr", "hdr"].map((f) => h("a", { class: "button", href: "/v1/jobs/" + enc +
+            "/image?format=" + f, download: id + "." + f }, f.toUpperCase())))),
+      h("section", { "aria-label": "Details" },
+        h("h2", {}, "Progress"), progress,
+        h("h2", {}, "Settings"), settings,
+        h("h2", {}, "Workers"),
+        h("table", {}, h("thead", {}, h("tr", {}, h("th", {}, "Worker"),
+          h("th", {}, "Tasks"), h("th", {}, "Samples"), h("th", {}, "Share"))), shares),
+        h("h2", {}, "Failures"), failures)));
+
+  const name = (w) => workerNames[w] || w;
+
+  const renderJob = () => {
+    if (!job) return;
+    const st = document.getElementById("job-state");
+    st.className = "state state-" + job.state;
+    st.textContent = job.state;
+    actions.replaceChildren(jobActions(job, () => refreshJob()));
+    errorBox.textContent = job.error || "";
+    const t = timing(job);
+    progress.replaceChildren(...progressCell(job),
+      h("p", { class: "muted" }, "Submitted " + fmtTime(job.created_ms) + " · elapsed " +
+        fmtDur(t.elapsed) + (job.state === "running" ? " · ETA " + fmtDur(t.eta) : "")));
+    const s = job.settings;
+    const rows = [["Scene", job.scene], ["Resolution", s.width + "×" + s.height],
+      ["Samples per pixel", s.spp], ["Passes", s.passes], ["Integrator", s.integrator],
+      ["Max depth", s.max_depth], ["Seed", s.seed], ["Camera", s.camera || "first"],
+      ["Filter", s.filter], ["Tile size", s.tile_size], ["Default light", s.default_light],
+      ["Priority", job.priority]];
+    settings.replaceChildren(...rows.flatMap(([k, v]) => [h("dt", {}, k), h("dd", {}, String(v))]));
+    const total = job.samples_done || 1;
+    const ws = Object.entries(job.workers || {});
+    shares.replaceChildren(...ws.map(([w, sh]) => h("tr", {},
+      h("td", {}, name(w)), h("td", { class: "num" }, sh.tasks),
+      h("td", { class: "num" }, sh.samples), h("td", { class: "num" },
+        ((100 * sh.samples) / total).toFixed(1) + " %"))));
+    if (!ws.length) shares.append(h("tr", {}, h("td", { colspan: 4, class: "muted" }, "none yet")));
+    const fs = job.failures || [];
+    failures.replaceChildren(...fs.map((f) => h("li", {}, fmtTime(f.at_ms) + " · " + name(f.worker) +
+      " · tile " + tileText(f.tile) + " pass " + f.pass + ": " + f.error)));
+    if (!fs.length) failures.append(h("li", { class: "muted" }, "none"));
+  };
+
+  // The overlay is drawn larger than the frame so that worker names are legible.
+  let scale = 1;
+  const drawOverlay = () => {
+    if (!job) return;
+    const ctx = overlay.getContext("2d");
+    ctx.clearRect(0, 0, overlay.width, overlay.height);
+    if (!showOverlay.checked) return;
+    ctx.font = Math.max(10, Math.round(11 * scale / 2)) + "px sans-serif";
+    ctx.textBaseline = "top";
+    for (const t of tiles.values()) {
+      const x = t.tile.x0 * scale, y = t.tile.y0 * scale;
+      const w = (t.tile.x1 - t.tile.x0) * scale, hgt = (t.tile.y1 - t.tile.y0) * scale;
+      if (t.workers.size) {
+        ctx.strokeStyle = "#ffb300";
+        ctx.lineWidth = Math.max(2, scale);
+        ctx.strokeRect(x + 1, y + 1, w - 2, hgt - 2);
+        ctx.fillStyle = "#ffb300";
+        ctx.fillText([...t.workers].map(name).join(", "), x + 3 + ctx.lineWidth, y + 3 + ctx.lineWidth, w - 8);
+      } else if (t.passes_done === 0 && !isFinal(job.state)) {
+        ctx.fillStyle = "rgba(0,0,0,0.5)";
+        ctx.fillRect(x, y, w, hgt);
+      }
+    }
+  };
+  showOverlay.addEventListener("change", drawOverlay);
+
+  const sizeCanvases = () => {
+    const s = job.settings;
+    if (canvas.width !== s.width || canvas.height !== s.height) {
+      canvas.width = s.width;
+      canvas.height = s.height;
+      scale = Math.max(1, Math.min(8, Math.ceil(640 / Math.max(s.width, s.height))));
+      overlay.width = s.width * scale;
+      overlay.height = s.height * scale;
+    }
+  };
+
+  const refreshPreview = throttle(async () => {
+    if (!job || gone) return;
+    const before = { tasks_done: job.tasks_done, tasks_total: job.tasks_total, state: job.state };
+    const r = await api("/v1/jobs/" + enc + "/image?format=png", { raw: true });
+    const bitmap = await createImageBitmap(await r.blob());
+    sizeCanvases();
+    const ctx = canvas.getContext("2d");
+    ctx.drawImage(bitmap, 0, 0);
+    // How much of the frame shows something (not black), for the record.
+    const px = ctx.getImageData(0, 0, canvas.width, canvas.height).data;
+    let lit = 0;
+    for (let i = 0; i < px.length; i += 4) {
+      if (px[i] > 8 || px[i + 1] > 8 || px[i + 2] > 8) lit++;
+    }
+    before.lit = lit / (px.length / 4);
+    window.raytile.previews.push(before);
+  }, 400);
+
+  // Task events that arrive while the tile list is being fetched are kept, and those the
+  // list does not include yet (a larger id than its event_id) are applied to it after.
+  let pending = null;
+  const refreshTiles = async () => {
+    if (pending) return;
+    pending = [];
+    try {
+      const list = await api("/v1/jobs/" + enc + "/tiles");
+      tiles = new Map(list.tiles.map((t) => [tileKey(t.tile),
+        { tile: t.tile, passes_done: t.passes_done, workers: new Set(t.workers) }]));
+      for (const [ev, id] of pending) {
+        if (id !== null && id > list.event_id) applyTask(ev);
+      }
+    } finally {
+      pending = null;
+    }
+    drawOverlay();
+  };
+
+  // A task event on the overlay's tiles.
+  const applyTask = (ev) => {
+    const t = tiles.get(tileKey(ev.tile));
+    if (!t) return;
+    if (ev.type === "task_leased") t.workers.add(ev.worker);
+    else if (ev.type === "task_done") {
+      t.passes_done++;
+      t.workers.delete(ev.worker);
+    } else t.workers.clear();
+  };
+
+  const refreshWorkers = async () => {
+    const list = await api("/v1/workers");
+    workerNames = Object.fromEntries(list.workers.map((w) => [w.id, w.name]));
+  };
+
+  const refreshJob = throttle(async () => {
+    try {
+      job = await api("/v1/jobs/" + enc);
+    } catch (e) {
+      if (e.status === 404) {
+        gone = true;
+        main.replaceChildren(h("h1", {}, "Job " + id), h("p", {}, "There is no job " + id +
+          " (it may have been deleted). "), h("p", {}, h("a", { href: "/" }, "All jobs")));
+        return;
+      }
+      throw e;
+    }
+    window.raytile.job = job;
+    sizeCanvases();
+    renderJob();
+    drawOverlay();
+  }, 300);
+
+  listeners.add((ev, eventId) => {
+    if (ev.type === "resync") {
+      refreshJob();
+      refreshTiles().catch(console.error);
+      refreshPreview();
+      return;
+    }
+    if (ev.type === "worker_registered") workerNames[ev.worker] = ev.name;
+    if (ev.job !== id) return;
+    if (ev.type.startsWith("task_")) {
+      if (pending) pending.push([ev, eventId]);
+      else applyTask(ev);
+      drawOverlay();
+      if (ev.type === "task_failed") refreshJob();
+      return;
+    }
+    if (!job) return;
+    switch (ev.type) {
+      case "job_progress":
+        Object.assign(job, {
+          tiles_done: ev.tiles_done, passes_done: ev.passes_done, tasks_done: ev.tasks_done,
+        });
+        refreshJob();
+        refreshPreview();
+        break;
+      case "job_purged":
+        gone = false;
+        refreshJob();
+        break;
+      default:
+        refreshJob();
+        if (ev.type === "job_state" && isFinal(ev.state)) {
+          refreshTiles().catch(console.error);
+          refreshPreview();
+        }
+    }
+  });
+
+  (async () => {
+    await refreshWorkers().catch(console.error);
+    refreshJob();
+    await refreshTiles().catch(console.error);
+    refreshPreview();
+  })();
+}
+
+// ---------------------------------------------------------------- workers page
+
+function workersPage(main) {
+  document.title = "Workers · raytile";
+  const body = h("tbody", { id: "workers-body" });
+  let workers = [];
+  const render = () => {
+    body.replaceChildren(...workers.map((w) => h("tr", { "data-worker": w.id },
+      h("td", {}, w.name, h("span", { class: "muted" }, " " + w.id)),
+      h("td", {}, h("span", { class: "state state-" + w.state }, w.state)),
+      h("td", {}, w.current.length ? w.current.map((c, i) => [i ? ", " : "",
+        h("a", { href: "/jobs/" + encodeURIComponent(c.job) }, c.job),
+        " tile " + tileText(c.tile) + " pass " + c.pass]) : "—"),
+      h("td", { class: "num" }, w.tasks_done),
+      h("td", { class: "num" }, fmtRate(w.samples_per_second)),
+      h("td", { class: "num opt" }, w.threads || "all"),
+      h("td", { class: "num opt" }, w.render_version),
+      h("td", { class: "num" }, w.failures),
+      h("td", {}, fmtAgo(w.last_seen_ms)))));
+    if (!workers.length) {
+      body.append(h("tr", {}, h("td", { colspan: 9, class: "muted" }, "No worker has registered.")));
+    }
+  };
+  const refresh = throttle(async () => {
+    workers = (await api("/v1/workers")).workers;
+    render();
+  }, 1000);
+  main.append(h("h1", {}, "Workers"),
+    h("div", { class: "table-wrap" }, h("table", { id: "workers" },
+      h("thead", {}, h("tr", {}, ["Name", "State", "Current task", "Tasks done", "Samples/s",
+        "Threads", "Render version", "Failures", "Last seen"].map((c, i) =>
+        h("th", { scope: "col", class: [5, 6].includes(i) ? "opt" : null }, c)))),
+      body)));
+  listeners.add((ev) => {
+    if (ev.type === "resync" || ev.type.startsWith("worker_") || ev.type.startsWith("task_")) {
+      refresh();
+    }
+  });
+  refresh();
+  setInterval(render, 5000);
+}
+
+// ---------------------------------------------------------------- start
+
+function start() {
+  const main = document.getElementById("main");
+  main.replaceChildren();
+  const path = location.pathname;
+  const m = path.match(/^\/jobs\/([^/]+)$/);
+  document.getElementById("nav-jobs").toggleAttribute("aria-current", path === "/" || !!m);
+  document.getElementById("nav-workers").toggleAttribute("aria-current", path === "/workers");
+  for (const id of ["nav-jobs", "nav-workers"]) {
+    const el = document.getElementById(id);
+    if (el.hasAttribute("aria-current")) el.setAttribute("aria-current", "page");
+  }
+  if (path === "/") jobsPage(main);
+  else if (path === "/workers") workersPage(main);
+  else if (m) jobPage(main, decodeURIComponent(m[1]));
+  else main.append(h("h1", {}, "Not found"), h("p", {}, h("a", { href: "/" }, "All jobs")));
+  connectEvents();
+}
+
+// A page left for another may be kept (back-forward cache) with its stream open, and a
+// browser opens only a few connections to one host: close the stream when the page is
+// hidden, open it again (it starts with a resync) when the page comes back.
+window.addEventListener("pagehide", () => {
+  if (source) {
+    source.close();
+    source = null;
+  }
+});
+window.addEventListener("pageshow", (e) => {
+  if (e.persisted) connectEvents();
+});
+
+start();
