@@ -5,7 +5,7 @@
 
 const TOKEN_KEY = "raytile-token";
 const STATES = ["queued", "running", "done", "failed", "cancelled"];
-const INTEGRATORS = ["path", "whitted", "normals", "albedo", "depth", "ao"];
+const INTEGRATORS = ["path", "volpath", "whitted", "normals", "albedo", "depth", "ao"];
 
 // What the pages did, for people debugging them and for the end-to-end test.
 window.raytile = { previews: [], events: 0 };
@@ -214,7 +214,8 @@ function jobRequest(job) {
   const s = job.settings;
   const req = { scene: job.scene, priority: job.priority };
   for (const k of ["width", "height", "spp", "max_depth", "integrator", "seed", "camera",
-                   "filter", "tile_size", "passes", "default_light"]) {
+                   "filter", "tile_size", "passes", "default_light", "environment",
+                   "environment_rotation", "environment_strength"]) {
     if (s[k] !== null && s[k] !== undefined) req[k] = s[k];
   }
   return req;
@@ -322,6 +323,12 @@ function submitForm() {
     field("passes", "Passes", num("passes", "scene's")),
     field("integrator", "Integrator", integrator),
     field("seed", "Seed", num("seed", "scene's")),
+    field("environment", "Environment (none, R,G,B, or a .hdr/.exr in the scene's folder)",
+      h("input", { type: "text", placeholder: "scene's own", autocomplete: "off" })),
+    field("environment_strength", "Environment strength",
+      h("input", { type: "number", step: "any", placeholder: "1" })),
+    field("environment_rotation", "Environment rotation (°)",
+      h("input", { type: "number", step: "any", placeholder: "0" })),
     field("priority", "Priority", num("priority", "0")),
     h("div", { class: "buttons" },
       h("button", { type: "submit", id: "submit-button" }, "Submit"),
@@ -356,11 +363,14 @@ function submitForm() {
         return;
       }
       const req = { scene: scene.id };
-      for (const name of ["width", "height", "spp", "passes", "seed", "priority"]) {
+      for (const name of ["width", "height", "spp", "passes", "seed", "priority",
+                          "environment_strength", "environment_rotation"]) {
         const v = form.elements[name].value.trim();
         if (v !== "") req[name] = Number(v);
       }
       if (form.elements.integrator.value) req.integrator = form.elements.integrator.value;
+      const environment = form.elements.environment.value.trim();
+      if (environment !== "") req.environment = environment;
       status.textContent = "submitting…";
       try {
         const job = await postJson("/v1/jobs", req);
@@ -498,6 +508,7 @@ function jobPage(main, id) {
     const rows = [["Scene", job.scene], ["Resolution", s.width + "×" + s.height],
       ["Samples per pixel", s.spp], ["Passes", s.passes], ["Integrator", s.integrator],
       ["Max depth", s.max_depth], ["Seed", s.seed], ["Camera", s.camera || "first"],
+      ["Environment", s.environment ? s.environment + " ×" + s.environment_strength + ", " + s.environment_rotation + "°" : "scene's own"],
       ["Filter", s.filter], ["Tile size", s.tile_size], ["Default light", s.default_light],
       ["Priority", job.priority]];
     settings.replaceChildren(...rows.flatMap(([k, v]) => [h("dt", {}, k), h("dd", {}, String(v))]));
