@@ -309,6 +309,63 @@ function field(name, label, input) {
     h("span", { class: "error", id: "err-" + name, role: "alert" }));
 }
 
+// ---------------------------------------------------------------- folder upload
+
+/** The path of each file of a folder the user chose, relative to the folder's parent. */
+const relPath = (f) => f.webkitRelativePath || f.name;
+
+/** The scene file of a chosen folder: the one .gltf, .glb or .json nearest its top. */
+function folderEntry(files) {
+  const scenes = files.map(relPath).filter((p) => /\.(gltf|glb|json)$/i.test(p));
+  if (scenes.length === 0) throw new Error("The folder holds no .gltf, .glb or .json scene.");
+  const depth = (p) => p.split("/").length;
+  const top = Math.min(...scenes.map(depth));
+  const nearest = scenes.filter((p) => depth(p) === top);
+  if (nearest.length > 1) {
+    throw new Error("The folder holds several scenes at its top (" + nearest.join(", ") +
+      "): choose the scene file, or an archive.");
+  }
+  return nearest[0];
+}
+
+/** A POSIX ustar archive of `files` (regular files, by their relative paths), as a Blob. */
+function tarOf(files) {
+  const enc = new TextEncoder();
+  const parts = [];
+  const put = (block, at, text) => block.set(enc.encode(text), at);
+  const octal = (n, width) => n.toString(8).padStart(width - 1, "0") + "\0";
+  for (const f of files) {
+    const path = enc.encode(relPath(f));
+    // ustar names are at most 100 bytes, with up to 155 more in the prefix, cut at a '/'.
+    let cut = -1;
+    if (path.length > 100) {
+      for (let i = 0; i < path.length && i <= 155; i++) {
+        if (path[i] === 0x2f && path.length - i - 1 <= 100) { cut = i; break; }
+      }
+      if (cut < 0) throw new Error("A path in the folder is too long for a tar: " + relPath(f));
+    }
+    const block = new Uint8Array(512);
+    block.set(cut < 0 ? path : path.subarray(cut + 1), 0);
+    if (cut >= 0) block.set(path.subarray(0, cut), 345);
+    put(block, 100, "0000644\0");
+    put(block, 108, "0000000\0");
+    put(block, 116, "0000000\0");
+    put(block, 124, octal(f.size, 12));
+    put(block, 136, octal(Math.floor((f.lastModified || 0) / 1000), 12));
+    put(block, 148, "        ");
+    block[156] = 0x30; // '0': a regular file
+    put(block, 257, "ustar\0");
+    put(block, 263, "00");
+    const sum = block.reduce((a, b) => a + b, 0);
+    put(block, 148, sum.toString(8).padStart(6, "0") + "\0 ");
+    parts.push(block, f);
+    const pad = (512 - (f.size % 512)) % 512;
+    if (pad) parts.push(new Uint8Array(pad));
+  }
+  parts.push(new Uint8Array(1024));
+  return new Blob(parts, { type: "application/x-tar" });
+}
+
 function submitForm() {
   const num = (name, placeholder) =>
     h("input", { type: "number", inputmode: "numeric", step: "1", placeholder });
@@ -316,7 +373,9 @@ function submitForm() {
     h("option", { value: "" }, "scene's own"), INTEGRATORS.map((i) => h("option", { value: i }, i)));
   const form = h("form", { class: "submit", id: "submit-form", novalidate: true },
     field("scene", "Scene (.gltf, .glb, .json, or a .zip/.tar of a scene folder)",
-      h("input", { type: "file", accept: ".gltf,.glb,.json,.zip,.tar", required: true })),
+      h("input", { type: "file", accept: ".gltf,.glb,.json,.zip,.tar" })),
+    field("folder", "…or a scene folder (packed here as a tar)",
+      h("input", { type: "file", webkitdirectory: true, multiple: true })),
     field("width", "Width", num("width", "scene's")),
     field("height", "Height", num("height", "scene's")),
     field("spp", "Samples per pixel", num("spp", "scene's")),
@@ -343,23 +402,39 @@ function submitForm() {
       el.textContent = message;
     };
     const file = form.elements.scene.files[0];
-    if (!file) {
-      show("scene", "Choose a scene file.");
+    const folder = [...form.elements.folder.files];
+    if (!file && folder.length === 0) {
+      show("scene", "Choose a scene file or a folder.");
       return;
+    }
+    let body, query, uploadField;
+    if (file) {
+      const ext = file.name.toLowerCase().split(".").pop();
+      body = file;
+      query = ["gltf", "glb", "json", "zip", "tar"].includes(ext) ? "?format=" + ext : "";
+      uploadField = "scene";
+    } else {
+      try {
+        const entry = folderEntry(folder);
+        body = tarOf(folder);
+        query = "?format=tar&entry=" + encodeURIComponent(entry);
+      } catch (err) {
+        show("folder", err.message);
+        return;
+      }
+      uploadField = "folder";
     }
     const button = form.querySelector("#submit-button");
     button.disabled = true;
     try {
-      status.textContent = "uploading " + file.name + "…";
-      const ext = file.name.toLowerCase().split(".").pop();
-      const format = ["gltf", "glb", "json", "zip", "tar"].includes(ext) ? "?format=" + ext : "";
+      status.textContent = "uploading " + (file ? file.name : folder.length + " files (" + Math.ceil(body.size / 1024) + " KiB)") + "…";
       let scene;
       try {
-        scene = await api("/v1/scenes" + format, {
-          method: "POST", headers: { "Content-Type": "application/octet-stream" }, body: file,
+        scene = await api("/v1/scenes" + query, {
+          method: "POST", headers: { "Content-Type": "application/octet-stream" }, body,
         });
       } catch (err) {
-        show("scene", err.message);
+        show(uploadField, err.message);
         return;
       }
       const req = { scene: scene.id };

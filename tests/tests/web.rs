@@ -644,3 +644,96 @@ async fn the_web_page_submits_watches_and_cancels() {
     workers.stop().await;
     coord.stop().await;
 }
+
+/// A glTF triangle whose vertices are in a separate `.bin` beside it, in `dir`.
+fn write_triangle_gltf(dir: &Path, name: &str) {
+    std::fs::create_dir_all(dir).unwrap();
+    let verts: [f32; 9] = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+    let bin: Vec<u8> = verts.iter().flat_map(|v| v.to_le_bytes()).collect();
+    std::fs::write(dir.join(format!("{name}.bin")), &bin).unwrap();
+    let gltf = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "buffers": [{"uri": format!("{name}.bin"), "byteLength": 36}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                       "min": [0, 0, 0], "max": [1, 1, 0]}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "nodes": [{"mesh": 0}],
+        "scenes": [{"nodes": [0]}],
+        "scene": 0
+    });
+    std::fs::write(dir.join(format!("{name}.gltf")), gltf.to_string()).unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_scene_folder_is_packed_in_the_browser() {
+    let have_driver = std::process::Command::new("chromedriver")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !have_driver && missing("chromedriver is not installed") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    // A folder whose scene needs the file beside it (the coordinator checks the scene, buffer
+    // included, before it accepts the upload), in a sub-folder with a long name (a ustar
+    // prefix), and one with two scenes at its top.
+    let long = "a-folder-with-a-name-long-enough-that-the-path-needs-the-ustar-prefix-field-of-the-tar-header";
+    let good = dir.path().join("upload").join(long).join("model");
+    write_triangle_gltf(&good, "model");
+    let two = dir.path().join("two");
+    write_triangle_gltf(&two, "a");
+    write_triangle_gltf(&two, "b");
+    let coord = Coord::start(&dir.path().join("coord")).await;
+    let base = coord.base.clone();
+    let driver = start_driver().await;
+    let c = browser(&driver).await;
+
+    choose_folder(&c, &base, &two).await;
+    let err = until(
+        &c,
+        30,
+        "the folder error",
+        "return document.getElementById('err-folder').textContent",
+    )
+    .await;
+    assert!(err.as_str().unwrap().contains("several scenes"), "{err}");
+
+    choose_folder(&c, &base, &dir.path().join("upload").join(long)).await;
+    until(
+        &c,
+        30,
+        "the job page of the folder's scene",
+        "return location.pathname.startsWith('/jobs/') && window.raytile.job",
+    )
+    .await;
+    let job = js(&c, "return window.raytile.job").await;
+    assert_eq!(job["settings"]["width"], 16, "{job}");
+    screenshot(&c, "folder-job").await;
+
+    c.close().await.unwrap();
+    drop(driver);
+    coord.stop().await;
+}
+
+/// Opens the jobs page, chooses `folder` in the form's folder input and submits a 16×16 job.
+async fn choose_folder(c: &fantoccini::Client, base: &str, folder: &Path) {
+    use fantoccini::Locator;
+    c.goto(&format!("{base}/")).await.unwrap();
+    c.wait()
+        .for_element(Locator::Css("#submit-form"))
+        .await
+        .unwrap();
+    let input = c.find(Locator::Css("#f-folder")).await.unwrap();
+    input.send_keys(folder.to_str().unwrap()).await.unwrap();
+    for (name, value) in [("width", "16"), ("height", "16"), ("spp", "1")] {
+        let el = c.find(Locator::Css(&format!("#f-{name}"))).await.unwrap();
+        el.send_keys(value).await.unwrap();
+    }
+    c.find(Locator::Css("#submit-button"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+}
