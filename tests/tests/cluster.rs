@@ -328,6 +328,7 @@ mod support {
                 tile: l.tile,
                 pixels: vec![[1.0, 0.5, 0.25, 1.0]; l.tile.pixel_count()],
                 bad_samples: 0,
+                splats: Vec::new(),
             };
             let r = self
                 .http
