@@ -57,4 +57,6 @@ pub use settings::{IntegratorKind, RenderOverrides, RenderSettings, SettingsErro
 /// shaded from world-space data, small scenes' BVH built with the thorough preset (2026-11-30).
 /// 4: the `volpath` integrator and scene media (2026-12-01); other integrators' images
 /// unchanged.
-pub const RENDER_VERSION: u32 = 4;
+/// 5: the `bdpt` integrator, and tile results that carry splats (2026-12-01); other
+/// integrators' images unchanged.
+pub const RENDER_VERSION: u32 = 5;
