@@ -264,6 +264,16 @@ impl RenderSettings {
                 ),
             ));
         }
+        if self.integrator == IntegratorKind::Bdpt && self.filter != FilterKind::Box {
+            return Err(SettingsError::new(
+                "filter",
+                format!(
+                    "bdpt supports only the box filter, got {}: light paths joined to the \
+                     camera land on the film without a filter to spread them",
+                    self.filter.name()
+                ),
+            ));
+        }
         Ok(())
     }
 

@@ -42,15 +42,6 @@ impl RenderJob {
         } else {
             select_camera(&scene.cameras, settings.camera.as_deref())?.clone()
         };
-        if settings.integrator == crate::IntegratorKind::Bdpt
-            && settings.filter != crate::settings::FilterKind::Box
-        {
-            return Err(invalid(format!(
-                "render setting filter: bdpt supports only the box filter (got {:?}): its light \
-                 paths land on the film without a filter to spread them",
-                settings.filter
-            )));
-        }
         let camera = Camera::new(
             camera.transform,
             camera.projection,
