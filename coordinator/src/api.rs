@@ -600,3 +600,32 @@ async fn upload_result(
         },
     }))
 }
+
+#[cfg(test)]
+mod splat_checks {
+    use super::*;
+
+    fn message(e: AppError) -> String {
+        match e {
+            AppError::Invalid { field, message } => {
+                assert_eq!(field.as_deref(), Some("body"));
+                message
+            }
+            other => panic!("expected a 422, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn splats_must_name_frame_pixels_in_order_and_only_for_jobs_that_splat() {
+        let ok = [(0, [1, 2, 3]), (5, [0, 0, 1]), (11, [-1, 0, 0])];
+        assert!(check_splats(&ok, Some(12)).is_ok());
+        assert!(check_splats(&[], None).is_ok());
+        assert!(check_splats(&[], Some(12)).is_ok());
+        let e = message(check_splats(&ok, None).unwrap_err());
+        assert!(e.contains("does not splat"), "{e}");
+        let e = message(check_splats(&ok, Some(11)).unwrap_err());
+        assert!(e.contains("pixel 11"), "{e}");
+        let e = message(check_splats(&[(3, [0; 3]), (3, [0; 3])], Some(12)).unwrap_err());
+        assert!(e.contains("increasing"), "{e}");
+    }
+}
