@@ -217,13 +217,7 @@ impl Ctx<'_> {
                 Some(Light::Point { .. }) => UNIFORM_SPHERE_PDF,
                 Some(&Light::Spot {
                     axis, cos_outer, ..
-                }) => {
-                    if w.dot(axis) > cos_outer {
-                        1.0 / (2.0 * PI * (1.0 - cos_outer))
-                    } else {
-                        0.0
-                    }
-                }
+                }) if w.dot(axis) > cos_outer => 1.0 / (2.0 * PI * (1.0 - cos_outer)),
                 Some(&Light::Area { light, .. }) => emit_dir_pdf(
                     self.scene.area_lights[light as usize].emission.two_sided,
                     v.ng,
@@ -767,7 +761,7 @@ pub fn li(
     let ctx = Ctx {
         scene,
         job,
-        center: center.into(),
+        center,
         radius,
     };
     let max_depth = job.settings.max_depth as usize;
