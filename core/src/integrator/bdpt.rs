@@ -404,6 +404,8 @@ fn random_walk(
     let mut pdf_fwd = pdf;
     let mut bounces = 0usize;
     let mut eta_scale = 1.0f32;
+    // Distance travelled from the walk's origin through interfaces, for a light's range.
+    let mut travelled = 0.0f32;
     loop {
         let Some(hit) = ctx.scene.intersect(&ray, f32::INFINITY) else {
             if !importance && ctx.job.environment().is_some() {
@@ -421,12 +423,13 @@ fn random_walk(
                 beta *= (-sigma * hit.t).exp();
             }
         }
-        if bounces == 0 && first_range.is_finite() {
-            beta *= range_window(hit.t, first_range);
-        }
         if ctx.scene.is_interface(it.object) {
+            travelled += hit.t;
             ray = it.spawn_ray(ray.d);
             continue;
+        }
+        if bounces == 0 && first_range.is_finite() {
+            beta *= range_window(travelled + hit.t, first_range);
         }
         let bsdf = ctx.scene.bsdf(&it);
         let mut v = Vertex::new(Kind::Surface, it.p, beta);
