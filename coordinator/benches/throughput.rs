@@ -81,6 +81,7 @@ async fn main() -> anyhow::Result<()> {
                     tile: l.tile,
                     pixels: vec![[0.5, 0.5, 0.5, 1.0]; l.tile.pixel_count()],
                     bad_samples: 0,
+                    splats: Vec::new(),
                 };
                 http.put(format!(
                     "{base}/v1/jobs/{}/tasks/{}/result?worker={}",

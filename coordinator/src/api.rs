@@ -597,6 +597,33 @@ async fn release(
     Ok(StatusCode::NO_CONTENT)
 }
 
+/// A result's splats must name pixels of the frame, each once, in increasing order, and only a
+/// job whose integrator splats (`splat_pixels`: its frame's pixel count) may carry any.
+fn check_splats(splats: &[(u32, [i64; 3])], splat_pixels: Option<u64>) -> Result<(), AppError> {
+    let Some(n) = splat_pixels else {
+        if splats.is_empty() {
+            return Ok(());
+        }
+        return Err(AppError::invalid(
+            "body",
+            "result carries splats, but the job's integrator does not splat",
+        ));
+    };
+    let mut prev: Option<u32> = None;
+    for &(i, _) in splats {
+        if i as u64 >= n || prev.is_some_and(|p| p >= i) {
+            return Err(AppError::invalid(
+                "body",
+                format!(
+                    "splat for pixel {i}: not a pixel of the {n}-pixel frame in increasing order"
+                ),
+            ));
+        }
+        prev = Some(i);
+    }
+    Ok(())
+}
+
 /// Path parameters of a result upload (by name, so that a bad one is named in the answer).
 #[derive(Deserialize)]
 struct TaskPath {
@@ -617,9 +644,15 @@ async fn upload_result(
     headers: HeaderMap,
     body: Body,
 ) -> Result<Json<proto::ResultReply>, AppError> {
-    let (tile, _) = state.sched().task_for_upload(&job, task)?;
+    let (tile, splat_pixels) = {
+        let s = state.sched();
+        let (tile, _) = s.task_for_upload(&job, task)?;
+        (tile, s.splat_pixels(&job))
+    };
     let expected = proto::tile::encoded_len(&tile);
-    let limit = (expected as u64).min(state.cfg.limits.max_upload_bytes);
+    // A bdpt result carries at most one splat per pixel of the frame after its pixels.
+    let room = splat_pixels.map_or(0, |n| n * proto::tile::SPLAT_LEN as u64);
+    let limit = (expected as u64 + room).min(state.cfg.limits.max_upload_bytes);
     let declared: Option<u64> = headers
         .get(header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())
@@ -639,6 +672,7 @@ async fn upload_result(
     }
     let (acc, pass) =
         proto::tile::decode(&buf).map_err(|e| AppError::invalid("body", e.to_string()))?;
+    check_splats(&acc.splats, splat_pixels)?;
     let worker = q.worker.unwrap_or_else(|| "unknown".into());
     let delivery = Delivery {
         worker: &worker,
@@ -665,4 +699,33 @@ async fn upload_result(
             job_finished: true,
         },
     }))
+}
+
+#[cfg(test)]
+mod splat_checks {
+    use super::*;
+
+    fn message(e: AppError) -> String {
+        match e {
+            AppError::Invalid { field, message } => {
+                assert_eq!(field.as_deref(), Some("body"));
+                message
+            }
+            other => panic!("expected a 422, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn splats_must_name_frame_pixels_in_order_and_only_for_jobs_that_splat() {
+        let ok = [(0, [1, 2, 3]), (5, [0, 0, 1]), (11, [-1, 0, 0])];
+        assert!(check_splats(&ok, Some(12)).is_ok());
+        assert!(check_splats(&[], None).is_ok());
+        assert!(check_splats(&[], Some(12)).is_ok());
+        let e = message(check_splats(&ok, None).unwrap_err());
+        assert!(e.contains("does not splat"), "{e}");
+        let e = message(check_splats(&ok, Some(11)).unwrap_err());
+        assert!(e.contains("pixel 11"), "{e}");
+        let e = message(check_splats(&[(3, [0; 3]), (3, [0; 3])], Some(12)).unwrap_err());
+        assert!(e.contains("increasing"), "{e}");
+    }
 }

@@ -97,6 +97,7 @@ mod tests {
                 })
                 .collect(),
             bad_samples: 0,
+            splats: Vec::new(),
         }
     }
 

@@ -5,7 +5,7 @@
 
 const TOKEN_KEY = "raytile-token";
 const STATES = ["queued", "running", "done", "failed", "cancelled"];
-const INTEGRATORS = ["path", "volpath", "whitted", "normals", "albedo", "depth", "ao"];
+const INTEGRATORS = ["path", "volpath", "bdpt", "whitted", "normals", "albedo", "depth", "ao"];
 
 // What the pages did, for people debugging them and for the end-to-end test.
 window.raytile = { previews: [], events: 0 };

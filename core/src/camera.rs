@@ -29,6 +29,7 @@ pub enum Projection {
 #[derive(Clone, Debug)]
 pub struct Camera {
     to_world: Affine3A,
+    from_world: Affine3A,
     projection: Projection,
     /// Half-extent of the image plane at distance 1 (perspective) or in metres (orthographic).
     half: Vec2,
@@ -51,6 +52,7 @@ impl Camera {
         };
         Self {
             to_world,
+            from_world: to_world.inverse(),
             projection,
             half: Vec2::new(half_h * aspect, half_h),
             width: width as f32,
@@ -86,6 +88,128 @@ impl Camera {
             self.to_world.transform_point3a(o),
             self.to_world.transform_vector3a(d).normalize(),
         )
+    }
+}
+
+/// A point on the camera's lens sampled towards a point of the scene (pbrt-v4's
+/// `Camera::SampleWi`), for light paths joined to the camera.
+#[derive(Clone, Copy, Debug)]
+pub struct CameraSample {
+    /// Where on the film (in pixels) the light arrives.
+    pub raster: Vec2,
+    /// Importance emitted towards the point, We.
+    pub we: f32,
+    /// Solid-angle density of the direction towards the lens, seen from the point.
+    pub pdf: f32,
+    /// The point on the lens.
+    pub p: Vec3A,
+}
+
+impl Camera {
+    /// Whether the camera is a perspective one (pinhole or thin lens): only those emit
+    /// importance that light paths can reach; an orthographic camera's is a delta.
+    pub fn is_perspective(&self) -> bool {
+        matches!(self.projection, Projection::Perspective { .. })
+    }
+
+    /// Lens radius and focus distance (zero radius: a pinhole).
+    #[inline]
+    fn lens(&self) -> (f32, f32) {
+        match self.projection {
+            Projection::Perspective {
+                aperture_radius,
+                focus_distance,
+                ..
+            } if aperture_radius > 0.0 && focus_distance > 0.0 => (aperture_radius, focus_distance),
+            _ => (0.0, 1.0),
+        }
+    }
+
+    /// Lens area (1 for a pinhole, as pbrt-v4) and film area at distance 1.
+    #[inline]
+    fn areas(&self) -> (f32, f32) {
+        let (r, _) = self.lens();
+        let lens_area = if r > 0.0 {
+            std::f32::consts::PI * r * r
+        } else {
+            1.0
+        };
+        (lens_area, 4.0 * self.half.x * self.half.y)
+    }
+
+    /// Importance We of the ray leaving the lens point `o` in unit direction `d` (towards the
+    /// scene) and the film position it belongs to, or `None` outside the image (pbrt-v4's
+    /// `PerspectiveCamera::We`). Perspective cameras only.
+    #[inline]
+    pub fn we(&self, o: Vec3A, d: Vec3A) -> Option<(f32, Vec2)> {
+        if !self.is_perspective() {
+            return None;
+        }
+        let dc = self.from_world.transform_vector3a(d);
+        let cos = -dc.z;
+        if !(cos > 0.0) {
+            return None;
+        }
+        let (r, focus) = self.lens();
+        let pd = if r > 0.0 {
+            let oc = self.from_world.transform_point3a(o);
+            (oc + dc * (focus / cos)) / focus
+        } else {
+            dc / cos
+        };
+        let x = (pd.x / self.half.x + 1.0) * 0.5 * self.width;
+        let y = (1.0 - pd.y / self.half.y) * 0.5 * self.height;
+        if !(x >= 0.0 && x < self.width && y >= 0.0 && y < self.height) {
+            return None;
+        }
+        let (lens_area, film_area) = self.areas();
+        let cos2 = cos * cos;
+        Some((1.0 / (film_area * lens_area * cos2 * cos2), Vec2::new(x, y)))
+    }
+
+    /// Densities (per lens area, per solid angle) with which [`Camera::generate_ray`] gives a
+    /// ray from the lens along the unit direction `d` (pbrt-v4's `PDF_We`).
+    #[inline]
+    pub fn pdf_we(&self, o: Vec3A, d: Vec3A) -> (f32, f32) {
+        if self.we(o, d).is_none() {
+            return (0.0, 0.0);
+        }
+        let cos = -self.from_world.transform_vector3a(d).z;
+        let (lens_area, film_area) = self.areas();
+        (1.0 / lens_area, 1.0 / (film_area * cos * cos * cos))
+    }
+
+    /// Samples a point on the lens as seen from the scene point `p` (pbrt-v4's `SampleWi`).
+    #[inline]
+    pub fn sample_wi(&self, p: Vec3A, u: Vec2) -> Option<CameraSample> {
+        let (r, _) = self.lens();
+        let lc = if r > 0.0 {
+            let l = concentric_disk(u) * r;
+            Vec3A::new(l.x, l.y, 0.0)
+        } else {
+            Vec3A::ZERO
+        };
+        let pl = self.to_world.transform_point3a(lc);
+        let to = pl - p;
+        let d2 = to.length_squared();
+        if !(d2 > 0.0) {
+            return None;
+        }
+        let wi = to / d2.sqrt();
+        let (we, raster) = self.we(pl, -wi)?;
+        let forward = self.to_world.transform_vector3a(-Vec3A::Z).normalize();
+        let cos = forward.dot(wi).abs();
+        let (lens_area, _) = self.areas();
+        let pdf = d2 / (cos * lens_area);
+        if !(pdf > 0.0) || !pdf.is_finite() {
+            return None;
+        }
+        Some(CameraSample {
+            raster,
+            we,
+            pdf,
+            p: pl,
+        })
     }
 }
 

@@ -60,4 +60,6 @@ pub use settings::{
 /// 4: the `volpath` integrator and scene media; a job's own environment (`environment`,
 /// `environment_rotation`, `environment_strength` settings); index-matched glTF transmission
 /// passes straight through; glTF `COLOR_0` is used (2026-12-01).
-pub const RENDER_VERSION: u32 = 4;
+/// 5: the `bdpt` integrator, and tile results that carry splats (2026-12-01); other
+/// integrators' images unchanged.
+pub const RENDER_VERSION: u32 = 5;

@@ -18,6 +18,10 @@ pub enum IntegratorKind {
     /// Volumetric path tracing (pbrt-v4's `volpath`): `path` plus participating media (fog,
     /// smoke), with delta tracking, ratio-tracked shadow rays and null-scattering MIS.
     Volpath,
+    /// Bidirectional path tracing (pbrt-v4's `bdpt`): light and camera subpaths joined by
+    /// every strategy, weighted by MIS; renders caustics that `path` misses. Light subpaths
+    /// joined straight to the camera land in other pixels (splats).
+    Bdpt,
     /// Whitted's recursive ray tracer: shadow rays, mirror reflection and refraction.
     Whitted,
     /// Shading normals mapped to colours.
@@ -32,9 +36,10 @@ pub enum IntegratorKind {
 
 impl IntegratorKind {
     /// Every integrator, for tests and help texts.
-    pub const ALL: [IntegratorKind; 7] = [
+    pub const ALL: [IntegratorKind; 8] = [
         Self::Path,
         Self::Volpath,
+        Self::Bdpt,
         Self::Whitted,
         Self::Normals,
         Self::Albedo,
@@ -47,6 +52,7 @@ impl IntegratorKind {
         match self {
             Self::Path => "path",
             Self::Volpath => "volpath",
+            Self::Bdpt => "bdpt",
             Self::Whitted => "whitted",
             Self::Normals => "normals",
             Self::Albedo => "albedo",
@@ -358,6 +364,16 @@ impl RenderSettings {
                 ),
             ));
         }
+        if self.integrator == IntegratorKind::Bdpt && self.filter != FilterKind::Box {
+            return Err(SettingsError::new(
+                "filter",
+                format!(
+                    "bdpt supports only the box filter, got {}: light paths joined to the \
+                     camera land on the film without a filter to spread them",
+                    self.filter.name()
+                ),
+            ));
+        }
         Ok(())
     }
 
@@ -457,7 +473,7 @@ pub struct RenderOverrides {
     #[serde(skip_serializing_if = "Option::is_none")]
     #[cfg_attr(feature = "clap", arg(long))]
     pub max_depth: Option<u32>,
-    /// Integrator: path, volpath, whitted, normals, albedo, depth, ao.
+    /// Integrator: path, volpath, bdpt, whitted, normals, albedo, depth, ao.
     #[serde(skip_serializing_if = "Option::is_none")]
     #[cfg_attr(feature = "clap", arg(long))]
     pub integrator: Option<IntegratorKind>,

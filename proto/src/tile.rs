@@ -8,9 +8,10 @@
 //! | 4..8 | format version (1) |
 //! | 8..24 | tile `x0`, `y0`, `x1`, `y1` (u32 each) |
 //! | 24..28 | pass index (u32) |
-//! | 28..32 | reserved, zero |
+//! | 28..32 | number of splats `n` (u32; zero but for `bdpt`) |
 //! | 32..40 | samples dropped as NaN/Inf (u64) |
 //! | 40.. | `[r, g, b, w]` f32 sums per pixel, row-major, `width × height` pixels |
+//! | then | `n` splats: frame pixel index (u32) and `[r, g, b]` fixed-point sums (i64 each) |
 //!
 //! Floats travel as their exact bits, so the coordinator stores what the worker computed.
 
@@ -28,7 +29,15 @@ pub struct TileAccum {
     pub pixels: Vec<[f32; 4]>,
     /// Samples dropped because they were NaN or infinite.
     pub bad_samples: u64,
+    /// Light that the tile's samples carried to other pixels (`bdpt`'s light subpaths joined
+    /// to the camera): (row-major pixel index in the whole frame, RGB in fixed point, scaled
+    /// by 2^28), sorted by pixel, one entry per pixel. Integer sums, so adding them in any
+    /// order gives the same bits. Empty for every other integrator.
+    pub splats: Vec<(u32, [i64; 3])>,
 }
+
+/// Bytes of one splat on the wire.
+pub const SPLAT_LEN: usize = 28;
 
 /// First four bytes of every tile result.
 pub const MAGIC: [u8; 4] = *b"RTTR";
@@ -70,14 +79,21 @@ pub fn encoded_len(tile: &Tile) -> usize {
 /// Encodes a tile result for `pass`.
 pub fn encode(accum: &TileAccum, pass: u32) -> Vec<u8> {
     let t = accum.tile;
-    let mut out = Vec::with_capacity(encoded_len(&t));
+    let mut out = Vec::with_capacity(encoded_len(&t) + accum.splats.len() * SPLAT_LEN);
     out.extend_from_slice(&MAGIC);
-    for v in [VERSION, t.x0, t.y0, t.x1, t.y1, pass, 0] {
+    let n = accum.splats.len() as u32;
+    for v in [VERSION, t.x0, t.y0, t.x1, t.y1, pass, n] {
         out.extend_from_slice(&v.to_le_bytes());
     }
     out.extend_from_slice(&accum.bad_samples.to_le_bytes());
     for p in &accum.pixels {
         for c in p {
+            out.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    for (i, rgb) in &accum.splats {
+        out.extend_from_slice(&i.to_le_bytes());
+        for c in rgb {
             out.extend_from_slice(&c.to_le_bytes());
         }
     }
@@ -105,7 +121,12 @@ pub fn decode(bytes: &[u8]) -> Result<(TileAccum, u32), TileFormatError> {
     let mut bad = [0u8; 8];
     bad.copy_from_slice(&bytes[32..40]);
     let tile = Tile { x0, y0, x1, y1 };
-    let expected = tile.pixel_count() * 16;
+    let n_splats = u(28) as usize;
+    let pixel_bytes = tile.pixel_count() * 16;
+    let expected = n_splats
+        .checked_mul(SPLAT_LEN)
+        .and_then(|b| b.checked_add(pixel_bytes))
+        .unwrap_or(usize::MAX);
     let body = &bytes[HEADER_LEN..];
     if body.len() != expected {
         return Err(TileFormatError::Length {
@@ -113,6 +134,19 @@ pub fn decode(bytes: &[u8]) -> Result<(TileAccum, u32), TileFormatError> {
             got: body.len(),
         });
     }
+    let (body, splat_bytes) = body.split_at(pixel_bytes);
+    let splats = splat_bytes
+        .chunks_exact(SPLAT_LEN)
+        .map(|b| {
+            let i = u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+            let c = |k: usize| {
+                let mut v = [0u8; 8];
+                v.copy_from_slice(&b[4 + 8 * k..12 + 8 * k]);
+                i64::from_le_bytes(v)
+            };
+            (i, [c(0), c(1), c(2)])
+        })
+        .collect();
     let pixels = body
         .chunks_exact(16)
         .map(|px| {
@@ -125,6 +159,7 @@ pub fn decode(bytes: &[u8]) -> Result<(TileAccum, u32), TileFormatError> {
             tile,
             pixels,
             bad_samples: u64::from_le_bytes(bad),
+            splats,
         },
         pass,
     ))
@@ -147,7 +182,28 @@ mod tests {
                 .map(|i| [i as f32, -0.0, f32::MIN_POSITIVE, 1e30])
                 .collect(),
             bad_samples: 7,
+            splats: Vec::new(),
         }
+    }
+
+    #[test]
+    fn splats_travel_after_the_pixels() {
+        let mut a = sample();
+        a.splats = vec![(0, [1, -2, i64::MAX]), (99, [i64::MIN, 0, 5])];
+        let bytes = encode(&a, 1);
+        assert_eq!(bytes.len(), encoded_len(&a.tile) + 2 * SPLAT_LEN);
+        let (b, pass) = decode(&bytes).unwrap();
+        assert_eq!((pass, &b.splats), (1, &a.splats));
+        // A splat count that the body does not hold is refused.
+        let mut short = bytes.clone();
+        short[28..32].copy_from_slice(&3u32.to_le_bytes());
+        assert!(matches!(
+            decode(&short),
+            Err(TileFormatError::Length { .. })
+        ));
+        let mut huge = bytes;
+        huge[28..32].copy_from_slice(&u32::MAX.to_le_bytes());
+        assert!(matches!(decode(&huge), Err(TileFormatError::Length { .. })));
     }
 
     #[test]

@@ -422,6 +422,14 @@ impl Sched {
         Ok((work.tile, work.pass))
     }
 
+    /// The number of pixels of `job`'s frame when its results may carry splats (light that
+    /// one tile's samples carry to other pixels: `bdpt`), else `None`.
+    pub fn splat_pixels(&self, job: &str) -> Option<u64> {
+        let s = &self.jobs.get(job)?.settings;
+        (s.integrator == raytile_core::IntegratorKind::Bdpt)
+            .then(|| s.width as u64 * s.height as u64)
+    }
+
     /// Stores a result for task `idx` of `job_id`, delivered at `now`.
     pub fn complete(
         &mut self,

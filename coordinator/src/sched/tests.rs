@@ -51,6 +51,7 @@ fn deliver(s: &mut Sched, job: &str, idx: u32, worker: &str, now: Now) -> Result
         tile,
         pixels: vec![[pass as f32 + 0.5, 1.0, 2.0, 1.0]; tile.pixel_count()],
         bad_samples: 0,
+        splats: Vec::new(),
     };
     let bytes = raytile_proto::tile::encode(&acc, pass);
     let d = Delivery {
@@ -543,6 +544,7 @@ fn a_failed_write_changes_nothing_and_the_retry_applies_once() {
             tile,
             pixels: vec![[1.0; 4]; tile.pixel_count()],
             bad_samples: 0,
+            splats: Vec::new(),
         };
         let bytes = raytile_proto::tile::encode(&acc, pass);
         let d = Delivery {
@@ -613,6 +615,7 @@ fn the_last_result_finishes_the_job_only_when_stored() {
             tile,
             pixels: vec![[1.0; 4]; tile.pixel_count()],
             bad_samples: 0,
+            splats: Vec::new(),
         };
         let bytes = raytile_proto::tile::encode(&acc, pass);
         let d = Delivery {

@@ -37,6 +37,16 @@ pub enum TileMismatch {
         /// The pixels given.
         got: usize,
     },
+    /// A splat names a pixel outside the film.
+    #[error("splat for pixel {index} lies outside the {width}×{height} film")]
+    Splat {
+        /// The pixel index.
+        index: u32,
+        /// Film width.
+        width: u32,
+        /// Film height.
+        height: u32,
+    },
 }
 
 /// The whole frame's accumulated sums.
@@ -50,6 +60,12 @@ pub struct Film {
     pub pixels: Vec<[f32; 4]>,
     /// Samples dropped because they were NaN or infinite.
     pub bad_samples: u64,
+    /// Row-major fixed-point RGB sums of the light that samples carried to other pixels
+    /// (`bdpt`'s splats, see [`TileAccum::splats`]); empty while none arrived.
+    pub splats: Vec<[i64; 3]>,
+    /// Camera samples added so far over the whole frame (weights and dropped samples): the
+    /// splat sums are divided by this over the pixel count (the samples per pixel).
+    pub samples: f64,
 }
 
 impl Film {
@@ -60,6 +76,8 @@ impl Film {
             height,
             pixels: vec![[0.0; 4]; width as usize * height as usize],
             bad_samples: 0,
+            splats: Vec::new(),
+            samples: 0.0,
         }
     }
 
@@ -82,6 +100,24 @@ impl Film {
                 got: t.pixels.len(),
             });
         }
+        let len = self.pixels.len();
+        if let Some(&(index, _)) = t.splats.iter().find(|s| s.0 as usize >= len) {
+            return Err(TileMismatch::Splat {
+                index,
+                width: self.width,
+                height: self.height,
+            });
+        }
+        if !t.splats.is_empty() && self.splats.is_empty() {
+            self.splats = vec![[0; 3]; len];
+        }
+        for &(i, rgb) in &t.splats {
+            let dst = &mut self.splats[i as usize];
+            for k in 0..3 {
+                dst[k] = dst[k].saturating_add(rgb[k]);
+            }
+        }
+        self.samples += t.pixels.iter().map(|p| p[3] as f64).sum::<f64>() + t.bad_samples as f64;
         let w = tile.width() as usize;
         for (row, src) in t.pixels.chunks(w.max(1)).enumerate() {
             let y = tile.y0 as usize + row;
@@ -96,9 +132,11 @@ impl Film {
         Ok(())
     }
 
-    /// Linear RGB per pixel (sum / weight; black where no sample landed).
+    /// Linear RGB per pixel (sum / weight; black where no sample landed), plus the pixel's
+    /// splats divided by the samples per pixel.
     pub fn resolve(&self) -> Vec<[f32; 3]> {
-        self.pixels
+        let mut out: Vec<[f32; 3]> = self
+            .pixels
             .iter()
             .map(|p| {
                 if p[3] > 0.0 {
@@ -107,7 +145,17 @@ impl Film {
                     [0.0; 3]
                 }
             })
-            .collect()
+            .collect();
+        if !self.splats.is_empty() && self.samples > 0.0 {
+            let spp = self.samples / self.pixels.len() as f64;
+            let scale = 1.0 / (spp * crate::integrator::bdpt::SPLAT_SCALE);
+            for (o, s) in out.iter_mut().zip(&self.splats) {
+                for k in 0..3 {
+                    o[k] = (o[k] as f64 + s[k] as f64 * scale) as f32;
+                }
+            }
+        }
+        out
     }
 
     /// Mean of each channel over the image.
@@ -141,6 +189,7 @@ mod tests {
             tile,
             pixels: vec![[2.0, 4.0, 6.0, 2.0]; 4],
             bad_samples: 1,
+            splats: Vec::new(),
         })
         .unwrap();
         let px = f.resolve();
@@ -159,6 +208,7 @@ mod tests {
             },
             pixels: vec![[1.0; 4]; 6],
             bad_samples: 5,
+            splats: Vec::new(),
         });
         assert!(
             matches!(outside, Err(TileMismatch::Outside { .. })),
@@ -168,6 +218,7 @@ mod tests {
             tile,
             pixels: vec![[1.0; 4]; 3],
             bad_samples: 5,
+            splats: Vec::new(),
         });
         assert_eq!(
             short,

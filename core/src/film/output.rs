@@ -185,6 +185,7 @@ mod tests {
             },
             pixels: (0..6).map(|i| [i as f32 * 0.25, 0.5, 2.0, 1.0]).collect(),
             bad_samples: 0,
+            splats: Vec::new(),
         })
         .unwrap();
         f

@@ -51,6 +51,9 @@ pub fn li(
                 Vec3A::ONE
             }
         }
-        IntegratorKind::Path | IntegratorKind::Volpath | IntegratorKind::Whitted => Vec3A::ZERO,
+        IntegratorKind::Path
+        | IntegratorKind::Volpath
+        | IntegratorKind::Bdpt
+        | IntegratorKind::Whitted => Vec3A::ZERO,
     }
 }

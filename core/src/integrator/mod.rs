@@ -5,6 +5,9 @@
 //!   Kajiya's rendering equation.
 //! - [`volpath`]: path tracing with participating media (fog, smoke): delta tracking with
 //!   majorant grids, ratio-tracked shadow rays, null-scattering MIS for chromatic media.
+//! - [`bdpt`]: bidirectional path tracing (pbrt-v4's): light and camera subpaths joined by
+//!   every strategy, MIS-weighted; light subpaths joined to the camera land in other pixels
+//!   as fixed-point splats ([`TileAccum::splats`]), added in any order to the same bits.
 //! - [`whitted`]: the recursive ray tracer: shadow rays to every light, recursive mirror
 //!   reflection and refraction, stopped at max depth, at no hit, or when the ray's contribution
 //!   falls below a threshold.
@@ -18,6 +21,7 @@
 //! index order from zero, with random numbers that depend only on (pixel, sample index, seed):
 //! the result cannot depend on the tile layout or the thread.
 
+pub mod bdpt;
 pub mod debug;
 mod direct;
 pub mod path;
@@ -50,6 +54,7 @@ fn li(scene: &Scene, job: &RenderJob, ray: Ray, sampler: &mut Sampler) -> Vec3A 
         IntegratorKind::Path => path::li(scene, job, ray, sampler, max_depth),
         IntegratorKind::Volpath => volpath::li(scene, job, ray, sampler, max_depth),
         IntegratorKind::Whitted => whitted::li(scene, job, ray, sampler, max_depth),
+        IntegratorKind::Bdpt => unreachable!("bdpt samples go through bdpt::li"),
         k => debug::li(scene, job, ray, sampler, k),
     }
 }
@@ -99,12 +104,14 @@ pub fn render_tile(
     let seed = job.settings.seed;
     let w = tile.width() as usize;
     let mut pixels = vec![[0.0f32; 4]; tile.pixel_count()];
-    let bad: Option<u64> = pixels
+    let bidirectional = job.settings.integrator == IntegratorKind::Bdpt;
+    let rows: Option<Vec<(u64, Vec<bdpt::Splat>)>> = pixels
         .par_chunks_mut(w.max(1))
         .enumerate()
         .map(|(row, out)| {
             let y = tile.y0 + row as u32;
             let mut bad = 0u64;
+            let mut splats = Vec::new();
             for (col, px) in out.iter_mut().enumerate() {
                 let x = tile.x0 + col as u32;
                 let mut sum = [0.0f32; 4];
@@ -121,7 +128,19 @@ pub fn render_tile(
                         let lens = sampler.next_2d();
                         let film = Vec2::new(x as f32 + 0.5 + offset.x, y as f32 + 0.5 + offset.y);
                         let ray = job.camera.generate_ray(film, lens);
-                        let l = li(scene, job, ray, &mut sampler);
+                        let l = if bidirectional {
+                            let mut light = Sampler::new(x, y, s, seed ^ LIGHT_SUBPATH_SEED);
+                            let first = splats.len();
+                            let l =
+                                bdpt::li(scene, job, ray, &mut sampler, &mut light, &mut splats);
+                            if !l.is_finite() {
+                                // The whole sample is dropped, its splats too.
+                                splats.truncate(first);
+                            }
+                            l
+                        } else {
+                            li(scene, job, ray, &mut sampler)
+                        };
                         if l.is_finite() {
                             sum[0] += l.x;
                             sum[1] += l.y;
@@ -135,15 +154,27 @@ pub fn render_tile(
                 }
                 *px = sum;
             }
-            Some(bad)
+            Some((bad, splats))
         })
-        .sum();
+        .collect();
+    let rows = rows.ok_or(Cancelled)?;
+    let bad = rows.iter().map(|r| r.0).sum();
+    let splats = if bidirectional {
+        bdpt::coalesce(rows.into_iter().flat_map(|r| r.1).collect())
+    } else {
+        Vec::new()
+    };
     Ok(TileAccum {
         tile,
         pixels,
-        bad_samples: bad.ok_or(Cancelled)?,
+        bad_samples: bad,
+        splats,
     })
 }
+
+/// Mixed into the seed of the sampler of a sample's light subpath (`bdpt`), so that it draws
+/// numbers of its own from the same (pixel, sample index, seed).
+const LIGHT_SUBPATH_SEED: u32 = 0x5bd1_e995;
 
 /// Renders the whole frame of `job` on the current rayon pool, pass by pass: every tile of
 /// pass 0, then every tile of pass 1, and so on; each pass's tile sums are added into the film

@@ -81,17 +81,11 @@ impl AreaLight {
         lum * area * scale
     }
 
-    /// Samples a point on triangle `prim` (or on the shape) uniformly by area, as seen from
-    /// `p`: its radiance towards `p` and the solid-angle density at `p` (selection excluded).
+    /// Samples a point on triangle `prim` (or on the shape) uniformly by area: (point, front
+    /// normal, texture coordinates, density per unit area).
     #[inline]
-    pub fn sample(
-        &self,
-        prim: u32,
-        p: Vec3A,
-        u: Vec2,
-        textures: &[Texture],
-    ) -> Option<LightSample> {
-        let (pl, ng, uv, pdf_area) = match &self.shape {
+    pub fn sample_point(&self, prim: u32, u: Vec2) -> Option<(Vec3A, Vec3A, [Vec2; 2], f32)> {
+        match &self.shape {
             Emitter::Triangles { tris, uvs } => {
                 let lt = tris.get(prim as usize)?;
                 let (b1, b2) = uniform_triangle(u);
@@ -103,7 +97,7 @@ impl AreaLight {
                     }
                     _ => [Vec2::ZERO; 2],
                 };
-                (lt.geom.point(b1, b2), lt.ng, uv, 1.0 / lt.area)
+                Some((lt.geom.point(b1, b2), lt.ng, uv, 1.0 / lt.area))
             }
             Emitter::Shape(s) => {
                 let ss = s.shape.sample(u)?;
@@ -112,9 +106,22 @@ impl AreaLight {
                 let jac = s.det * n_world.length();
                 let n = n_world.normalize_or(Vec3A::Y);
                 let pl = s.to_world.transform_point3a(ss.p);
-                (pl, n, [Vec2::ZERO; 2], ss.pdf_area / jac)
+                Some((pl, n, [Vec2::ZERO; 2], ss.pdf_area / jac))
             }
-        };
+        }
+    }
+
+    /// Samples a point on triangle `prim` (or on the shape) uniformly by area, as seen from
+    /// `p`: its radiance towards `p` and the solid-angle density at `p` (selection excluded).
+    #[inline]
+    pub fn sample(
+        &self,
+        prim: u32,
+        p: Vec3A,
+        u: Vec2,
+        textures: &[Texture],
+    ) -> Option<LightSample> {
+        let (pl, ng, uv, pdf_area) = self.sample_point(prim, u)?;
         let to = pl - p;
         let d2 = to.length_squared();
         if !(d2 > 0.0) || !(pdf_area > 0.0) || !pdf_area.is_finite() {
@@ -144,10 +151,26 @@ impl AreaLight {
     /// shape).
     #[inline]
     pub fn pdf(&self, prim: u32, p_light: Vec3A, n_light: Vec3A, from: Vec3A) -> f32 {
-        let pdf_area = match &self.shape {
+        let pdf_area = self.pdf_area(prim, n_light);
+        if pdf_area == 0.0 {
+            return 0.0;
+        }
+        let to = p_light - from;
+        area_to_solid_angle(
+            pdf_area,
+            to.length_squared(),
+            n_light.dot(to.normalize_or_zero()),
+        )
+    }
+
+    /// Density per unit area with which [`AreaLight::sample_point`] gives a point of triangle
+    /// `prim` (or of the shape) whose front normal is `n_light`.
+    #[inline]
+    pub fn pdf_area(&self, prim: u32, n_light: Vec3A) -> f32 {
+        match &self.shape {
             Emitter::Triangles { tris, .. } => match tris.get(prim as usize) {
                 Some(lt) => 1.0 / lt.area,
-                None => return 0.0,
+                None => 0.0,
             },
             Emitter::Shape(s) => {
                 let n_obj = s.to_world.matrix3.transpose() * n_light;
@@ -156,13 +179,7 @@ impl AreaLight {
                 let jac = s.det * (s.normal_matrix * n_obj).length();
                 1.0 / (s.shape.area() * jac)
             }
-        };
-        let to = p_light - from;
-        area_to_solid_angle(
-            pdf_area,
-            to.length_squared(),
-            n_light.dot(to.normalize_or_zero()),
-        )
+        }
     }
 
     /// Bytes held, for cache budgets.

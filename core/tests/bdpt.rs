@@ -1,0 +1,255 @@
+//! Bidirectional path tracing against known answers: a closed diffuse furnace, `path` on the
+//! Cornell box, the caustic of a glass ball under a point light (which `path` cannot render),
+//! and bit-identical images whatever the tiling and the threads. Tolerances are four standard
+//! errors of the compared means, measured from the images themselves (pixels are independent
+//! estimates).
+
+use raytile_core::scene::json::parse_json;
+use raytile_core::{render, IntegratorKind, RenderJob, RenderSettings, Scene};
+use std::path::Path;
+
+fn load(json: &str) -> Scene {
+    let desc = parse_json(json, Path::new("."), Path::new("test.json")).unwrap();
+    Scene::build(&desc).unwrap()
+}
+
+fn load_file(name: &str) -> Scene {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../scenes")
+        .join(name);
+    Scene::build(&raytile_core::load_scene(&path).unwrap()).unwrap()
+}
+
+fn settings(w: u32, h: u32, spp: u32, integrator: IntegratorKind) -> RenderSettings {
+    RenderSettings {
+        width: w,
+        height: h,
+        spp,
+        max_depth: 8,
+        integrator,
+        ..Default::default()
+    }
+}
+
+/// The image's pixels.
+fn image(scene: &Scene, s: &RenderSettings) -> Vec<[f32; 3]> {
+    let job = RenderJob::new(scene, s).unwrap();
+    let film = render(scene, &job, &());
+    assert_eq!(film.bad_samples, 0, "NaN or infinite samples");
+    film.resolve()
+}
+
+/// Mean and standard error of the mean, per channel, of per-pixel values.
+fn stats(px: &[[f32; 3]]) -> ([f64; 3], [f64; 3]) {
+    let n = px.len() as f64;
+    let mut mean = [0.0; 3];
+    let mut se = [0.0; 3];
+    for k in 0..3 {
+        let m = px.iter().map(|p| p[k] as f64).sum::<f64>() / n;
+        let var = px.iter().map(|p| (p[k] as f64 - m).powi(2)).sum::<f64>() / (n - 1.0);
+        mean[k] = m;
+        se[k] = (var / n).sqrt();
+    }
+    (mean, se)
+}
+
+/// Asserts the mean of `px` is `want` per channel within four standard errors (and a float
+/// margin), and that the standard error is small enough for the check to mean something.
+fn assert_mean(what: &str, px: &[[f32; 3]], want: [f64; 3], max_se: f64) {
+    let (mean, se) = stats(px);
+    eprintln!("{what}: mean {mean:.4?}, standard error {se:.4?}, want {want:.4?}");
+    for k in 0..3 {
+        assert!(
+            se[k] <= max_se,
+            "{what}: channel {k}: standard error {} above {max_se}: too noisy to check",
+            se[k]
+        );
+        assert!(
+            (mean[k] - want[k]).abs() <= 4.0 * se[k] + 1e-4,
+            "{what}: channel {k}: mean {} vs {} (standard error {})",
+            mean[k],
+            want[k],
+            se[k]
+        );
+    }
+}
+
+/// Pixel by pixel differences `a − b`.
+fn differences(a: &[[f32; 3]], b: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    a.iter()
+        .zip(b)
+        .map(|(a, b)| [a[0] - b[0], a[1] - b[1], a[2] - b[2]])
+        .collect()
+}
+
+#[test]
+fn furnace_a_closed_emitting_diffuse_sphere() {
+    // Inside a sphere that emits Le = 1 and reflects diffusely with albedo ρ = 0.5, radiance
+    // is Le / (1 − ρ) = 2 everywhere. Light subpaths start on the sphere and reach the camera
+    // (t = 1), so the camera's importance is checked as well as every other strategy.
+    let scene = load(
+        r#"{
+  "materials": {"wall": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5],
+                         "emission": [1, 1, 1], "two_sided": true}},
+  "objects": [{"shape": {"type": "sphere", "radius": 1}, "material": "wall"}],
+  "camera": {"position": [0, 0, 0.3], "look_at": [0, 0, -1], "fov": 60}
+}"#,
+    );
+    let mut s = settings(24, 24, 16, IntegratorKind::Bdpt);
+    s.max_depth = 40;
+    let px = image(&scene, &s);
+    assert_mean("bdpt furnace", &px, [2.0; 3], 0.02);
+}
+
+#[test]
+fn bdpt_matches_path_on_the_cornell_box() {
+    let scene = load_file("cornell-box.json");
+    let s = settings(24, 24, 16, IntegratorKind::Path);
+    let a = image(&scene, &s);
+    let b = image(&scene, &settings(24, 24, 16, IntegratorKind::Bdpt));
+    let (mean, _) = stats(&a);
+    assert!(mean.iter().all(|&m| m > 0.05), "{mean:?}");
+    assert_mean("bdpt − path", &differences(&b, &a), [0.0; 3], 0.03);
+}
+
+/// `scenes/caustic.json` with its small area light swapped for a point light of
+/// `intensity` W/sr at the same place.
+fn caustic_under_point_light() -> Scene {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/caustic.json");
+    let json = std::fs::read_to_string(path).unwrap();
+    let mut v: serde_json::Value = serde_json::from_str(&json).unwrap();
+    let objects = v["objects"].as_array_mut().unwrap();
+    objects.retain(|o| o["name"] != "lamp");
+    v["lights"] =
+        serde_json::json!([{"type": "point", "position": [0, 3, 0], "intensity": [10, 10, 10]}]);
+    load(&v.to_string())
+}
+
+/// Mean of the `r`-pixel square around film position `c`.
+fn region_mean(px: &[[f32; 3]], w: u32, c: glam::Vec2, r: i32) -> f64 {
+    let (cx, cy) = (c.x as i32, c.y as i32);
+    let mut sum = 0.0;
+    let mut n = 0;
+    for y in cy - r..=cy + r {
+        for x in cx - r..=cx + r {
+            let p = px[(y as u32 * w + x as u32) as usize];
+            sum += (p[0] + p[1] + p[2]) as f64 / 3.0;
+            n += 1;
+        }
+    }
+    sum / n as f64
+}
+
+#[test]
+fn the_caustic_under_a_point_light_is_there_with_bdpt_and_not_with_path() {
+    // Light from a point light focused by the glass ball onto the floor below it: no path
+    // from the camera can find the point light after the refractions, so `path` leaves the
+    // floor under the ball black (its shadow); light subpaths carry the caustic to the camera.
+    let scene = caustic_under_point_light();
+    let (w, h) = (48, 36);
+    let job = RenderJob::new(&scene, &settings(w, h, 16, IntegratorKind::Bdpt)).unwrap();
+    // Where the floor point under the ball lands on the film.
+    let centre = job
+        .camera
+        .sample_wi(glam::Vec3A::ZERO, glam::Vec2::ZERO)
+        .unwrap()
+        .raster;
+    // Beside the ball's shadow, the floor lit straight by the lamp.
+    let lit = job
+        .camera
+        .sample_wi(glam::Vec3A::new(1.2, 0.0, 0.6), glam::Vec2::ZERO)
+        .unwrap()
+        .raster;
+    let bdpt = image(&scene, &settings(w, h, 16, IntegratorKind::Bdpt));
+    let path = image(&scene, &settings(w, h, 16, IntegratorKind::Path));
+    let caustic_bdpt = region_mean(&bdpt, w, centre, 1);
+    let caustic_path = region_mean(&path, w, centre, 1);
+    let lit_bdpt = region_mean(&bdpt, w, lit, 1);
+    let lit_path = region_mean(&path, w, lit, 1);
+    eprintln!(
+        "caustic at {centre}: bdpt {caustic_bdpt:.4}, path {caustic_path:.4}; \
+         lit floor at {lit}: bdpt {lit_bdpt:.4}, path {lit_path:.4}"
+    );
+    assert!(lit_path > 0.05, "the lamp lights the floor: {lit_path}");
+    assert!(
+        (lit_bdpt - lit_path).abs() < 0.1 * lit_path,
+        "directly lit floor: bdpt {lit_bdpt} vs path {lit_path}"
+    );
+    assert!(
+        caustic_path < 1e-3,
+        "path renders no caustic: {caustic_path}"
+    );
+    assert!(
+        caustic_bdpt > 3.0 * lit_path,
+        "bdpt renders the caustic brighter than the directly lit floor: {caustic_bdpt} vs {lit_path}"
+    );
+}
+
+#[test]
+fn bdpt_is_deterministic_whatever_the_tiling_and_the_threads() {
+    let scene = caustic_under_point_light();
+    let bits = |px: &[[f32; 3]]| px.iter().flatten().map(|v| v.to_bits()).collect::<Vec<_>>();
+    let mut s = settings(40, 30, 4, IntegratorKind::Bdpt);
+    s.tile_size = 8;
+    let a = image(&scene, &s);
+    s.tile_size = 64;
+    let b = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap()
+        .install(|| image(&scene, &s));
+    assert!(a.iter().flatten().any(|&v| v > 0.0));
+    assert_eq!(bits(&a), bits(&b));
+}
+
+#[test]
+fn bdpt_refuses_filters_other_than_the_box() {
+    let scene = load_file("cornell-box.json");
+    let mut s = settings(8, 8, 1, IntegratorKind::Bdpt);
+    s.filter = raytile_core::settings::FilterKind::Gaussian;
+    let e = RenderJob::new(&scene, &s).unwrap_err().to_string();
+    assert!(e.contains("filter") && e.contains("bdpt"), "{e}");
+}
+
+#[test]
+fn bdpt_matches_path_under_spot_directional_and_environment_light() {
+    // Every light type but the area light (the Cornell box has that): a diffuse ball on a
+    // diffuse floor under a spot light, the sun and a uniform sky, each alone and together.
+    let base = r#"{
+  "materials": {"white": {"type": "diffuse", "albedo": [0.8, 0.6, 0.4]}},
+  "objects": [
+    {"shape": {"type": "rectangle", "corner": [-2, 0, -2], "edge_u": [0, 0, 4], "edge_v": [4, 0, 0]}, "material": "white"},
+    {"shape": {"type": "sphere", "center": [0, 0.5, 0], "radius": 0.5}, "material": "white"}
+  ],
+  "camera": {"position": [0, 1.5, 3], "look_at": [0, 0.3, 0], "fov": 45}
+  LIGHTS
+}"#;
+    let spot = r#""lights": [{"type": "spot", "position": [0.5, 2.5, 0.5], "look_at": [0, 0, 0], "intensity": [8, 8, 8], "inner_angle": 10, "outer_angle": 30}]"#;
+    let sun = r#""lights": [{"type": "directional", "direction": [-0.3, -1, -0.2], "irradiance": [2, 2, 2]}]"#;
+    let sky = r#""environment": {"type": "constant", "radiance": [0.5, 0.7, 1]}"#;
+    for (what, lights) in [
+        ("spot", spot.to_string()),
+        ("sun", sun.to_string()),
+        ("sky", sky.to_string()),
+        (
+            "all",
+            format!(
+                "{}, {}, {sky}",
+                spot.trim_end_matches(']'),
+                sun.trim_start_matches(r#""lights": ["#)
+            ),
+        ),
+    ] {
+        let scene = load(&base.replace("LIGHTS", &format!(", {lights}")));
+        let a = image(&scene, &settings(24, 24, 16, IntegratorKind::Path));
+        let b = image(&scene, &settings(24, 24, 16, IntegratorKind::Bdpt));
+        let (mean, _) = stats(&a);
+        assert!(mean.iter().all(|&m| m > 0.02), "{what}: {mean:?}");
+        assert_mean(
+            &format!("{what}: bdpt − path"),
+            &differences(&b, &a),
+            [0.0; 3],
+            0.03,
+        );
+    }
+}
