@@ -272,7 +272,7 @@ fn image_hash(integrator: IntegratorKind) -> String {
 const GOLDEN: [(IntegratorKind, &str); 8] = [
     (IntegratorKind::Path, "e42b0dffd5424c36"),
     (IntegratorKind::Volpath, "40d1d0dd55338aa1"),
-    (IntegratorKind::Bdpt, "cf630aa90945744b"),
+    (IntegratorKind::Bdpt, "ae758213072bb27d"),
     (IntegratorKind::Whitted, "2c57b1f1af7bd9a0"),
     (IntegratorKind::Normals, "7bc0a2763bfb615f"),
     (IntegratorKind::Albedo, "ad105da7432cb490"),

@@ -347,14 +347,17 @@ fn connectible(ctx: &Ctx, v: &Vertex) -> bool {
     }
 }
 
-/// Geometry term with visibility between two vertices.
-fn g(ctx: &Ctx, a: &Vertex, b: &Vertex) -> f32 {
+/// Geometry term with visibility between two vertices, times the transmittance of an
+/// absorbing body the segment runs through (as the random walk attenuates its segments: by the
+/// body whose surface the segment reaches from behind).
+fn g(ctx: &Ctx, a: &Vertex, b: &Vertex) -> Vec3A {
     let d = a.p - b.p;
     let d2 = d.length_squared();
     if !(d2 > 0.0) {
-        return 0.0;
+        return Vec3A::ZERO;
     }
-    let w = d / d2.sqrt();
+    let dist = d2.sqrt();
+    let w = d / dist;
     let mut g = 1.0 / d2;
     if a.on_surface() {
         g *= a.ns.dot(w).abs();
@@ -363,9 +366,18 @@ fn g(ctx: &Ctx, a: &Vertex, b: &Vertex) -> f32 {
         g *= b.ns.dot(w).abs();
     }
     if g == 0.0 || occluded(ctx, a, b) {
-        0.0
+        return Vec3A::ZERO;
+    }
+    // `w` points from b to a: the segment reaches b from behind when it leaves b's body there.
+    let inside = |v: &Vertex, toward: Vec3A| match &v.it {
+        Some(it) if v.ng.dot(toward) > 0.0 => ctx.scene.absorption(it.object),
+        _ => Vec3A::ZERO,
+    };
+    let sigma = inside(b, -w).max(inside(a, w));
+    if sigma == Vec3A::ZERO {
+        Vec3A::splat(g)
     } else {
-        g
+        Vec3A::splat(g) * (-sigma * dist).exp()
     }
 }
 
@@ -463,7 +475,12 @@ fn random_walk(
         let wi_w = frame.to_world(bs.wi).normalize();
         let mut f = bs.f;
         if importance {
-            if bs.lobe.is_transmission() {
+            if !bs.lobe.is_delta() {
+                // The adjoint BSDF, f(wi → wo), as connections evaluate it (`vertex_f`): the
+                // sampled value is f(wo → wi), which differs for BSDFs that are not reciprocal
+                // (the glTF model weighs its lobes by the outgoing direction).
+                f = bsdf.eval(bs.wi, wo);
+            } else if bs.lobe.is_transmission() {
                 f *= bs.eta * bs.eta;
             }
             f *= shading_correction(it.ns, it.ng, wo_w, wi_w);
@@ -905,7 +922,7 @@ fn connect(
             return None;
         }
         let gg = g(ctx, qs, pt);
-        if gg == 0.0 {
+        if gg == Vec3A::ZERO {
             return None;
         }
         c * gg
