@@ -14,6 +14,11 @@ pub use output::{encode, save, FilmError, ImageFormat, OutputOptions, ToneMap};
 /// the wire crate's).
 pub use raytile_proto::tile::TileAccum;
 
+/// Fixed-point scale of splats (light a sample adds to other pixels, as `bdpt`'s light paths
+/// joined to the camera do): a splat's channel value `v` is stored as `round(v · 2^28)` in an
+/// `i64`, so any number of splats add exactly and in any order.
+pub const SPLAT_SCALE: f64 = (1u64 << 28) as f64;
+
 /// Why [`Film::add_tile`] refused a tile.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum TileMismatch {
@@ -148,7 +153,7 @@ impl Film {
             .collect();
         if !self.splats.is_empty() && self.samples > 0.0 {
             let spp = self.samples / self.pixels.len() as f64;
-            let scale = 1.0 / (spp * crate::integrator::bdpt::SPLAT_SCALE);
+            let scale = 1.0 / (spp * SPLAT_SCALE);
             for (o, s) in out.iter_mut().zip(&self.splats) {
                 for k in 0..3 {
                     o[k] = (o[k] as f64 + s[k] as f64 * scale) as f32;

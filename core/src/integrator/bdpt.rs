@@ -25,9 +25,7 @@ use crate::{RenderJob, Scene};
 use glam::{Vec2, Vec3A};
 use std::f32::consts::PI;
 
-/// Fixed-point scale of splats: a splat's channel value `v` is stored as `round(v · 2^28)` in
-/// an `i64`, so any number of splats add exactly and in any order.
-pub const SPLAT_SCALE: f64 = (1u64 << 28) as f64;
+pub use crate::film::SPLAT_SCALE;
 
 /// One splat: a pixel (row-major index in the frame) and its fixed-point RGB.
 pub type Splat = (u32, [i64; 3]);
