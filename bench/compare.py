@@ -88,7 +88,8 @@ def goal_lines(rows):
         if name in by_name:
             ratio = raytile[key] / by_name[name][key]
             verdict = "met" if ratio >= goal else "not met"
-            out.append(f"raytile's {label} = {ratio:.2f} × {name}'s (goal ≥ {goal:g}×: {verdict}).")
+            out.append(f"raytile's {label} = {ratio:.2f} × that of {name} "
+                       f"(goal ≥ {goal:g}×: {verdict}).")
     return out
 
 

@@ -113,7 +113,7 @@ install_venv() {
 
 if command -v dpkg-query > /dev/null; then
     # shellcheck disable=SC2046
-    install_apt $(command -v blender > /dev/null || echo blender) python3-numpy libllvm19
+    install_apt $(command -v blender > /dev/null || echo blender) python3-numpy libllvm19 time
 fi
 install_venv
 
@@ -175,10 +175,11 @@ if ! "$RAYTILE" render --help > /dev/null 2>&1; then
 fi
 
 # ---------------------------------------------------------------- one scene
-# run_scene KEY FILE TITLE: reference, every renderer, the table in $OUT/KEY/results.md.
+# run_scene KEY FILE TITLE [TRIANGLES]: reference, every renderer, the table in
+# $OUT/KEY/results.md.
 status=0
 run_scene() {
-    local key=$1 scene=$2 title=$3
+    local key=$1 scene=$2 title=$3 triangles=${4:-}
     SOUT=$OUT/$key
     ROWS=$SOUT/rows.jsonl
     SCENE_NOTES=()
@@ -203,11 +204,13 @@ run_scene() {
     # raytile: the render time from its summary, and the whole process.
     if [ "$RAYTILE_OK" = 1 ]; then
         say "raytile: $SPP spp, $THREADS threads, max depth $RAYTILE_MAX_DEPTH"
-        local start wall
+        local start wall timer=()
+        # Peak resident memory of the whole process, where GNU time is installed.
+        [ -x /usr/bin/time ] && timer=(/usr/bin/time -f '%M' -o "$SOUT/raytile.maxrss")
         start=$(date +%s%N)
-        if ! "$RAYTILE" render "$scene" -o "$SOUT/raytile.exr" --width $WIDTH --height $HEIGHT \
-            --spp "$SPP" --max-depth $RAYTILE_MAX_DEPTH --threads "$THREADS" --seed "$SEED" \
-            2> "$SOUT/raytile.log"; then
+        if ! ${timer[@]+"${timer[@]}"} "$RAYTILE" render "$scene" -o "$SOUT/raytile.exr" \
+            --width $WIDTH --height $HEIGHT --spp "$SPP" --max-depth $RAYTILE_MAX_DEPTH \
+            --threads "$THREADS" --seed "$SEED" 2> "$SOUT/raytile.log"; then
             cat "$SOUT/raytile.log" >&2
             echo "run.sh: raytile render failed (stderr above)" >&2
             exit 1
@@ -216,6 +219,11 @@ run_scene() {
         tail -3 "$SOUT/raytile.log" >&2
         "$PY" bench/raytile_rows.py --stderr "$SOUT/raytile.log" --wall "$wall" \
             --exr "$SOUT/raytile.exr" --spp "$SPP" --threads "$THREADS" >> "$ROWS"
+        if [ -s "$SOUT/raytile.maxrss" ]; then
+            local kb
+            kb=$(tail -1 "$SOUT/raytile.maxrss")
+            SCENE_NOTES+=("raytile peak resident memory (whole process, /usr/bin/time -f %M): $((kb / 1024)) MiB${triangles:+, $((kb * 1024 / triangles)) bytes per triangle of the sphere}.")
+        fi
     fi
 
     # Mitsuba
@@ -284,7 +292,7 @@ for key in $SCENES; do
                 mv "$mesh.tmp" "$mesh"
             fi
             triangles=$(python3 -c "import math, sys; g = math.ceil(math.sqrt($MESH_TRIANGLES / 2)); print(2 * g * g)")
-            run_scene cornell-sphere "$mesh" "Cornell box with a bumpy sphere of $triangles triangles (scripts/make-mesh-glb.py --cornell, $(basename "$mesh"))" ;;
+            run_scene cornell-sphere "$mesh" "Cornell box with a bumpy sphere of $triangles triangles (scripts/make-mesh-glb.py --cornell, $(basename "$mesh"))" "$triangles" ;;
         custom)
             run_scene "$(basename "${SCENE%.*}")" "$SCENE" "$(basename "$SCENE")" ;;
     esac
