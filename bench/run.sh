@@ -6,7 +6,8 @@
 #   bash bench/run.sh [--spp N] [--threads T] [--seed S] [--ref-spp N] [--scene cornell|sphere]
 #                     [--smoke] [--no-bvh] [--no-crosscheck]
 #
-# The same settings can come from the environment: SPP, THREADS, SEED, REF_SPP, SCENES (cornell,
+# The same settings can come from the environment: SPP, THREADS, SEED, REF_SPP, REF_SPP_SPHERE
+# (the sphere's reference, default REF_SPP), SCENES (cornell,
 # sphere or "cornell sphere"), BVH=0, CROSSCHECK=0, MESH_TRIANGLES, SCENE (one other glTF scene
 # instead of both), RAYTILE_BIN (use this binary instead of building). See bench/README.md for
 # what it installs, the columns and timings.
@@ -21,6 +22,7 @@ SPP=${SPP:-64}
 THREADS=${THREADS:-$(nproc)}
 SEED=${SEED:-0}
 REF_SPP=${REF_SPP:-4096}
+REF_SPP_SPHERE=${REF_SPP_SPHERE:-} # the sphere's reference, if not REF_SPP (it is 2x slower)
 REF_SEED=1000000 # far from SEED's passes: the reference's noise is independent
 BVH=${BVH:-1}
 CROSSCHECK=${CROSSCHECK:-1}
@@ -39,7 +41,7 @@ while [ $# -gt 0 ]; do
         --seed) SEED=$2; shift 2 ;;
         --ref-spp) REF_SPP=$2; shift 2 ;;
         --scene) SCENES=$2; shift 2 ;;
-        --smoke) SPP=4; REF_SPP=64; CROSSCHECK=0; BVH=0; shift ;;
+        --smoke) SPP=4; REF_SPP=64; REF_SPP_SPHERE=64; CROSSCHECK=0; BVH=0; shift ;;
         --no-bvh) BVH=0; shift ;;
         --no-crosscheck) CROSSCHECK=0; shift ;;
         -h|--help) sed -n '2,14p' "$0"; exit 0 ;;
@@ -175,11 +177,11 @@ if ! "$RAYTILE" render --help > /dev/null 2>&1; then
 fi
 
 # ---------------------------------------------------------------- one scene
-# run_scene KEY FILE TITLE [TRIANGLES]: reference, every renderer, the table in
+# run_scene KEY FILE TITLE REF_SPP [TRIANGLES]: reference, every renderer, the table in
 # $OUT/KEY/results.md.
 status=0
 run_scene() {
-    local key=$1 scene=$2 title=$3 triangles=${4:-}
+    local key=$1 scene=$2 title=$3 ref_spp=$4 triangles=${5:-}
     SOUT=$OUT/$key
     ROWS=$SOUT/rows.jsonl
     SCENE_NOTES=()
@@ -192,14 +194,14 @@ run_scene() {
     local variant=scalar_rgb hash ref ref_label
     [ "$LLVM" = 1 ] && variant=llvm_ad_rgb
     hash=$(cat "$scene" bench/mitsuba_render.py bench/gltf_scene.py | sha256sum | cut -c1-12)
-    ref=$REF_DIR/$key-${WIDTH}x${HEIGHT}-${REF_SPP}spp-$hash.exr
+    ref=$REF_DIR/$key-${WIDTH}x${HEIGHT}-${ref_spp}spp-$hash.exr
     if [ ! -f "$ref" ]; then
-        say "rendering the reference once: Mitsuba $variant, $REF_SPP spp -> $ref"
-        mitsuba "$scene" "$variant" "$REF_SPP" "$REF_SEED" "$ref.tmp.exr" reference
+        say "rendering the reference once: Mitsuba $variant, $ref_spp spp -> $ref"
+        mitsuba "$scene" "$variant" "$ref_spp" "$REF_SEED" "$ref.tmp.exr" reference
         mv "$ref.tmp.exr" "$ref"
         grep '^BENCH_JSON ' "$SOUT/reference.log" | sed 's/^BENCH_JSON //' > "$ref.json"
     fi
-    ref_label="Mitsuba $(sed -n 's/.*"variant": "\([a-z_]*\)".*/\1/p' "$ref.json" 2>/dev/null || echo "$variant"), $REF_SPP spp, path max_depth -1 ($(basename "$ref"))"
+    ref_label="Mitsuba $(sed -n 's/.*"variant": "\([a-z_]*\)".*/\1/p' "$ref.json" 2>/dev/null || echo "$variant"), $ref_spp spp, path max_depth -1 ($(basename "$ref"))"
 
     # raytile: the render time from its summary, and the whole process.
     if [ "$RAYTILE_OK" = 1 ]; then
@@ -281,7 +283,8 @@ printf '%s\n%s\n' "machine: $MACHINE" "date: $STARTED" >&2
 for key in $SCENES; do
     case "$key" in
         cornell)
-            run_scene cornell "$CORNELL" "Cornell box (../shared/scenes/cornell-box.gltf, 36 triangles)" ;;
+            run_scene cornell "$CORNELL" "Cornell box (../shared/scenes/cornell-box.gltf, 36 triangles)" \
+                "$REF_SPP" ;;
         sphere)
             mesh_hash=$(printf '%s\n' "$MESH_TRIANGLES" | cat - scripts/make-mesh-glb.py "$CORNELL" \
                 | sha256sum | cut -c1-12)
@@ -292,9 +295,10 @@ for key in $SCENES; do
                 mv "$mesh.tmp" "$mesh"
             fi
             triangles=$(python3 -c "import math, sys; g = math.ceil(math.sqrt($MESH_TRIANGLES / 2)); print(2 * g * g)")
-            run_scene cornell-sphere "$mesh" "Cornell box with a bumpy sphere of $triangles triangles (scripts/make-mesh-glb.py --cornell, $(basename "$mesh"))" "$triangles" ;;
+            run_scene cornell-sphere "$mesh" "Cornell box with a bumpy sphere of $triangles triangles (scripts/make-mesh-glb.py --cornell, $(basename "$mesh"))" \
+                "${REF_SPP_SPHERE:-$REF_SPP}" "$triangles" ;;
         custom)
-            run_scene "$(basename "${SCENE%.*}")" "$SCENE" "$(basename "$SCENE")" ;;
+            run_scene "$(basename "${SCENE%.*}")" "$SCENE" "$(basename "$SCENE")" "$REF_SPP" ;;
     esac
 done
 
