@@ -7,10 +7,10 @@
 #                     [--smoke] [--no-bvh] [--no-crosscheck]
 #
 # The same settings can come from the environment: SPP, THREADS, SEED, REF_SPP, REF_SPP_SPHERE
-# (the sphere's reference, default REF_SPP), SCENES (cornell,
-# sphere or "cornell sphere"), BVH=0, CROSSCHECK=0, MESH_TRIANGLES, SCENE (one other glTF scene
-# instead of both), RAYTILE_BIN (use this binary instead of building). See bench/README.md for
-# what it installs, the columns and timings.
+# (the sphere's reference; default REF_SPP), SCENES (cornell, sphere or "cornell sphere"),
+# BVH=0, CROSSCHECK=0, MESH_TRIANGLES, SCENE (one other glTF scene instead of both),
+# RAYTILE_BIN (use this binary instead of building). See bench/README.md for what it installs,
+# the columns and timings.
 # Exit status: 0 on success (a missing optional renderer is a skip with a message),
 # non-zero on a real failure (a renderer crashing, means more than 5 sigma apart, ...).
 set -euo pipefail
@@ -44,7 +44,7 @@ while [ $# -gt 0 ]; do
         --smoke) SPP=4; REF_SPP=64; REF_SPP_SPHERE=64; CROSSCHECK=0; BVH=0; shift ;;
         --no-bvh) BVH=0; shift ;;
         --no-crosscheck) CROSSCHECK=0; shift ;;
-        -h|--help) sed -n '2,14p' "$0"; exit 0 ;;
+        -h|--help) sed -n '2,15p' "$0"; exit 0 ;;
         *) echo "run.sh: unknown argument '$1' (try --help)" >&2; exit 2 ;;
     esac
 done
