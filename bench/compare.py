@@ -1,12 +1,14 @@
 """Compare renders against a converged reference; print the table and write Markdown.
 
     python bench/compare.py --rows ROWS.jsonl --reference REF.exr --reference-label TEXT \
-        --markdown OUT.md [--extra FILE]...
+        --markdown OUT.md [--title TEXT] [--note TEXT]...
 
 ROWS.jsonl has one JSON object per renderer: name, exr, seconds, spp, threads, note.
 For each: render seconds, samples/s, mean of each channel, the mean's offset from the
 reference in standard errors (z), RMSE against the reference and the efficiency
-1/(MSE x seconds) relative to the baseline row (raytile's render time if present).
+1/(MSE x seconds) relative to the baseline row (raytile's render time if present), and
+raytile's standing against the issue's goals: samples/s vs Mitsuba llvm_ad_rgb (>= 1.5x),
+efficiency vs Cycles (>= 2x).
 Exit status 1 if any channel's mean is more than FAIL_SIGMA standard errors off.
 """
 
@@ -19,6 +21,9 @@ import numpy as np
 
 WARN_SIGMA = 4.0
 FAIL_SIGMA = 5.0
+# (row, what to compare, raytile's goal as a multiple of that row's)
+GOALS = [("mitsuba llvm_ad_rgb", "msamples_per_s", "samples/s", 1.5),
+         ("cycles", "efficiency", "efficiency", 2.0)]
 
 
 def read_exr(path):
@@ -68,10 +73,27 @@ def evaluate(rows, ref):
     base = next((r for r in rows if r["name"] == "raytile"), rows[0])
     for row in rows:
         row["relative_efficiency"] = row["efficiency"] / base["efficiency"]
+        row["relative_speed"] = row["msamples_per_s"] / base["msamples_per_s"]
     return base["name"]
 
 
-HEADER = ["renderer", "threads", "spp", "render s", "Msamples/s", "mean R", "mean G",
+def goal_lines(rows):
+    """raytile's samples/s and efficiency as multiples of the goal rows'."""
+    by_name = {r["name"]: r for r in rows}
+    raytile = by_name.get("raytile")
+    if raytile is None:
+        return []
+    out = []
+    for name, key, label, goal in GOALS:
+        if name in by_name:
+            ratio = raytile[key] / by_name[name][key]
+            verdict = "met" if ratio >= goal else "not met"
+            out.append(f"raytile's {label} = {ratio:.2f} × that of {name} "
+                       f"(goal ≥ {goal:g}×: {verdict}).")
+    return out
+
+
+HEADER = ["renderer", "threads", "spp", "render s", "Msamples/s", "speed", "mean R", "mean G",
           "mean B", "max |z|", "RMSE", "efficiency"]
 
 
@@ -82,18 +104,21 @@ def table_rows(rows):
         zmax = float(np.max(np.abs(r["z"])))
         flag = " **!!**" if zmax > WARN_SIGMA else ""
         out.append([r["name"], str(r["threads"]), str(r["spp"]), f"{r['seconds']:.3f}",
-                    f"{r['msamples_per_s']:.3f}", *means, f"{zmax:.2f}{flag}",
+                    f"{r['msamples_per_s']:.3f}", f"{r['relative_speed']:.3f}", *means, f"{zmax:.2f}{flag}",
                     f"{math.sqrt(r['mse']):.5f}", f"{r['relative_efficiency']:.3f}"])
     return out
 
 
-def markdown(rows, ref_label, ref_mean, base_name, notes):
+def markdown(rows, ref_label, ref_mean, base_name, notes, title=None):
     header = [h.replace("|", "\\|") for h in HEADER]
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(HEADER)]
+    lines = [f"## {title}", ""] if title else []
+    lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(HEADER)]
     lines += ["| " + " | ".join(cells) + " |" for cells in table_rows(rows)]
     lines += ["", f"Reference: {ref_label}; its mean RGB "
               + ", ".join(f"{m:.5f}" for m in ref_mean) + ".",
-              f"Efficiency = 1/(MSE × render seconds), relative to {base_name}.",
+              f"Speed = Msamples/s and efficiency = 1/(MSE × render seconds), both "
+              f"relative to {base_name}'s.",
+              *goal_lines(rows),
               "Means are ± one standard error; |z| = |mean − reference mean| / standard "
               f"error, worst channel (flagged **!!** above {WARN_SIGMA:g}σ, a failure above "
               f"{FAIL_SIGMA:g}σ)."]
@@ -114,6 +139,7 @@ def main():
     p.add_argument("--reference-label", default="reference")
     p.add_argument("--markdown", required=True)
     p.add_argument("--note", action="append", default=[])
+    p.add_argument("--title", help="heading of the Markdown table (the scene)")
     args = p.parse_args()
     with open(args.rows) as f:
         rows = [json.loads(line) for line in f if line.strip()]
@@ -123,11 +149,14 @@ def main():
     ref = read_exr(args.reference)
     base = evaluate(rows, ref)
     notes = args.note + [r["note"] for r in rows if r.get("note")]
-    text = markdown(rows, args.reference_label, ref.reshape(-1, 3).mean(axis=0), base, notes)
+    text = markdown(rows, args.reference_label, ref.reshape(-1, 3).mean(axis=0), base, notes,
+                    args.title)
     with open(args.markdown, "w") as f:
         f.write(text)
+    if args.title:
+        print(args.title)
     print(plain(rows))
-    print("\n".join(text.splitlines()[len(rows) + 2:]))
+    print("\n".join(text.splitlines()[len(rows) + 2 + (2 if args.title else 0):]))
     worst = max(float(np.max(np.abs(r["z"]))) for r in rows)
     for r in rows:
         z = float(np.max(np.abs(r["z"])))

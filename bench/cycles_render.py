@@ -14,12 +14,17 @@ Imports the glTF with Blender's own importer, then:
 - black world, box pixel filter 1 px wide, no clamping, no adaptive sampling, no
   denoising, 64 bounces of every kind, light threshold 0, fixed seed and thread count;
 - renders once at 1 spp (device and kernel start-up), then times the real render only.
-Writes OUT.exr (32-bit float, linear) and prints `BENCH_JSON {...}` on stdout.
+Writes OUT.exr (32-bit float, linear) and prints two `BENCH_JSON {...}` lines on stdout: the
+sampling time alone (row "cycles"), and the whole render call with the scene sync and BVH build.
 """
 
 import argparse
+import ctypes
 import json
+import os
+import re
 import sys
+import tempfile
 import time
 
 import numpy
@@ -150,11 +155,54 @@ def use_gltf_camera(scene):
     return cameras[0]
 
 
+STATS_TIME = re.compile(r"\| Time:(?:(\d+):)?(\d+):(\d+(?:\.\d+)?) \|")
+
+
+def stats_seconds(line):
+    """Cycles' own clock on a render statistics line (`Time:MM:SS.ss`, hours if any)."""
+    m = STATS_TIME.search(line)
+    if not m:
+        return None
+    hours, minutes, seconds = m.groups()
+    return int(hours or 0) * 3600 + int(minutes) * 60 + float(seconds)
+
+
+def sampling_seconds(stats):
+    """Seconds from the first statistics line naming a sample ("Sample 0/N", when the scene
+    sync and BVH build are done) to the last one, by Cycles' clock; None if not found."""
+    lines = [ln for ln in stats.splitlines() if stats_seconds(ln) is not None]
+    first = next((ln for ln in lines if "| Sample " in ln), None)
+    if first is None:
+        return None
+    return stats_seconds(lines[-1]) - stats_seconds(first)
+
+
 def timed_render(scene, spp):
+    """(seconds of the whole render call, seconds of it spent sampling, or None).
+
+    The call includes Cycles' scene sync and BVH build (seconds on a million triangles). Its
+    statistics lines, which Blender prints on stdout, are captured to find the sampling time,
+    then printed as usual."""
     scene.cycles.samples = spp
-    start = time.perf_counter()
-    bpy.ops.render.render(write_still=False)
-    return time.perf_counter() - start
+    libc = ctypes.CDLL(None)
+    sys.stdout.flush()
+    libc.fflush(None)
+    saved = os.dup(1)
+    with tempfile.TemporaryFile() as log:
+        os.dup2(log.fileno(), 1)
+        try:
+            start = time.perf_counter()
+            bpy.ops.render.render(write_still=False)
+            total = time.perf_counter() - start
+        finally:
+            sys.stdout.flush()
+            libc.fflush(None)
+            os.dup2(saved, 1)
+            os.close(saved)
+        log.seek(0)
+        stats = log.read().decode(errors="replace")
+    sys.stdout.write(stats)
+    return total, sampling_seconds(stats)
 
 
 def main():
@@ -165,15 +213,25 @@ def main():
     black_world(scene)
     configure_cycles(scene, args)
     camera = use_gltf_camera(scene)
-    warmup = timed_render(scene, 1)
-    seconds = timed_render(scene, args.spp)
+    warmup, _ = timed_render(scene, 1)
+    total, sampling = timed_render(scene, args.spp)
+    seconds = total if sampling is None else sampling
     bpy.data.images["Render Result"].save_render(args.out)
-    print("BENCH_JSON " + json.dumps({
+    row = {
         "name": args.name, "exr": args.out, "renderer": "cycles", "version": bpy.app.version_string, "spp": args.spp,
         "threads": scene.render.threads, "sampling_pattern": scene.cycles.sampling_pattern,
-        "seconds": seconds, "warmup_seconds": warmup,
+        "seconds": seconds, "render_call_seconds": total, "sampling_found": sampling is not None,
+        "warmup_seconds": warmup,
         "camera_fov_y_deg": camera.data.angle_y * 180 / 3.141592653589793,
-        "camera_sensor_fit": camera.data.sensor_fit, "materials": materials}), flush=True)
+        "camera_sensor_fit": camera.data.sensor_fit, "materials": materials}
+    print("BENCH_JSON " + json.dumps(row), flush=True)
+    # The same image timed with the scene sync and BVH build in (the whole render call).
+    print("BENCH_JSON " + json.dumps({
+        **row, "name": f"{args.name} (sync + BVH + render)", "seconds": total,
+        "note": f"{args.name} (sync + BVH + render): the whole render call, Cycles' scene sync "
+                "and BVH build included; the cycles row times the sampling alone (from the "
+                "first 'Sample 0/N' to the last statistics line, by Cycles' clock)."}),
+        flush=True)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """Minimal glTF 2.0 reader for the benchmark scenes (numpy only).
 
-Reads a self-contained .gltf (buffers as base64 data URIs, or .bin files beside it),
-walks the node hierarchy and returns triangle meshes in world space, their materials
+Reads a self-contained .gltf (buffers as base64 data URIs, or .bin files beside it) or a
+binary .glb (buffer 0 in its BIN chunk), walks the node hierarchy and returns triangle meshes in world space, their materials
 and the first camera. Only what the benchmark scenes use is supported: triangle
 primitives, float positions/normals, integer indices, constant material factors.
 """
@@ -10,6 +10,7 @@ import base64
 import json
 import math
 import os
+import struct
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,10 +51,12 @@ class Scene:
 
 
 def load(path):
-    """Parse a glTF file into a Scene with everything in world space."""
-    with open(path) as f:
-        gltf = json.load(f)
-    buffers = [_load_buffer(b, os.path.dirname(path)) for b in gltf["buffers"]]
+    """Parse a glTF file (.gltf or .glb) into a Scene with everything in world space."""
+    with open(path, "rb") as f:
+        data = f.read()
+    gltf, bin_chunk = _split_glb(path, data) if data[:4] == b"glTF" else (json.loads(data), None)
+    buffers = [_load_buffer(b, os.path.dirname(path), bin_chunk if k == 0 else None)
+               for k, b in enumerate(gltf["buffers"])]
     materials = [_material(m) for m in gltf.get("materials", [])]
     meshes, cameras = [], []
     scene = gltf["scenes"][gltf.get("scene", 0)]
@@ -64,8 +67,31 @@ def load(path):
     return Scene(meshes, cameras[0])
 
 
-def _load_buffer(buffer, base_dir):
-    uri = buffer["uri"]
+def _split_glb(path, data):
+    """(JSON document, BIN chunk or None) of a binary glTF."""
+    magic, version, length = struct.unpack_from("<III", data, 0)
+    if version != 2 or length > len(data):
+        raise ValueError(f"{path}: not a glTF 2.0 binary (version {version}, length {length})")
+    doc, binary, offset = None, None, 12
+    while offset + 8 <= length:
+        size, kind = struct.unpack_from("<II", data, offset)
+        chunk = memoryview(data)[offset + 8:offset + 8 + size]
+        if kind == 0x4E4F534A:
+            doc = json.loads(bytes(chunk))
+        elif kind == 0x004E4942 and binary is None:
+            binary = chunk
+        offset += 8 + size
+    if doc is None:
+        raise ValueError(f"{path}: no JSON chunk")
+    return doc, binary
+
+
+def _load_buffer(buffer, base_dir, bin_chunk):
+    uri = buffer.get("uri")
+    if uri is None:
+        if bin_chunk is None:
+            raise ValueError("a buffer without a uri needs the BIN chunk of a .glb")
+        return bin_chunk
     if uri.startswith("data:"):
         return base64.b64decode(uri.split(",", 1)[1])
     with open(os.path.join(base_dir, uri), "rb") as f:
@@ -122,9 +148,14 @@ def _accessor(gltf, buffers, index):
     width = TYPE_SIZES[acc["type"]]
     offset = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
     stride = view.get("byteStride", width * dtype.itemsize)
-    data = buffers[view["buffer"]]
-    rows = [np.frombuffer(data, dtype, width, offset + i * stride) for i in range(acc["count"])]
-    return np.array(rows).reshape(acc["count"], width)
+    data, count = buffers[view["buffer"]], acc["count"]
+    if count == 0:
+        return np.zeros((0, width), dtype)
+    # Rows `stride` bytes apart, `width` components each: one strided view, then one copy.
+    needed = (count - 1) * stride + width * dtype.itemsize
+    raw = np.frombuffer(data, np.uint8, needed, offset)
+    rows = np.lib.stride_tricks.as_strided(raw, (count, width * dtype.itemsize), (stride, 1))
+    return np.ascontiguousarray(rows).view(dtype).reshape(count, width)
 
 
 def _primitive(gltf, buffers, materials, prim, world, name):

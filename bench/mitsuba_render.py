@@ -64,6 +64,9 @@ def bsdf_dict(material):
 
 def shape_dict(path, mesh):
     shape = {"type": "ply", "filename": path, "bsdf": bsdf_dict(mesh.material)}
+    if mesh.normals is None:
+        # glTF without NORMAL means flat shading; Mitsuba would compute smooth vertex normals.
+        shape["face_normals"] = True
     if any(c > 0 for c in mesh.material.emission):
         # Mitsuba's area emitter is one-sided: it emits on the side the normal faces,
         # which is the counter-clockwise (glTF front) side, as check_winding verified.
