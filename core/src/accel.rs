@@ -1,6 +1,7 @@
 //! The bounding-volume hierarchy: a 4- or 8-wide BVH with uncompressed single-precision child
 //! bounds, traversed with one SIMD slab test per node (all children at once: SSE through glam's
-//! `Vec4` for four, AVX2 for eight when the CPU has it, chosen at run time by [`Width::native`]):
+//! `Vec4` for four; eight with AVX2 when the CPU has it, detected at run time, two 4-lane tests
+//! otherwise):
 //! the leaves a ray enters are intersected at once, and traversal descends into the
 //! nearest inner child, pushing the others (no sorting: on random rays its branches were the
 //! most mispredicted of the renderer). obvhs builds it: a PLOC binary BVH, reinsertion
@@ -550,9 +551,11 @@ impl Bvh {
     }
 
     /// Builds with explicit obvhs parameters (leaves hold at most 4 primitives: the triangle
-    /// packets are four wide), nodes of the CPU's [`Width::native`].
+    /// packets are four wide), 4-wide nodes: 8-wide ones ([`Width::native`] with AVX2) find
+    /// the same hits, and become the default once an optimised build measures them faster
+    /// (`raytile bench --width 4 --width 8`).
     pub fn build_with(bounds: &[Aabb], params: BvhBuildParams) -> (Self, Vec<u32>) {
-        Self::build_wide(bounds, params, Width::native())
+        Self::build_wide(bounds, params, Width::Four)
     }
 
     /// [`Bvh::build_with`] with nodes of the given width. The slot order and the leaves do not
