@@ -10,7 +10,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use glam::{Vec2, Vec3A};
 use rayon::prelude::*;
-use raytile_core::accel::{Bvh, PRESETS};
+use raytile_core::accel::{Bvh, BvhBuildParams, PlocSearchDistance, SortPrecision, Width, PRESETS};
 use raytile_core::geometry::triangle::{Tri4, TriangleGeom};
 use raytile_core::geometry::{Aabb, Ray};
 use raytile_core::sampling::hash_u32;
@@ -42,6 +42,57 @@ pub struct BenchArgs {
     /// Skip the BVH build benchmark.
     #[arg(long)]
     pub no_bvh: bool,
+    /// BVH builds to measure (repeatable; default every preset): a preset name, or
+    /// `fast_build` changed by `key=value` pairs, e.g. `search=14,threshold=3,reinsert=0.05,post=2`
+    /// (keys: search 1/2/6/14/24/32, threshold, reinsert, post, sort 64/128, leaf, cost).
+    #[arg(long = "build")]
+    pub builds: Vec<String>,
+    /// Node widths to measure the BVH builds with (repeatable: 4, 8; default both).
+    #[arg(long = "width")]
+    pub widths: Vec<u32>,
+}
+
+/// The obvhs parameters a `--build` names.
+fn build_params(spec: &str) -> Result<BvhBuildParams> {
+    if let Some((_, p)) = PRESETS.iter().find(|(n, _)| *n == spec) {
+        return Ok(*p);
+    }
+    let mut p = BvhBuildParams::fast_build();
+    for kv in spec.split(',') {
+        let (k, v) = kv
+            .split_once('=')
+            .with_context(|| format!("--build {spec}: `{kv}` is not key=value"))?;
+        let bad = || format!("--build {spec}: bad value in `{kv}`");
+        match k {
+            "search" => {
+                p.ploc_search_distance = match v {
+                    "1" => PlocSearchDistance::Minimum,
+                    "2" => PlocSearchDistance::VeryLow,
+                    "6" => PlocSearchDistance::Low,
+                    "14" => PlocSearchDistance::Medium,
+                    "24" => PlocSearchDistance::High,
+                    "32" => PlocSearchDistance::VeryHigh,
+                    _ => anyhow::bail!(bad()),
+                }
+            }
+            "threshold" => p.search_depth_threshold = v.parse().with_context(bad)?,
+            "reinsert" => p.reinsertion_batch_ratio = v.parse().with_context(bad)?,
+            "post" => {
+                p.post_collapse_reinsertion_batch_ratio_multiplier = v.parse().with_context(bad)?
+            }
+            "sort" => {
+                p.sort_precision = match v {
+                    "64" => SortPrecision::U64,
+                    "128" => SortPrecision::U128,
+                    _ => anyhow::bail!(bad()),
+                }
+            }
+            "leaf" => p.max_prims_per_leaf = v.parse().with_context(bad)?,
+            "cost" => p.collapse_traversal_cost = v.parse().with_context(bad)?,
+            _ => anyhow::bail!("--build {spec}: unknown key `{k}`"),
+        }
+    }
+    Ok(p)
 }
 
 fn rnd(i: u32) -> f32 {
@@ -186,41 +237,63 @@ pub fn run(args: BenchArgs) -> Result<()> {
             Ray::new(o, d)
         })
         .collect();
-    for (name, params) in PRESETS {
-        let t = Instant::now();
-        let (bvh, order) = Bvh::build_with(&bounds, params);
-        let build = t.elapsed().as_secs_f64();
-        let ordered: Vec<TriangleGeom> = order.iter().map(|&i| tris[i as usize]).collect();
-        // As the renderer does: each leaf's triangles packed for the 4-wide test.
-        let packets: Vec<Tri4> = bvh
-            .leaves()
-            .iter()
-            .map(|&(start, count)| Tri4::new(&ordered[start as usize..(start + count) as usize]))
-            .collect();
-        let mut figures = Vec::new();
-        for rays in [&coherent, &incoherent] {
+    let builds: Vec<String> = if args.builds.is_empty() {
+        PRESETS.iter().map(|(n, _)| n.to_string()).collect()
+    } else {
+        args.builds.clone()
+    };
+    let widths = if args.widths.is_empty() {
+        vec![4, 8]
+    } else {
+        args.widths.clone()
+    };
+    for name in &builds {
+        let params = build_params(name)?;
+        for &w in &widths {
+            let width = match w {
+                4 => Width::Four,
+                8 => Width::Eight,
+                _ => anyhow::bail!("--width {w}: 4 or 8"),
+            };
             let t = Instant::now();
-            let hits: usize = rays
-                .par_chunks(4096)
-                .map(|c| {
-                    c.iter()
-                        .filter(|r| {
-                            bvh.closest_leaves(r, f32::INFINITY, |leaf, start, _, tmax| {
-                                packets[leaf as usize]
-                                    .intersect(r.o, r.d, 0.0, tmax)
-                                    .map(|(lane, t, _, _)| (start as usize + lane, t))
-                            })
-                            .is_some()
-                        })
-                        .count()
+            let (bvh, order) = Bvh::build_wide(&bounds, params, width);
+            let build = t.elapsed().as_secs_f64();
+            let ordered: Vec<TriangleGeom> = order.iter().map(|&i| tris[i as usize]).collect();
+            // As the renderer does: each leaf's triangles packed for the 4-wide test.
+            let packets: Vec<Tri4> = bvh
+                .leaves()
+                .iter()
+                .map(|&(start, count)| {
+                    Tri4::new(&ordered[start as usize..(start + count) as usize])
                 })
-                .sum();
-            figures.push((mrays(rays.len(), t.elapsed().as_secs_f64()), hits));
+                .collect();
+            let mut figures = Vec::new();
+            for rays in [&coherent, &incoherent] {
+                let t = Instant::now();
+                let hits: usize = rays
+                    .par_chunks(4096)
+                    .map(|c| {
+                        c.iter()
+                            .filter(|r| {
+                                bvh.closest_leaves(r, f32::INFINITY, |leaf, start, _, tmax| {
+                                    packets[leaf as usize]
+                                        .intersect(r.o, r.d, 0.0, tmax)
+                                        .map(|(lane, t, _, _)| (start as usize + lane, t))
+                                })
+                                .is_some()
+                            })
+                            .count()
+                    })
+                    .sum();
+                figures.push((mrays(rays.len(), t.elapsed().as_secs_f64()), hits));
+            }
+            let (sah_nodes, sah_leaves) = bvh.sah_cost();
+            println!(
+                "| BVH {name}, {w}-wide, {} triangles | build {:.3} s; {:.2} Mrays/s coherent, {:.2} Mrays/s incoherent; {} nodes, {} leaves, {:.1} MB; SAH {:.2} nodes + {:.2} leaves |",
+                tris.len(), build, figures[0].0, figures[1].0, bvh.node_count(), bvh.leaves().len(),
+                bvh.memory_bytes() as f64 / 1e6, sah_nodes, sah_leaves
+            );
         }
-        println!(
-            "| BVH {name}, {} triangles | build {:.3} s; {:.2} Mrays/s coherent, {:.2} Mrays/s incoherent |",
-            tris.len(), build, figures[0].0, figures[1].0
-        );
     }
     Ok(())
 }

@@ -1,10 +1,12 @@
-//! The bounding-volume hierarchy: a 4-wide BVH with uncompressed single-precision child bounds,
-//! traversed with one SIMD slab test per node (four children at once, SSE through glam's
-//! `Vec4`): the leaves a ray enters are intersected at once, and traversal descends into the
+//! The bounding-volume hierarchy: a 4- or 8-wide BVH with uncompressed single-precision child
+//! bounds, traversed with one SIMD slab test per node (all children at once: SSE through glam's
+//! `Vec4` for four; eight with AVX2 when the CPU has it, detected at run time, two 4-lane tests
+//! otherwise):
+//! the leaves a ray enters are intersected at once, and traversal descends into the
 //! nearest inner child, pushing the others (no sorting: on random rays its branches were the
 //! most mispredicted of the renderer). obvhs builds it: a PLOC binary BVH, reinsertion
 //! optimisation and SAH leaf collapsing ([`obvhs::bvh2::builder::build_bvh2`]); we then collapse
-//! the binary tree into 4-wide nodes, always opening the child with the largest surface area
+//! the binary tree into wide nodes, always opening the child with the largest surface area
 //! (Embree's and pbrt's way of making wide BVHs from binary ones). This is the only module that
 //! talks to obvhs.
 //!
@@ -20,7 +22,10 @@
 //! Robustness: the slab test is conservative (pbrt's `1 + 2γ₃` scaling of the far distance; a
 //! slab whose distance is NaN, a ray lying in a bounding plane, does not cull), so every
 //! primitive a ray can hit is offered to the closure, whatever the rounding. Which primitive is
-//! the nearest is decided by the primitive tests alone.
+//! the nearest is decided by the primitive tests alone, and among hits at the same distance by
+//! the lowest slot (not by the order leaves are visited in, which depends on the width): so
+//! every CPU renders the same bits whichever width it traverses. The 8-wide node tests its
+//! lanes with exactly the arithmetic of the 4-wide one (same roundings, same NaN rules, no FMA).
 //!
 //! Primitives are identified by their *slot*: the position in BVH order. [`Bvh::build`] returns
 //! the permutation so callers can store their primitives in slot order (no indirection per hit).
@@ -28,7 +33,9 @@
 use crate::geometry::{Aabb, Ray};
 use glam::Vec4;
 use obvhs::bvh2::{builder::build_bvh2, Bvh2};
-use obvhs::BvhBuildParams;
+/// The build parameters (obvhs's), for [`Bvh::build_with`].
+pub use obvhs::ploc::{PlocSearchDistance, SortPrecision};
+pub use obvhs::BvhBuildParams;
 use std::mem::MaybeUninit;
 use std::time::Duration;
 
@@ -55,16 +62,22 @@ const EMPTY: u32 = u32::MAX;
 /// test conservative under rounding.
 const FAR_SCALE: f32 = 1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
 
-/// Four children: their bounds as SIMD lanes, and what each lane is.
+/// Traversal culls boxes entered beyond `tmax · CULL`, not `tmax`: a triangle's computed hit
+/// distance can lie a few ulps before the computed entry of its own box (a ray through a vertex,
+/// a grazing ray), and such a hit must still be found, whatever the best hit so far (so that
+/// the result does not depend on the order leaves are visited in). Costs a few leaves more.
+const CULL: f32 = 1.0 + 1.0 / 4096.0;
+
+/// `N` children (4 or 8): their bounds as SIMD lanes, and what each lane is.
 #[derive(Clone, Copy, Debug)]
 #[repr(C, align(64))]
-struct Node4 {
-    /// `bounds[2 * axis]` holds the four children's minima on `axis`, `bounds[2 * axis + 1]`
-    /// their maxima. Empty lanes hold an empty box (min +∞, max −∞), which no ray enters.
-    bounds: [Vec4; 6],
+struct Node<const N: usize> {
+    /// `bounds[2 * axis]` holds the children's minima on `axis`, `bounds[2 * axis + 1]` their
+    /// maxima. Empty lanes hold an empty box (min +∞, max −∞), which no ray enters.
+    bounds: [[f32; N]; 6],
     /// Internal child: its node index. Leaf: its index in [`Bvh::leaves`]. Empty lane:
     /// [`EMPTY`].
-    child: [u32; 4],
+    child: [u32; N],
     /// Bit `lane` set: that child is a leaf.
     leaf_mask: u32,
     /// Bit `lane` set: that child is an internal node. (Empty lanes are in neither mask, so
@@ -72,20 +85,67 @@ struct Node4 {
     inner_mask: u32,
 }
 
-impl Node4 {
+impl<const N: usize> Node<N> {
     const EMPTY: Self = Self {
         bounds: [
-            Vec4::INFINITY,
-            Vec4::NEG_INFINITY,
-            Vec4::INFINITY,
-            Vec4::NEG_INFINITY,
-            Vec4::INFINITY,
-            Vec4::NEG_INFINITY,
+            [f32::INFINITY; N],
+            [f32::NEG_INFINITY; N],
+            [f32::INFINITY; N],
+            [f32::NEG_INFINITY; N],
+            [f32::INFINITY; N],
+            [f32::NEG_INFINITY; N],
         ],
-        child: [EMPTY; 4],
+        child: [EMPTY; N],
         leaf_mask: 0,
         inner_mask: 0,
     };
+}
+
+/// Node width of a [`Bvh`]: how many children each node tests at once.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Width {
+    /// Four children per node, one SSE slab test (every CPU: SSE2 is baseline on x86-64,
+    /// and glam's portable lanes elsewhere).
+    Four,
+    /// Eight children per node, one AVX2 slab test when the CPU has AVX2 (two 4-lane tests
+    /// otherwise).
+    Eight,
+}
+
+impl Width {
+    /// The width traversal is fastest with on this CPU: eight with AVX2, four otherwise. Both
+    /// find the same hits to the bit (see [`Bvh::closest_leaves`]), so the choice is speed only.
+    pub fn native() -> Self {
+        if avx2() {
+            Width::Eight
+        } else {
+            Width::Four
+        }
+    }
+}
+
+/// Whether this CPU has AVX2 (detected once; the standard library caches it).
+#[inline]
+fn avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// The next float above a positive finite `t` (`f32::next_up`, which needs Rust 1.86); other
+/// values are returned as they are.
+#[inline(always)]
+fn next_above(t: f32) -> f32 {
+    if t > 0.0 && t < f32::INFINITY {
+        f32::from_bits(t.to_bits() + 1)
+    } else {
+        t
+    }
 }
 
 /// A ray prepared for slab tests: origin and reciprocal direction splatted across lanes, and
@@ -112,25 +172,129 @@ impl SlabRay {
         }
     }
 
-    /// Entry distances of the four children and the mask of those the ray enters within
-    /// (0, `tmax`).
+    /// Entry distances of the four children in lanes `at..at + 4` of `b` and the mask of those
+    /// the ray enters within (0, `tmax`).
     #[inline(always)]
-    fn test(&self, node: &Node4, tmax: f32) -> (Vec4, u32) {
-        let b = &node.bounds;
+    fn test<const N: usize>(&self, b: &[[f32; N]; 6], at: usize, tmax: f32) -> (Vec4, u32) {
         // Indices built from bools so that the compiler sees them in bounds (no checks).
         let [nx, ny, nz] = self.neg.map(usize::from);
         let [fx, fy, fz] = self.neg.map(|n| usize::from(!n));
-        let tn_x = (b[nx] - self.o[0]) * self.inv[0];
-        let tf_x = (b[fx] - self.o[0]) * self.inv[0];
-        let tn_y = (b[2 + ny] - self.o[1]) * self.inv[1];
-        let tf_y = (b[2 + fy] - self.o[1]) * self.inv[1];
-        let tn_z = (b[4 + nz] - self.o[2]) * self.inv[2];
-        let tf_z = (b[4 + fz] - self.o[2]) * self.inv[2];
+        let l = |row: &[f32; N]| Vec4::from_slice(&row[at..at + 4]);
+        let tn_x = (l(&b[nx]) - self.o[0]) * self.inv[0];
+        let tf_x = (l(&b[fx]) - self.o[0]) * self.inv[0];
+        let tn_y = (l(&b[2 + ny]) - self.o[1]) * self.inv[1];
+        let tf_y = (l(&b[2 + fy]) - self.o[1]) * self.inv[1];
+        let tn_z = (l(&b[4 + nz]) - self.o[2]) * self.inv[2];
+        let tf_z = (l(&b[4 + fz]) - self.o[2]) * self.inv[2];
         // max/min return their second operand when the first is NaN (0·∞: the ray lies in a
         // bounding plane), so a NaN slab never culls: candidates come first, accumulators second.
         let tnear = tn_x.max(tn_y.max(tn_z.max(Vec4::ZERO)));
         let tfar = tf_x.min(tf_y.min(tf_z.min(Vec4::splat(tmax)))) * FAR_SCALE;
         (tnear, tnear.cmple(tfar).bitmask())
+    }
+
+    /// [`SlabRay::test`] of a 4-wide node.
+    #[inline(always)]
+    fn test4(&self, n: &Node<4>, tmax: f32) -> ([f32; 4], u32) {
+        let (t, m) = self.test(&n.bounds, 0, tmax);
+        (t.to_array(), m)
+    }
+
+    /// An 8-wide node as two 4-wide tests (the lanes compute exactly what the AVX2 test
+    /// computes).
+    #[inline(always)]
+    fn test8(&self, n: &Node<8>, tmax: f32) -> ([f32; 8], u32) {
+        let (lo, ml) = self.test(&n.bounds, 0, tmax);
+        let (hi, mh) = self.test(&n.bounds, 4, tmax);
+        let (lo, hi) = (lo.to_array(), hi.to_array());
+        (
+            [lo[0], lo[1], lo[2], lo[3], hi[0], hi[1], hi[2], hi[3]],
+            ml | (mh << 4),
+        )
+    }
+}
+
+/// The 8-wide slab test with AVX2.
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use super::{Node, FAR_SCALE};
+    use crate::geometry::Ray;
+    use std::arch::x86_64::*;
+
+    /// (bounds − origin) · reciprocal direction, for eight bounds.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn slab(row: &[f32; 8], o: __m256, inv: __m256) -> __m256 {
+        // SAFETY: `row` is eight floats.
+        _mm256_mul_ps(
+            _mm256_sub_ps(unsafe { _mm256_loadu_ps(row.as_ptr()) }, o),
+            inv,
+        )
+    }
+
+    /// [`super::SlabRay`] with eight lanes.
+    pub(super) struct SlabRay8 {
+        o: [__m256; 3],
+        inv: [__m256; 3],
+        neg: [bool; 3],
+    }
+
+    impl SlabRay8 {
+        /// # Safety
+        /// The CPU must have AVX2.
+        #[inline]
+        #[target_feature(enable = "avx2")]
+        pub(super) unsafe fn new(ray: &Ray) -> Self {
+            let inv = ray.d.recip();
+            Self {
+                o: [
+                    _mm256_set1_ps(ray.o.x),
+                    _mm256_set1_ps(ray.o.y),
+                    _mm256_set1_ps(ray.o.z),
+                ],
+                inv: [
+                    _mm256_set1_ps(inv.x),
+                    _mm256_set1_ps(inv.y),
+                    _mm256_set1_ps(inv.z),
+                ],
+                neg: [inv.x < 0.0, inv.y < 0.0, inv.z < 0.0],
+            }
+        }
+
+        /// Lane for lane the arithmetic of [`super::SlabRay::test`] (the same roundings, the
+        /// same operand order for min/max, so the same NaN behaviour).
+        ///
+        /// # Safety
+        /// The CPU must have AVX2.
+        #[inline]
+        #[target_feature(enable = "avx2")]
+        pub(super) unsafe fn test(&self, n: &Node<8>, tmax: f32) -> ([f32; 8], u32) {
+            let b = &n.bounds;
+            let [nx, ny, nz] = self.neg.map(usize::from);
+            let [fx, fy, fz] = self.neg.map(|n| usize::from(!n));
+            let tn_x = slab(&b[nx], self.o[0], self.inv[0]);
+            let tf_x = slab(&b[fx], self.o[0], self.inv[0]);
+            let tn_y = slab(&b[2 + ny], self.o[1], self.inv[1]);
+            let tf_y = slab(&b[2 + fy], self.o[1], self.inv[1]);
+            let tn_z = slab(&b[4 + nz], self.o[2], self.inv[2]);
+            let tf_z = slab(&b[4 + fz], self.o[2], self.inv[2]);
+            let tnear = _mm256_max_ps(
+                tn_x,
+                _mm256_max_ps(tn_y, _mm256_max_ps(tn_z, _mm256_setzero_ps())),
+            );
+            let tfar = _mm256_mul_ps(
+                _mm256_min_ps(
+                    tf_x,
+                    _mm256_min_ps(tf_y, _mm256_min_ps(tf_z, _mm256_set1_ps(tmax))),
+                ),
+                _mm256_set1_ps(FAR_SCALE),
+            );
+            let mask = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(tnear, tfar)) as u32;
+            let mut tn = [0.0f32; 8];
+            // SAFETY: `tn` holds eight floats.
+            unsafe { _mm256_storeu_ps(tn.as_mut_ptr(), tnear) };
+            (tn, mask)
+        }
     }
 }
 
@@ -181,12 +345,184 @@ impl<const N: usize> Stack<N> {
 /// Entries on the stack that live on the call stack.
 const STACK: usize = 64;
 
+/// Closest-hit traversal of `N`-wide nodes; `test` is the node's slab test. See
+/// [`Bvh::closest_leaves`].
+#[inline(always)]
+fn closest_in<const N: usize>(
+    nodes: &[Node<N>],
+    leaves: &[(u32, u32)],
+    tmax: f32,
+    leaf: &mut impl FnMut(u32, u32, u32, f32) -> Option<(usize, f32)>,
+    test: impl Fn(&Node<N>, f32) -> ([f32; N], u32),
+) -> Option<(usize, f32)> {
+    if nodes.is_empty() {
+        return None;
+    }
+    let mut tmax = tmax;
+    let mut cull = tmax * CULL;
+    let mut best: Option<usize> = None;
+    let mut stack = Stack::<STACK>::new();
+    let mut node = 0u32;
+    loop {
+        let n = &nodes[node as usize];
+        let (tn, mask) = test(n, cull);
+        // Leaves the ray enters are intersected at once (in lane order: each hit shrinks
+        // tmax, and a leaf entered beyond it, give or take `CULL`, is skipped).
+        let mut lanes = mask & n.leaf_mask;
+        while lanes != 0 {
+            let lane = lanes.trailing_zeros() as usize;
+            lanes &= lanes - 1;
+            if tn[lane] <= cull {
+                let id = n.child[lane];
+                let (start, count) = leaves[id as usize];
+                // Among hits at the same distance the lowest slot wins, whatever order the
+                // leaves come in (which depends on the node width): a leaf of lower slots than
+                // the best hit may also return a hit at exactly `tmax`.
+                let limit = match best {
+                    Some(b) if (start as usize) < b => next_above(tmax),
+                    _ => tmax,
+                };
+                if let Some((slot, th)) = leaf(id, start, count, limit) {
+                    tmax = th;
+                    cull = th * CULL;
+                    best = Some(slot);
+                }
+            }
+        }
+        // Inner children: descend into the nearest at once, push the others. No sorting
+        // and no push/pop for the common single child: fewer unpredictable branches.
+        let mut inner = mask & n.inner_mask;
+        let (mut near, mut near_t) = (EMPTY, f32::INFINITY);
+        while inner != 0 {
+            let lane = inner.trailing_zeros() as usize;
+            inner &= inner - 1;
+            let t = tn[lane];
+            if t > cull {
+                continue;
+            }
+            let c = n.child[lane];
+            if near == EMPTY {
+                (near, near_t) = (c, t);
+            } else if t < near_t {
+                stack.push((near, near_t));
+                (near, near_t) = (c, t);
+            } else {
+                stack.push((c, t));
+            }
+        }
+        if near != EMPTY {
+            node = near;
+            continue;
+        }
+        loop {
+            match stack.pop() {
+                None => return best.map(|s| (s, tmax)),
+                Some((c, t)) if t <= cull => {
+                    node = c;
+                    break;
+                }
+                Some(_) => {}
+            }
+        }
+    }
+}
+
+/// Any-hit traversal of `N`-wide nodes. See [`Bvh::any_leaves`].
+#[inline(always)]
+fn any_in<const N: usize>(
+    nodes: &[Node<N>],
+    leaves: &[(u32, u32)],
+    tmax: f32,
+    leaf: &mut impl FnMut(u32, u32, u32) -> bool,
+    test: impl Fn(&Node<N>, f32) -> ([f32; N], u32),
+) -> bool {
+    if nodes.is_empty() {
+        return false;
+    }
+    let cull = tmax * CULL;
+    let mut stack = Stack::<STACK>::new();
+    let mut node = 0u32;
+    loop {
+        let n = &nodes[node as usize];
+        let (_, mask) = test(n, cull);
+        let mut lanes = mask & n.leaf_mask;
+        while lanes != 0 {
+            let lane = lanes.trailing_zeros() as usize;
+            lanes &= lanes - 1;
+            let id = n.child[lane];
+            let (start, count) = leaves[id as usize];
+            if leaf(id, start, count) {
+                return true;
+            }
+        }
+        // Descend into the first inner child entered, push the others.
+        let mut inner = mask & n.inner_mask;
+        if inner != 0 {
+            let first = n.child[inner.trailing_zeros() as usize];
+            inner &= inner - 1;
+            while inner != 0 {
+                stack.push((n.child[inner.trailing_zeros() as usize], 0.0));
+                inner &= inner - 1;
+            }
+            node = first;
+            continue;
+        }
+        match stack.pop() {
+            None => return false,
+            Some((c, _)) => node = c,
+        }
+    }
+}
+
+/// 8-wide traversals compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+mod traverse8 {
+    use super::avx2::SlabRay8;
+    use super::{any_in, closest_in, Node};
+    use crate::geometry::Ray;
+
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn closest(
+        nodes: &[Node<8>],
+        leaves: &[(u32, u32)],
+        ray: &Ray,
+        tmax: f32,
+        leaf: &mut impl FnMut(u32, u32, u32, f32) -> Option<(usize, f32)>,
+    ) -> Option<(usize, f32)> {
+        // SAFETY: the caller checked AVX2.
+        let sr = unsafe { SlabRay8::new(ray) };
+        closest_in(nodes, leaves, tmax, leaf, |n, t| unsafe { sr.test(n, t) })
+    }
+
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn any(
+        nodes: &[Node<8>],
+        leaves: &[(u32, u32)],
+        ray: &Ray,
+        tmax: f32,
+        leaf: &mut impl FnMut(u32, u32, u32) -> bool,
+    ) -> bool {
+        // SAFETY: the caller checked AVX2.
+        let sr = unsafe { SlabRay8::new(ray) };
+        any_in(nodes, leaves, tmax, leaf, |n, t| unsafe { sr.test(n, t) })
+    }
+}
+
 /// A BVH over primitive bounds.
 #[derive(Clone, Default)]
 pub struct Bvh {
-    nodes: Vec<Node4>,
-    /// Each leaf's first slot and primitive count.
+    /// The nodes when 4 wide (else empty).
+    nodes4: Vec<Node<4>>,
+    /// The nodes when 8 wide (else empty).
+    nodes8: Vec<Node<8>>,
+    /// Each leaf's first slot and primitive count, in slot order.
     leaves: Vec<(u32, u32)>,
+    /// Whether 8-wide nodes are tested with AVX2 (the CPU has it).
+    avx2: bool,
 }
 
 impl Bvh {
@@ -215,21 +551,51 @@ impl Bvh {
     }
 
     /// Builds with explicit obvhs parameters (leaves hold at most 4 primitives: the triangle
-    /// packets are four wide).
-    pub fn build_with(bounds: &[Aabb], mut params: BvhBuildParams) -> (Self, Vec<u32>) {
+    /// packets are four wide), 4-wide nodes: 8-wide ones ([`Width::native`] with AVX2) find
+    /// the same hits, and become the default once an optimised build measures them faster
+    /// (`raytile bench --width 4 --width 8`).
+    pub fn build_with(bounds: &[Aabb], params: BvhBuildParams) -> (Self, Vec<u32>) {
+        Self::build_wide(bounds, params, Width::Four)
+    }
+
+    /// [`Bvh::build_with`] with nodes of the given width. The slot order and the leaves do not
+    /// depend on the width.
+    pub fn build_wide(
+        bounds: &[Aabb],
+        mut params: BvhBuildParams,
+        width: Width,
+    ) -> (Self, Vec<u32>) {
         if bounds.is_empty() {
             return (Self::default(), Vec::new());
         }
         params.max_prims_per_leaf = params.max_prims_per_leaf.clamp(1, MAX_LEAF);
         let mut build_time = Duration::ZERO;
-        let bvh2 = build_bvh2(bounds, params, &mut build_time);
-        let (nodes, leaves) = collapse_to_4(&bvh2);
-        (Self { nodes, leaves }, bvh2.primitive_indices.clone())
+        let mut bvh2 = build_bvh2(bounds, params, &mut build_time);
+        let (leaves, leaf_of) = leaf_table(&bvh2);
+        let mut bvh = Self {
+            leaves,
+            avx2: avx2(),
+            ..Self::default()
+        };
+        match width {
+            Width::Four => bvh.nodes4 = collapse(&bvh2, &leaf_of),
+            Width::Eight => bvh.nodes8 = collapse(&bvh2, &leaf_of),
+        }
+        (bvh, std::mem::take(&mut bvh2.primitive_indices))
+    }
+
+    /// The node width.
+    pub fn width(&self) -> Width {
+        if self.nodes8.is_empty() {
+            Width::Four
+        } else {
+            Width::Eight
+        }
     }
 
     /// Closest hit: `hit(slot, ray_tmax)` returns the hit parameter of that primitive or
     /// `f32::INFINITY`. Returns the slot and parameter of the nearest hit before `tmax`.
-    /// Among hits at the same distance, the first one offered wins.
+    /// Among hits at the same distance, the lowest slot wins.
     #[inline]
     pub fn closest(
         &self,
@@ -251,77 +617,48 @@ impl Bvh {
     }
 
     /// Closest hit, a leaf at a time: `leaf(id, first_slot, count, ray_tmax)` returns the
-    /// nearest hit in leaf `id` (see [`Bvh::leaves`]) before `ray_tmax`, as (slot, t).
+    /// nearest hit in leaf `id` (see [`Bvh::leaves`]) before `ray_tmax`, as (slot, t), the
+    /// lowest slot among hits at the same distance. Returns the nearest hit before `tmax`, the
+    /// lowest slot among equals: a leaf whose slots are below the best hit's is offered a
+    /// `ray_tmax` one float above the best distance, so that a tie there wins. Which hit
+    /// wins therefore does not depend on the order leaves are visited in, nor on the node
+    /// width, and every hit `leaf` returns is the new best (so a closure may keep the latest
+    /// hit it returned).
     #[inline]
     pub fn closest_leaves(
         &self,
         ray: &Ray,
         tmax: f32,
-        mut leaf: impl FnMut(u32, u32, u32, f32) -> Option<(usize, f32)>,
+        leaf: impl FnMut(u32, u32, u32, f32) -> Option<(usize, f32)>,
     ) -> Option<(usize, f32)> {
-        if self.nodes.is_empty() {
-            return None;
+        self.closest_leaves_on(ray, tmax, leaf, self.avx2)
+    }
+
+    /// [`Bvh::closest_leaves`], with AVX2 for 8-wide nodes only if `simd` (and the CPU has it).
+    #[inline(always)]
+    fn closest_leaves_on(
+        &self,
+        ray: &Ray,
+        tmax: f32,
+        mut leaf: impl FnMut(u32, u32, u32, f32) -> Option<(usize, f32)>,
+        simd: bool,
+    ) -> Option<(usize, f32)> {
+        if self.nodes8.is_empty() {
+            let sr = SlabRay::new(ray);
+            return closest_in(&self.nodes4, &self.leaves, tmax, &mut leaf, |n, t| {
+                sr.test4(n, t)
+            });
         }
+        #[cfg(target_arch = "x86_64")]
+        if simd && self.avx2 {
+            // SAFETY: `self.avx2` says the CPU has AVX2.
+            return unsafe { traverse8::closest(&self.nodes8, &self.leaves, ray, tmax, &mut leaf) };
+        }
+        let _ = simd;
         let sr = SlabRay::new(ray);
-        let mut tmax = tmax;
-        let mut best = None;
-        let mut stack = Stack::<STACK>::new();
-        let mut node = 0u32;
-        loop {
-            let n = &self.nodes[node as usize];
-            let (tnear, mask) = sr.test(n, tmax);
-            let tn = tnear.to_array();
-            // Leaves the ray enters are intersected at once (in lane order: each hit shrinks
-            // tmax, and a leaf entered beyond it is skipped).
-            let mut leaves = mask & n.leaf_mask;
-            while leaves != 0 {
-                let lane = leaves.trailing_zeros() as usize;
-                leaves &= leaves - 1;
-                if tn[lane] <= tmax {
-                    let id = n.child[lane];
-                    let (start, count) = self.leaves[id as usize];
-                    if let Some((slot, th)) = leaf(id, start, count, tmax) {
-                        tmax = th;
-                        best = Some(slot);
-                    }
-                }
-            }
-            // Inner children: descend into the nearest at once, push the others. No sorting
-            // and no push/pop for the common single child: fewer unpredictable branches.
-            let mut inner = mask & n.inner_mask;
-            let (mut near, mut near_t) = (EMPTY, f32::INFINITY);
-            while inner != 0 {
-                let lane = inner.trailing_zeros() as usize;
-                inner &= inner - 1;
-                let t = tn[lane];
-                if t > tmax {
-                    continue;
-                }
-                let c = n.child[lane];
-                if near == EMPTY {
-                    (near, near_t) = (c, t);
-                } else if t < near_t {
-                    stack.push((near, near_t));
-                    (near, near_t) = (c, t);
-                } else {
-                    stack.push((c, t));
-                }
-            }
-            if near != EMPTY {
-                node = near;
-                continue;
-            }
-            loop {
-                match stack.pop() {
-                    None => return best.map(|s| (s, tmax)),
-                    Some((c, t)) if t <= tmax => {
-                        node = c;
-                        break;
-                    }
-                    Some(_) => {}
-                }
-            }
-        }
+        closest_in(&self.nodes8, &self.leaves, tmax, &mut leaf, |n, t| {
+            sr.test8(n, t)
+        })
     }
 
     /// Any hit before `tmax`: `hit(slot)` says whether that primitive blocks the ray.
@@ -339,75 +676,141 @@ impl Bvh {
         &self,
         ray: &Ray,
         tmax: f32,
-        mut leaf: impl FnMut(u32, u32, u32) -> bool,
+        leaf: impl FnMut(u32, u32, u32) -> bool,
     ) -> bool {
-        if self.nodes.is_empty() {
-            return false;
-        }
-        let sr = SlabRay::new(ray);
-        let mut stack = Stack::<STACK>::new();
-        let mut node = 0u32;
-        loop {
-            let n = &self.nodes[node as usize];
-            let (_, mask) = sr.test(n, tmax);
-            let mut leaves = mask & n.leaf_mask;
-            while leaves != 0 {
-                let lane = leaves.trailing_zeros() as usize;
-                leaves &= leaves - 1;
-                let id = n.child[lane];
-                let (start, count) = self.leaves[id as usize];
-                if leaf(id, start, count) {
-                    return true;
-                }
-            }
-            // Descend into the first inner child entered, push the others.
-            let mut inner = mask & n.inner_mask;
-            if inner != 0 {
-                let first = n.child[inner.trailing_zeros() as usize];
-                inner &= inner - 1;
-                while inner != 0 {
-                    stack.push((n.child[inner.trailing_zeros() as usize], 0.0));
-                    inner &= inner - 1;
-                }
-                node = first;
-                continue;
-            }
-            match stack.pop() {
-                None => return false,
-                Some((c, _)) => node = c,
-            }
-        }
+        self.any_leaves_on(ray, tmax, leaf, self.avx2)
     }
 
-    /// The leaves: (first slot, primitive count) by leaf id. Every slot is in exactly one.
+    /// [`Bvh::any_leaves`], with AVX2 for 8-wide nodes only if `simd` (and the CPU has it).
+    #[inline(always)]
+    fn any_leaves_on(
+        &self,
+        ray: &Ray,
+        tmax: f32,
+        mut leaf: impl FnMut(u32, u32, u32) -> bool,
+        simd: bool,
+    ) -> bool {
+        if self.nodes8.is_empty() {
+            let sr = SlabRay::new(ray);
+            return any_in(&self.nodes4, &self.leaves, tmax, &mut leaf, |n, t| {
+                sr.test4(n, t)
+            });
+        }
+        #[cfg(target_arch = "x86_64")]
+        if simd && self.avx2 {
+            // SAFETY: `self.avx2` says the CPU has AVX2.
+            return unsafe { traverse8::any(&self.nodes8, &self.leaves, ray, tmax, &mut leaf) };
+        }
+        let _ = simd;
+        let sr = SlabRay::new(ray);
+        any_in(&self.nodes8, &self.leaves, tmax, &mut leaf, |n, t| {
+            sr.test8(n, t)
+        })
+    }
+
+    /// The leaves: (first slot, primitive count) by leaf id, in slot order. Every slot is in
+    /// exactly one.
     pub fn leaves(&self) -> &[(u32, u32)] {
         &self.leaves
     }
 
+    /// Inner nodes.
+    pub fn node_count(&self) -> usize {
+        self.nodes4.len() + self.nodes8.len()
+    }
+
+    /// The surface-area heuristic's expected cost of a ray through the tree (one that enters
+    /// the root's bounds, uniformly distributed): (inner nodes tested, leaves tested).
+    pub fn sah_cost(&self) -> (f64, f64) {
+        if self.nodes8.is_empty() {
+            sah_of(&self.nodes4)
+        } else {
+            sah_of(&self.nodes8)
+        }
+    }
+
     /// Bytes held by the nodes and the leaf table, for cache budgets.
     pub fn memory_bytes(&self) -> usize {
-        self.nodes.capacity() * std::mem::size_of::<Node4>()
+        self.nodes4.capacity() * std::mem::size_of::<Node<4>>()
+            + self.nodes8.capacity() * std::mem::size_of::<Node<8>>()
             + self.leaves.capacity() * std::mem::size_of::<(u32, u32)>()
     }
 }
 
-/// Collapses obvhs's binary BVH into 4-wide nodes: each node takes the two children of a binary
-/// node and keeps opening its inner child with the largest surface area until it has four.
-fn collapse_to_4(bvh2: &Bvh2) -> (Vec<Node4>, Vec<(u32, u32)>) {
+/// [`Bvh::sah_cost`] of `N`-wide nodes.
+fn sah_of<const N: usize>(nodes: &[Node<N>]) -> (f64, f64) {
+    let half_area = |n: &Node<N>, lane: usize| {
+        let e = [0, 1, 2].map(|a| f64::from(n.bounds[2 * a + 1][lane] - n.bounds[2 * a][lane]));
+        e[0] * e[1] + e[1] * e[2] + e[2] * e[0]
+    };
+    let Some(root) = nodes.first() else {
+        return (0.0, 0.0);
+    };
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for lane in (0..N).filter(|&l| ((root.leaf_mask | root.inner_mask) >> l) & 1 == 1) {
+        for a in 0..3 {
+            lo[a] = lo[a].min(root.bounds[2 * a][lane]);
+            hi[a] = hi[a].max(root.bounds[2 * a + 1][lane]);
+        }
+    }
+    let e = [0, 1, 2].map(|a| f64::from(hi[a] - lo[a]));
+    let root_area = e[0] * e[1] + e[1] * e[2] + e[2] * e[0];
+    let (mut inner, mut leaves) = (1.0, 0.0);
+    for n in nodes {
+        for lane in 0..N {
+            if (n.inner_mask >> lane) & 1 == 1 {
+                inner += half_area(n, lane) / root_area;
+            } else if (n.leaf_mask >> lane) & 1 == 1 {
+                leaves += half_area(n, lane) / root_area;
+            }
+        }
+    }
+    (inner, leaves)
+}
+
+/// The leaves of obvhs's binary BVH in slot order, as (first slot, count), and for every binary
+/// node its leaf id (meaningful for leaves only).
+fn leaf_table(bvh2: &Bvh2) -> (Vec<(u32, u32)>, Vec<u32>) {
     let b2 = &bvh2.nodes;
-    let mut nodes = vec![Node4::EMPTY];
-    let mut leaves = Vec::new();
-    // (binary node, index of the 4-wide node it becomes)
+    let mut found = Vec::new();
+    let mut work = vec![0usize];
+    while let Some(n) = work.pop() {
+        if b2[n].is_leaf() {
+            found.push((b2[n].first_index, b2[n].prim_count, n));
+        } else {
+            let f = b2[n].first_index as usize;
+            work.extend([f, f + 1]);
+        }
+    }
+    found.sort_unstable_by_key(|l| l.0);
+    let mut leaf_of = vec![EMPTY; b2.len()];
+    for (id, l) in found.iter().enumerate() {
+        leaf_of[l.2] = id as u32;
+    }
+    (found.iter().map(|l| (l.0, l.1)).collect(), leaf_of)
+}
+
+/// Collapses obvhs's binary BVH into `N`-wide nodes: each node takes the two children of a
+/// binary node and keeps opening its inner child with the largest surface area until it has
+/// `N`. Children keep their binary left-to-right order.
+fn collapse<const N: usize>(bvh2: &Bvh2, leaf_of: &[u32]) -> Vec<Node<N>> {
+    let b2 = &bvh2.nodes;
+    let mut nodes = vec![Node::<N>::EMPTY];
+    // (binary node, index of the wide node it becomes)
     let mut work = vec![(0usize, 0usize)];
-    while let Some((n2, n4)) = work.pop() {
-        let mut kids: Vec<usize> = if b2[n2].is_leaf() {
-            vec![n2]
+    while let Some((n2, nw)) = work.pop() {
+        let mut kids = [0usize; N];
+        let mut len = if b2[n2].is_leaf() {
+            kids[0] = n2;
+            1
         } else {
             let f = b2[n2].first_index as usize;
-            vec![f, f + 1]
+            kids[..2].copy_from_slice(&[f, f + 1]);
+            2
         };
-        while kids.len() < 4 {
-            let open = kids
+        while len < N {
+            let open = kids[..len]
                 .iter()
                 .enumerate()
                 .filter(|(_, &k)| !b2[k].is_leaf())
@@ -420,11 +823,13 @@ fn collapse_to_4(bvh2: &Bvh2) -> (Vec<Node4>, Vec<(u32, u32)>) {
                 .map(|(i, _)| i);
             let Some(i) = open else { break };
             let f = b2[kids[i]].first_index as usize;
+            kids.copy_within(i + 1..len, i + 2);
             kids[i] = f;
-            kids.insert(i + 1, f + 1);
+            kids[i + 1] = f + 1;
+            len += 1;
         }
-        let mut node = Node4::EMPTY;
-        for (lane, &k) in kids.iter().enumerate() {
+        let mut node = Node::<N>::EMPTY;
+        for (lane, &k) in kids[..len].iter().enumerate() {
             let bb = b2[k].aabb();
             let (lo, hi) = (bb.min.to_array(), bb.max.to_array());
             for axis in 0..3 {
@@ -432,26 +837,25 @@ fn collapse_to_4(bvh2: &Bvh2) -> (Vec<Node4>, Vec<(u32, u32)>) {
                 node.bounds[2 * axis + 1][lane] = hi[axis];
             }
             if b2[k].is_leaf() {
-                node.child[lane] = leaves.len() as u32;
+                node.child[lane] = leaf_of[k];
                 node.leaf_mask |= 1 << lane;
-                leaves.push((b2[k].first_index, b2[k].prim_count));
             } else {
                 let idx = nodes.len();
-                nodes.push(Node4::EMPTY);
+                nodes.push(Node::<N>::EMPTY);
                 work.push((k, idx));
                 node.child[lane] = idx as u32;
                 node.inner_mask |= 1 << lane;
             }
         }
-        nodes[n4] = node;
+        nodes[nw] = node;
     }
-    (nodes, leaves)
+    nodes
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::triangle::TriangleGeom;
+    use crate::geometry::triangle::{Tri4, TriangleGeom};
     use crate::sampling::hash_u32;
     use glam::Vec3A;
 
@@ -507,6 +911,138 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Every path (4-wide; 8-wide with AVX2 when the CPU has it, and without) returns the
+    /// nearest hit of the lowest slot, to the bit, and the same any-hit answer, on soups with
+    /// shared edges, duplicated and degenerate triangles, for random, axis-parallel,
+    /// plane-grazing and non-finite rays.
+    #[test]
+    fn wide_and_narrow_paths_hit_identically() {
+        let mut tris: Vec<TriangleGeom> = Vec::new();
+        // A bumpy grid: neighbours share edges, so rays through an edge hit two triangles.
+        let g = 24;
+        let p = |i: u32, j: u32| {
+            Vec3A::new(
+                i as f32 / g as f32,
+                0.1 * rnd(i * 131 + j),
+                j as f32 / g as f32,
+            )
+        };
+        for i in 0..g {
+            for j in 0..g {
+                tris.push(TriangleGeom::new([p(i, j), p(i + 1, j), p(i + 1, j + 1)]));
+                tris.push(TriangleGeom::new([p(i, j), p(i + 1, j + 1), p(i, j + 1)]));
+            }
+        }
+        // Random triangles, some of them twice (exact ties) and some degenerate.
+        for i in 0..600u32 {
+            let c = v(i) * 1.5 - 0.25;
+            let t = match i % 10 {
+                0 => TriangleGeom::new([c, c + v(i + 7000) * 0.2, c + v(i + 7000) * 0.4]),
+                _ => TriangleGeom::new([c, c + v(i + 7000) * 0.3 - 0.15, c + v(i + 9000) * 0.3]),
+            };
+            tris.push(t);
+            if i % 4 == 0 {
+                tris.push(t);
+            }
+        }
+        let bounds: Vec<Aabb> = tris
+            .iter()
+            .map(|t| Aabb::from_points(&[t.v0, t.v0 + t.e1, t.v0 + t.e2]))
+            .collect();
+        let params = BvhBuildParams::fast_build();
+        let (narrow, order) = Bvh::build_wide(&bounds, params, Width::Four);
+        let (wide, order8) = Bvh::build_wide(&bounds, params, Width::Eight);
+        assert_eq!(order, order8, "the slot order must not depend on the width");
+        assert_eq!(narrow.leaves(), wide.leaves());
+        let slots: Vec<TriangleGeom> = order.iter().map(|&i| tris[i as usize]).collect();
+        let packets: Vec<Tri4> = narrow
+            .leaves()
+            .iter()
+            .map(|&(s, c)| Tri4::new(&slots[s as usize..(s + c) as usize]))
+            .collect();
+        let mut hits = 0;
+        let mut ties = 0;
+        for k in 0..6000u32 {
+            let o = v(20_000 + k) * 1.6 - 0.3;
+            let mut d = (v(40_000 + k) - 0.5).normalize();
+            match k % 8 {
+                // Axis-parallel, both signs.
+                0 => {
+                    d = [Vec3A::X, Vec3A::Y, Vec3A::Z][(k / 8 % 3) as usize]
+                        * [1.0, -1.0][(k / 24 % 2) as usize]
+                }
+                // Aimed at a grid vertex or edge midpoint (shared by several triangles).
+                1 | 2 => {
+                    let (i, j) = (hash_u32(k) % g, hash_u32(k + 1) % g);
+                    let target = if k % 8 == 1 {
+                        p(i, j)
+                    } else {
+                        (p(i, j) + p(i + 1, j + 1)) * 0.5
+                    };
+                    d = target - o;
+                }
+                // Non-finite directions.
+                3 if k % 24 == 3 => d = Vec3A::new(f32::NAN, 0.0, 1.0),
+                3 if k % 24 == 11 => d = Vec3A::ZERO,
+                3 => d = Vec3A::new(0.0, -1.0, 0.0),
+                _ => {}
+            }
+            let ray = Ray::new(o, d);
+            let tmax = if k % 5 == 0 { 0.7 } else { f32::INFINITY };
+            // Reference: every slot in order, strictly nearer wins (the lowest slot among ties).
+            let mut want = None;
+            let mut best = tmax;
+            let mut at_best = 0;
+            for (slot, t) in slots.iter().enumerate() {
+                if let Some((th, _, _)) = t.intersect(o, d, 0.0, f32::INFINITY) {
+                    if th < best {
+                        (best, at_best) = (th, 1);
+                        want = Some((slot, th.to_bits()));
+                    } else if th == best {
+                        at_best += 1;
+                    }
+                }
+            }
+            hits += usize::from(want.is_some());
+            ties += usize::from(at_best > 1);
+            for (bvh, simd) in [(&narrow, false), (&wide, false), (&wide, true)] {
+                let packet = bvh
+                    .closest_leaves_on(
+                        &ray,
+                        tmax,
+                        |leaf, start, _, tmax| {
+                            packets[leaf as usize]
+                                .intersect(o, d, 0.0, tmax)
+                                .map(|(lane, t, _, _)| (start as usize + lane, t))
+                        },
+                        simd,
+                    )
+                    .map(|(s, t)| (s, t.to_bits()));
+                let width = bvh.width();
+                assert_eq!(packet, want, "{width:?}, simd {simd}, ray {k}");
+                let any = bvh.any_leaves_on(
+                    &ray,
+                    tmax,
+                    |leaf, _, _| packets[leaf as usize].any(o, d, 0.0, tmax),
+                    simd,
+                );
+                assert_eq!(any, want.is_some(), "{width:?}, simd {simd}, ray {k}");
+            }
+            let scalar = wide
+                .closest(&ray, tmax, |slot, tmax| {
+                    slots[slot]
+                        .intersect(o, d, 0.0, tmax)
+                        .map_or(f32::INFINITY, |h| h.0)
+                })
+                .map(|(s, t)| (s, t.to_bits()));
+            assert_eq!(scalar, want, "scalar closure, ray {k}");
+        }
+        assert!(
+            hits > 2000 && ties > 20,
+            "too few hits or ties to mean anything: {hits}, {ties}"
+        );
     }
 
     #[test]
