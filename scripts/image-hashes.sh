@@ -18,8 +18,10 @@ for f in ../shared/scenes/cornell-box.gltf ../shared/gltf-samples/*/*.gltf ../sh
   [ -f "$f" ] && scenes+=("$f")
 done
 for scene in "${scenes[@]}"; do
-  for integrator in path whitted normals albedo depth ao volpath bdpt; do
-    if "$bin" render "$scene" -o "$out/i.exr" --width 48 --height 40 --spp 4 --passes 2 \
+  for integrator in path whitted normals albedo depth ao volpath bdpt sppm; do
+    passes=2
+    [ "$integrator" = sppm ] && passes=1 # sppm renders in one pass
+    if "$bin" render "$scene" -o "$out/i.exr" --width 48 --height 40 --spp 4 --passes $passes \
       --tile-size 16 --max-depth 8 --integrator "$integrator" --threads 2 >/dev/null 2>"$out/err"; then
       echo "$(sha256sum < "$out/i.exr" | cut -c1-16) $integrator $scene"
     else

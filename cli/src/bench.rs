@@ -3,6 +3,8 @@
 //! - samples/s of the path tracer on the Cornell box (256×256 by default);
 //! - ray throughput (Mrays/s) through the scene for coherent rays (camera rays in scanline
 //!   order) and incoherent rays (random origins inside the box, random directions);
+//! - samples/s of `path`, `bdpt` and `sppm` on the caustic scene (an sppm sample is one
+//!   iteration of one pixel, its share of the photon pass included);
 //! - BVH build time and ray throughput on a procedural mesh of ≥ 1 M triangles for every obvhs
 //!   build preset.
 
@@ -39,6 +41,12 @@ pub struct BenchArgs {
     /// Rays per throughput measurement.
     #[arg(long, default_value_t = 2_000_000)]
     pub rays: usize,
+    /// Scene for the per-integrator samples/s figures.
+    #[arg(long, default_value = "scenes/caustic.json")]
+    pub caustic_scene: PathBuf,
+    /// Samples per pixel (sppm: iterations) of the per-integrator figures, at 160×120.
+    #[arg(long, default_value_t = 16)]
+    pub caustic_spp: u32,
     /// Skip the BVH build benchmark.
     #[arg(long)]
     pub no_bvh: bool,
@@ -99,6 +107,45 @@ fn rnd(i: u32) -> f32 {
     (hash_u32(i) >> 8) as f32 / (1u32 << 24) as f32
 }
 
+/// samples/s of each integrator that renders caustics, beside `path`, on `--caustic-scene`.
+fn integrator_rows(args: &BenchArgs) -> Result<()> {
+    use raytile_core::IntegratorKind;
+    let path = &args.caustic_scene;
+    let desc = load_scene(path).with_context(|| format!("loading {}", path.display()))?;
+    let scene = Scene::build(&desc)?;
+    for integrator in [
+        IntegratorKind::Path,
+        IntegratorKind::Bdpt,
+        IntegratorKind::Sppm,
+    ] {
+        let settings = RenderSettings {
+            width: 160,
+            height: 120,
+            spp: args.caustic_spp,
+            max_depth: 16,
+            integrator,
+            ..Default::default()
+        };
+        let job = RenderJob::new(&scene, &settings)?;
+        let t = Instant::now();
+        render(&scene, &job, &());
+        let secs = t.elapsed().as_secs_f64();
+        let samples = settings.width as f64 * settings.height as f64 * settings.spp as f64;
+        println!(
+            "| {}, {} {}x{} {} spp, depth {} | {:.3} s, {:.3} Msamples/s |",
+            integrator.name(),
+            path.display(),
+            settings.width,
+            settings.height,
+            settings.spp,
+            settings.max_depth,
+            secs,
+            samples / secs / 1e6
+        );
+    }
+    Ok(())
+}
+
 fn mrays(n: usize, secs: f64) -> f64 {
     n as f64 / secs / 1e6
 }
@@ -134,6 +181,8 @@ pub fn run(args: BenchArgs) -> Result<()> {
         "| path tracer, {} {}x{} {} spp, depth {} | {:.3} s, {:.3} Msamples/s (mean {:.4} {:.4} {:.4}) |",
         args.scene.display(), settings.width, settings.height, settings.spp, settings.max_depth, secs, samples / secs / 1e6, m[0], m[1], m[2]
     );
+
+    integrator_rows(&args)?;
 
     // Scene ray throughput.
     let n = args.rays;

@@ -2,7 +2,7 @@
 //!
 //! The crate reads like the lecture it comes from: [`geometry`] (rays, hit records and shapes),
 //! [`accel`] (the bounding-volume hierarchy), [`camera`], [`sampling`], [`material`]
-//! (materials and BSDFs), [`light`], [`integrator`] (Whitted, path tracing, debug outputs,
+//! (materials and BSDFs), [`light`], [`integrator`] (Whitted, path tracing, bdpt, sppm, debug outputs,
 //! `render_tile`), [`scene`] (descriptions, the JSON and glTF front ends, the builder, and the
 //! scene at render time) and [`film`] (accumulation, filters, output).
 //!
@@ -62,4 +62,5 @@ pub use settings::{
 /// passes straight through; glTF `COLOR_0` is used (2026-12-01).
 /// 5: the `bdpt` integrator, and tile results that carry splats (2026-12-01); other
 /// integrators' images unchanged.
-pub const RENDER_VERSION: u32 = 5;
+/// 6: the `sppm` integrator (2026-12-01); other integrators' images unchanged.
+pub const RENDER_VERSION: u32 = 6;

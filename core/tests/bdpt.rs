@@ -4,24 +4,12 @@
 //! errors of the compared means, measured from the images themselves (pixels are independent
 //! estimates).
 
-use raytile_core::scene::json::parse_json;
 mod estimates;
 
-use estimates::{assert_mean, differences, image, stats};
-use raytile_core::{IntegratorKind, RenderJob, RenderSettings, Scene};
-use std::path::Path;
-
-fn load(json: &str) -> Scene {
-    let desc = parse_json(json, Path::new("."), Path::new("test.json")).unwrap();
-    Scene::build(&desc).unwrap()
-}
-
-fn load_file(name: &str) -> Scene {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../scenes")
-        .join(name);
-    Scene::build(&raytile_core::load_scene(&path).unwrap()).unwrap()
-}
+use estimates::{
+    assert_mean, caustic_under_point_light, differences, image, load, load_file, stats,
+};
+use raytile_core::{IntegratorKind, RenderJob, RenderSettings};
 
 fn settings(w: u32, h: u32, spp: u32, integrator: IntegratorKind) -> RenderSettings {
     RenderSettings {
@@ -64,77 +52,9 @@ fn bdpt_matches_path_on_the_cornell_box() {
     assert_mean("bdpt − path", &differences(&b, &a), [0.0; 3], 0.03);
 }
 
-/// `scenes/caustic.json` with its small area light swapped for a point light of
-/// `intensity` W/sr at the same place.
-fn caustic_under_point_light() -> Scene {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/caustic.json");
-    let json = std::fs::read_to_string(path).unwrap();
-    let mut v: serde_json::Value = serde_json::from_str(&json).unwrap();
-    let objects = v["objects"].as_array_mut().unwrap();
-    objects.retain(|o| o["name"] != "lamp");
-    v["lights"] =
-        serde_json::json!([{"type": "point", "position": [0, 3, 0], "intensity": [10, 10, 10]}]);
-    load(&v.to_string())
-}
-
-/// Mean of the `r`-pixel square around film position `c`.
-fn region_mean(px: &[[f32; 3]], w: u32, c: glam::Vec2, r: i32) -> f64 {
-    let (cx, cy) = (c.x as i32, c.y as i32);
-    let mut sum = 0.0;
-    let mut n = 0;
-    for y in cy - r..=cy + r {
-        for x in cx - r..=cx + r {
-            let p = px[(y as u32 * w + x as u32) as usize];
-            sum += (p[0] + p[1] + p[2]) as f64 / 3.0;
-            n += 1;
-        }
-    }
-    sum / n as f64
-}
-
 #[test]
 fn the_caustic_under_a_point_light_is_there_with_bdpt_and_not_with_path() {
-    // Light from a point light focused by the glass ball onto the floor below it: no path
-    // from the camera can find the point light after the refractions, so `path` leaves the
-    // floor under the ball black (its shadow); light subpaths carry the caustic to the camera.
-    let scene = caustic_under_point_light();
-    let (w, h) = (48, 36);
-    let job = RenderJob::new(&scene, &settings(w, h, 16, IntegratorKind::Bdpt)).unwrap();
-    // Where the floor point under the ball lands on the film.
-    let centre = job
-        .camera
-        .sample_wi(glam::Vec3A::ZERO, glam::Vec2::ZERO)
-        .unwrap()
-        .raster;
-    // Beside the ball's shadow, the floor lit straight by the lamp.
-    let lit = job
-        .camera
-        .sample_wi(glam::Vec3A::new(1.2, 0.0, 0.6), glam::Vec2::ZERO)
-        .unwrap()
-        .raster;
-    let bdpt = image(&scene, &settings(w, h, 16, IntegratorKind::Bdpt));
-    let path = image(&scene, &settings(w, h, 16, IntegratorKind::Path));
-    let caustic_bdpt = region_mean(&bdpt, w, centre, 1);
-    let caustic_path = region_mean(&path, w, centre, 1);
-    let lit_bdpt = region_mean(&bdpt, w, lit, 1);
-    let lit_path = region_mean(&path, w, lit, 1);
-    eprintln!(
-        "caustic at {centre}: bdpt {caustic_bdpt:.4}, path {caustic_path:.4}; \
-         lit floor at {lit}: bdpt {lit_bdpt:.4}, path {lit_path:.4}"
-    );
-    assert!(lit_path > 0.05, "the lamp lights the floor: {lit_path}");
-    assert!(
-        (lit_bdpt - lit_path).abs() < 0.1 * lit_path,
-        "directly lit floor: bdpt {lit_bdpt} vs path {lit_path}"
-    );
-    assert!(
-        caustic_path < 1e-3,
-        "path renders no caustic: {caustic_path}"
-    );
-    assert!(
-        caustic_bdpt > 3.0 * lit_path,
-        "bdpt renders the caustic brighter than the directly lit floor: {caustic_bdpt} vs {lit_path}"
-    );
+    estimates::check_caustic_under_point_light(IntegratorKind::Bdpt);
 }
 
 #[test]

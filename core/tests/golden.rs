@@ -241,7 +241,12 @@ fn image_hash(integrator: IntegratorKind) -> String {
         width: 40,
         height: 30,
         spp: 6,
-        passes: 2,
+        // sppm renders in one pass.
+        passes: if integrator == IntegratorKind::Sppm {
+            1
+        } else {
+            2
+        },
         max_depth: 12,
         integrator,
         seed: 3,
@@ -269,10 +274,11 @@ fn image_hash(integrator: IntegratorKind) -> String {
 }
 
 /// The hashes of the current arithmetic, pinned with [`raytile_core::RENDER_VERSION`].
-const GOLDEN: [(IntegratorKind, &str); 8] = [
+const GOLDEN: [(IntegratorKind, &str); 9] = [
     (IntegratorKind::Path, "e42b0dffd5424c36"),
     (IntegratorKind::Volpath, "40d1d0dd55338aa1"),
     (IntegratorKind::Bdpt, "ae758213072bb27d"),
+    (IntegratorKind::Sppm, "2c75e87e840263b5"),
     (IntegratorKind::Whitted, "2c57b1f1af7bd9a0"),
     (IntegratorKind::Normals, "7bc0a2763bfb615f"),
     (IntegratorKind::Albedo, "ad105da7432cb490"),

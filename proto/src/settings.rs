@@ -22,6 +22,11 @@ pub enum IntegratorKind {
     /// every strategy, weighted by MIS; renders caustics that `path` misses. Light subpaths
     /// joined straight to the camera land in other pixels (splats).
     Bdpt,
+    /// Stochastic progressive photon mapping (Hachisuka and Jensen; pbrt-v4's `sppm`): per
+    /// iteration a visible point per pixel and a photon pass from the lights, the pixel's
+    /// radius and flux updated with α = 2/3. Consistent rather than unbiased; renders
+    /// caustics from point lights. `spp` is the number of iterations; `passes` must be 1.
+    Sppm,
     /// Whitted's recursive ray tracer: shadow rays, mirror reflection and refraction.
     Whitted,
     /// Shading normals mapped to colours.
@@ -36,10 +41,11 @@ pub enum IntegratorKind {
 
 impl IntegratorKind {
     /// Every integrator, for tests and help texts.
-    pub const ALL: [IntegratorKind; 8] = [
+    pub const ALL: [IntegratorKind; 9] = [
         Self::Path,
         Self::Volpath,
         Self::Bdpt,
+        Self::Sppm,
         Self::Whitted,
         Self::Normals,
         Self::Albedo,
@@ -53,6 +59,7 @@ impl IntegratorKind {
             Self::Path => "path",
             Self::Volpath => "volpath",
             Self::Bdpt => "bdpt",
+            Self::Sppm => "sppm",
             Self::Whitted => "whitted",
             Self::Normals => "normals",
             Self::Albedo => "albedo",
@@ -371,6 +378,16 @@ impl RenderSettings {
                     "bdpt supports only the box filter, got {}: light paths joined to the \
                      camera land on the film without a filter to spread them",
                     self.filter.name()
+                ),
+            ));
+        }
+        if self.integrator == IntegratorKind::Sppm && self.passes != 1 {
+            return Err(SettingsError::new(
+                "passes",
+                format!(
+                    "sppm renders in one pass, got {}: a pixel's estimate depends on all its \
+                     iterations (spp), which are not sums that passes could add",
+                    self.passes
                 ),
             ));
         }
@@ -716,6 +733,15 @@ mod tests {
             ..d()
         };
         check(big, "width");
+        check(
+            RenderSettings {
+                integrator: IntegratorKind::Sppm,
+                spp: 8,
+                passes: 2,
+                ..d()
+            },
+            "passes",
+        );
         assert_eq!(d().validate(), Ok(()));
     }
 

@@ -418,6 +418,23 @@ mod determinism {
     /// workers with tiles of 16 and of 64 pixels give the local render's bits.
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn bdpt_on_two_workers_matches_local_render_whatever_the_tiles() {
+        caustic_on_two_workers_matches_local_render(proto::IntegratorKind::Bdpt, 4).await;
+    }
+
+    /// An `sppm` job: each tile task runs every iteration of its pixels against whole-frame
+    /// photon maps that each worker traces (and keeps) itself, from (seed, iteration, photon)
+    /// alone, so two workers with tiles of 16 and of 64 pixels give the local render's bits.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn sppm_on_two_workers_matches_local_render_whatever_the_tiles() {
+        caustic_on_two_workers_matches_local_render(proto::IntegratorKind::Sppm, 1).await;
+    }
+
+    /// `scenes/caustic.json` with `integrator` in `passes` passes on two workers, with tiles of
+    /// 16 and of 64 pixels: the local render's EXR both times.
+    async fn caustic_on_two_workers_matches_local_render(
+        integrator: proto::IntegratorKind,
+        passes: u32,
+    ) {
         let scene = std::path::PathBuf::from(concat!(
             env!("CARGO_MANIFEST_DIR"),
             "/../scenes/caustic.json"
@@ -434,17 +451,19 @@ mod determinism {
             req.overrides.width = Some(40);
             req.overrides.height = Some(30);
             req.overrides.spp = Some(4);
+            req.overrides.passes = Some(passes);
             req.overrides.max_depth = Some(6);
-            req.overrides.integrator = Some(proto::IntegratorKind::Bdpt);
+            req.overrides.integrator = Some(integrator);
             let j = submit(&c.base, &req).await;
             let done = wait_for(&c.base, &j.id, 120, |s| s.state.is_final()).await;
             assert_eq!(done.state, JobState::Done, "{done:?}");
-            assert_eq!(done.settings.integrator, proto::IntegratorKind::Bdpt);
+            assert_eq!(done.settings.integrator, integrator);
             let got = image(&c.base, &j.id, "exr").await;
             let local = want.get_or_insert_with(|| local_exr(&scene, &done.settings));
             assert!(
                 got == *local,
-                "bdpt, tile {tile}: EXR differs from the local render"
+                "{}, tile {tile}: EXR differs from the local render",
+                integrator.name()
             );
         }
         for w in ws {

@@ -333,6 +333,29 @@ fn vertex_f(v: &Vertex, prev: &Vertex, next: &Vertex, importance: bool) -> Vec3A
     }
 }
 
+/// The value of the adjoint BSDF for a sample `bs` drawn at `it` (light or importance arriving
+/// along `wo`, local `wo` and world `wo_w`, leaving along world `wi_w`), shading-normal
+/// correction included: how light subpaths and photons scatter.
+pub(super) fn adjoint_f(
+    bsdf: &Bsdf,
+    it: &Interaction,
+    wo: Vec3A,
+    wo_w: Vec3A,
+    wi_w: Vec3A,
+    bs: &crate::material::BsdfSample,
+) -> Vec3A {
+    let mut f = bs.f;
+    if !bs.lobe.is_delta() {
+        // The adjoint BSDF, f(wi → wo), as connections evaluate it (`vertex_f`): the
+        // sampled value is f(wo → wi), which differs for BSDFs that are not reciprocal
+        // (the glTF model weighs its lobes by the outgoing direction).
+        f = bsdf.eval(bs.wi, wo);
+    } else if bs.lobe.is_transmission() {
+        f *= bs.eta * bs.eta;
+    }
+    f * shading_correction(it.ns, it.ng, wo_w, wi_w)
+}
+
 /// Whether a vertex can be joined to another by a deterministic segment.
 fn connectible(ctx: &Ctx, v: &Vertex) -> bool {
     match v.kind {
@@ -473,15 +496,7 @@ fn random_walk(
         let wi_w = frame.to_world(bs.wi).normalize();
         let mut f = bs.f;
         if importance {
-            if !bs.lobe.is_delta() {
-                // The adjoint BSDF, f(wi → wo), as connections evaluate it (`vertex_f`): the
-                // sampled value is f(wo → wi), which differs for BSDFs that are not reciprocal
-                // (the glTF model weighs its lobes by the outgoing direction).
-                f = bsdf.eval(bs.wi, wo);
-            } else if bs.lobe.is_transmission() {
-                f *= bs.eta * bs.eta;
-            }
-            f *= shading_correction(it.ns, it.ng, wo_w, wi_w);
+            f = adjoint_f(&bsdf, &it, wo, wo_w, wi_w, &bs);
         } else if bs.lobe.is_transmission() {
             eta_scale *= bs.eta * bs.eta;
         }
@@ -510,17 +525,80 @@ fn random_walk(
     }
 }
 
-/// The light subpath: a light chosen by power, a ray sampled from it, then the walk.
-fn light_subpath(ctx: &Ctx, sampler: &mut Sampler, max_vertices: usize, path: &mut Vec<Vertex>) {
-    let lights = ctx.job.lights();
+/// A ray leaving a light, sampled as light subpaths and photons start (pbrt's `SampleLe`).
+pub(super) struct Emission {
+    /// Index in the job's light set.
+    pub index: usize,
+    /// Probability of choosing the light.
+    pub pmf: f32,
+    /// The point on the light (on the scene's bounding disk for infinitely far lights).
+    pub p: Vec3A,
+    /// Direction (unit).
+    pub d: Vec3A,
+    /// Emitted radiance (intensity for point and spot lights, irradiance for the sun).
+    pub le: Vec3A,
+    /// Density of the origin (area, or 1 for a point).
+    pub pdf_pos: f32,
+    /// Density of the direction (solid angle, or 1 for the sun).
+    pub pdf_dir: f32,
+    /// The emitter's normal; zero for points and infinitely far lights.
+    pub n: Vec3A,
+    /// The light's range (infinite but for point and spot lights with one).
+    pub range: f32,
+    /// An environment or directional light.
+    pub infinite: bool,
+}
+
+impl Emission {
+    /// The ray, leaving an emitting surface without hitting it again.
+    pub fn ray(&self) -> Ray {
+        if self.n == Vec3A::ZERO {
+            Ray::new(self.p, self.d)
+        } else {
+            Ray::new(
+                crate::geometry::offset_ray_origin(self.p, self.n, self.d),
+                self.d,
+            )
+        }
+    }
+
+    /// The ray's throughput: Le cos / (pmf pdf_pos pdf_dir).
+    pub fn beta(&self) -> Vec3A {
+        let cos = if self.n == Vec3A::ZERO {
+            1.0
+        } else {
+            self.n.dot(self.d).abs()
+        };
+        self.le * (cos / (self.pmf * self.pdf_pos * self.pdf_dir))
+    }
+}
+
+/// The centre and radius of the scene's bounding sphere, where infinitely far lights start
+/// their rays.
+pub(super) fn scene_sphere(scene: &Scene) -> (Vec3A, f32) {
+    let b = scene.bounds;
+    if b.min.cmple(b.max).all() {
+        ((b.min + b.max) * 0.5, scene.radius)
+    } else {
+        (Vec3A::ZERO, scene.radius)
+    }
+}
+
+/// A light chosen by power and a ray sampled from it, with three hashed numbers and two
+/// pairs from `sampler`; `None` when the light gives nothing in the sampled direction.
+pub(super) fn sample_emission(
+    scene: &Scene,
+    job: &RenderJob,
+    (center, radius): (Vec3A, f32),
+    sampler: &mut Sampler,
+) -> Option<Emission> {
+    let lights = job.lights();
     let [u_sel, u_side, _] = sampler.hashed_3();
     let u1 = sampler.next_2d();
     let u2 = sampler.next_2d();
-    let Some((index, pmf)) = lights.choose(u_sel) else {
-        return;
-    };
+    let (index, pmf) = lights.choose(u_sel)?;
     // (origin, direction, Le, pdf_pos, pdf_dir, normal, range, infinite)
-    let (o, d, le, pdf_pos, pdf_dir, n, range, infinite) = match ctx.light(index) {
+    let (o, d, le, pdf_pos, pdf_dir, n, range, infinite) = match scene.lights.get(index) {
         Some(&Light::Point {
             position,
             intensity,
@@ -562,11 +640,9 @@ fn light_subpath(ctx: &Ctx, sampler: &mut Sampler, max_vertices: usize, path: &m
             irradiance,
         }) => {
             let frame = Frame::from_z(to_light);
-            let disk = concentric_disk(u1) * ctx.radius;
-            let o = ctx.center
-                + ctx.radius * to_light
-                + frame.to_world(Vec3A::new(disk.x, disk.y, 0.0));
-            let pdf_pos = 1.0 / (PI * ctx.radius * ctx.radius);
+            let disk = concentric_disk(u1) * radius;
+            let o = center + radius * to_light + frame.to_world(Vec3A::new(disk.x, disk.y, 0.0));
+            let pdf_pos = 1.0 / (PI * radius * radius);
             (
                 o,
                 -to_light,
@@ -579,10 +655,8 @@ fn light_subpath(ctx: &Ctx, sampler: &mut Sampler, max_vertices: usize, path: &m
             )
         }
         Some(&Light::Area { light, prim, .. }) => {
-            let al = &ctx.scene.area_lights[light as usize];
-            let Some((p, ng, uv, pdf_area)) = al.sample_point(prim, u1) else {
-                return;
-            };
+            let al = &scene.area_lights[light as usize];
+            let (p, ng, uv, pdf_area) = al.sample_point(prim, u1)?;
             let mut local = cosine_hemisphere(u2);
             let mut nn = ng;
             if al.emission.two_sided && u_side < 0.5 {
@@ -593,20 +667,16 @@ fn light_subpath(ctx: &Ctx, sampler: &mut Sampler, max_vertices: usize, path: &m
             }
             let d = Frame::from_z(nn).to_world(local).normalize();
             let pdf_dir = emit_dir_pdf(al.emission.two_sided, ng, d);
-            let le = al.emission.radiance(&ctx.scene.textures, ng, &uv, d);
+            let le = al.emission.radiance(&scene.textures, ng, &uv, d);
             (p, d, le, pdf_area, pdf_dir, ng, f32::INFINITY, false)
         }
         None => {
-            let Some(env) = ctx.job.environment() else {
-                return;
-            };
-            let Some((wi, le, pdf_dir)) = env.sample(u1) else {
-                return;
-            };
+            let env = job.environment()?;
+            let (wi, le, pdf_dir) = env.sample(u1)?;
             let frame = Frame::from_z(wi);
-            let disk = concentric_disk(u2) * ctx.radius;
-            let o = ctx.center + ctx.radius * wi + frame.to_world(Vec3A::new(disk.x, disk.y, 0.0));
-            let pdf_pos = 1.0 / (PI * ctx.radius * ctx.radius);
+            let disk = concentric_disk(u2) * radius;
+            let o = center + radius * wi + frame.to_world(Vec3A::new(disk.x, disk.y, 0.0));
+            let pdf_pos = 1.0 / (PI * radius * radius);
             (
                 o,
                 -wi,
@@ -620,29 +690,47 @@ fn light_subpath(ctx: &Ctx, sampler: &mut Sampler, max_vertices: usize, path: &m
         }
     };
     if !(pdf_pos > 0.0) || !(pdf_dir > 0.0) || le == Vec3A::ZERO {
-        return;
+        return None;
     }
+    Some(Emission {
+        index,
+        pmf,
+        p: o,
+        d,
+        le,
+        pdf_pos,
+        pdf_dir,
+        n,
+        range,
+        infinite,
+    })
+}
+
+/// The light subpath: a light chosen by power, a ray sampled from it, then the walk.
+fn light_subpath(ctx: &Ctx, sampler: &mut Sampler, max_vertices: usize, path: &mut Vec<Vertex>) {
+    let Some(e) = sample_emission(ctx.scene, ctx.job, (ctx.center, ctx.radius), sampler) else {
+        return;
+    };
+    let (beta, ray) = (e.beta(), e.ray());
+    let Emission {
+        index,
+        pmf,
+        p: o,
+        d,
+        le,
+        pdf_pos,
+        pdf_dir,
+        n,
+        range,
+        infinite,
+    } = e;
     let mut v = Vertex::new(Kind::Light, o, le);
     v.src = Src::Light(index);
     v.ng = n;
     v.ns = n;
     v.infinite = infinite;
     v.pdf_fwd = pdf_pos * pmf;
-    let cos = if n == Vec3A::ZERO {
-        1.0
-    } else {
-        n.dot(d).abs()
-    };
-    let beta = le * (cos / (pmf * pdf_pos * pdf_dir));
     path.push(v);
-    let ray = Ray::new(o, d);
-    let ray = match &path[0] {
-        v if v.on_surface() => {
-            // Leave the emitter without hitting it again.
-            Ray::new(crate::geometry::offset_ray_origin(o, v.ng, d), d)
-        }
-        _ => ray,
-    };
     random_walk(
         ctx,
         ray,
@@ -770,12 +858,7 @@ pub fn li(
     light_sampler: &mut Sampler,
     splats: &mut Vec<Splat>,
 ) -> Vec3A {
-    let b = scene.bounds;
-    let (center, radius) = if b.min.cmple(b.max).all() {
-        ((b.min + b.max) * 0.5, scene.radius)
-    } else {
-        (Vec3A::ZERO, scene.radius)
-    };
+    let (center, radius) = scene_sphere(scene);
     let ctx = Ctx {
         scene,
         job,

@@ -54,6 +54,7 @@ pub fn li(
         IntegratorKind::Path
         | IntegratorKind::Volpath
         | IntegratorKind::Bdpt
+        | IntegratorKind::Sppm
         | IntegratorKind::Whitted => Vec3A::ZERO,
     }
 }

@@ -8,6 +8,9 @@
 //! - [`bdpt`]: bidirectional path tracing (pbrt-v4's): light and camera subpaths joined by
 //!   every strategy, MIS-weighted; light subpaths joined to the camera land in other pixels
 //!   as fixed-point splats ([`TileAccum::splats`]), added in any order to the same bits.
+//! - [`sppm`]: stochastic progressive photon mapping: per iteration a visible point per pixel
+//!   and a whole-frame photon pass (kept in the job's cache for its other tiles); consistent,
+//!   renders caustics of point lights. A tile runs every iteration of its pixels.
 //! - [`whitted`]: the recursive ray tracer: shadow rays to every light, recursive mirror
 //!   reflection and refraction, stopped at max depth, at no hit, or when the ray's contribution
 //!   falls below a threshold.
@@ -25,6 +28,7 @@ pub mod bdpt;
 pub mod debug;
 mod direct;
 pub mod path;
+pub mod sppm;
 pub mod volpath;
 pub mod whitted;
 
@@ -55,6 +59,7 @@ fn li(scene: &Scene, job: &RenderJob, ray: Ray, sampler: &mut Sampler) -> Vec3A 
         IntegratorKind::Volpath => volpath::li(scene, job, ray, sampler, max_depth),
         IntegratorKind::Whitted => whitted::li(scene, job, ray, sampler, max_depth),
         IntegratorKind::Bdpt => unreachable!("bdpt samples go through bdpt::li"),
+        IntegratorKind::Sppm => unreachable!("sppm tiles go through sppm::render_tile"),
         k => debug::li(scene, job, ray, sampler, k),
     }
 }
@@ -101,6 +106,9 @@ pub fn render_tile(
     samples: Range<u32>,
     cancel: &Cancel,
 ) -> Result<TileAccum, Cancelled> {
+    if job.settings.integrator == IntegratorKind::Sppm {
+        return sppm::render_tile(scene, job, tile, samples, cancel);
+    }
     let seed = job.settings.seed;
     let w = tile.width() as usize;
     let mut pixels = vec![[0.0f32; 4]; tile.pixel_count()];
@@ -186,15 +194,19 @@ pub fn render(scene: &Scene, job: &RenderJob, progress: &dyn RenderProgress) -> 
     let never = Cancel::new();
     for pass in settings.pass_ranges() {
         let n = (pass.end - pass.start) as u64;
-        let accums: Vec<TileAccum> = tiles
-            .par_iter()
-            .map(|&t| {
-                let a = render_tile(scene, job, t, pass.clone(), &never)
-                    .expect("nobody cancels this render");
-                progress.tile_done(n * t.pixel_count() as u64);
-                a
-            })
-            .collect();
+        let one = |&t: &Tile| {
+            let a = render_tile(scene, job, t, pass.clone(), &never)
+                .expect("nobody cancels this render");
+            progress.tile_done(n * t.pixel_count() as u64);
+            a
+        };
+        // sppm's tiles share the job's photon maps: one tile at a time (each parallel inside)
+        // traces each map once rather than once per tile that asks for it at the same time.
+        let accums: Vec<TileAccum> = if settings.integrator == IntegratorKind::Sppm {
+            tiles.iter().map(one).collect()
+        } else {
+            tiles.par_iter().map(one).collect()
+        };
         for a in &accums {
             film.add_tile(a)
                 .expect("render_tile gives every tile of the frame its own pixels");

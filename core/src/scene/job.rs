@@ -28,6 +28,58 @@ pub struct RenderJob {
     environment: Option<Arc<Environment>>,
     /// Chooses among the scene's lights and the environment.
     lights: LightSet,
+    /// What an integrator computes once for the whole job and reuses in every tile of it
+    /// (`sppm`'s photon maps); shared by clones, emptied when the environment changes.
+    pub(crate) cache: Arc<JobCache>,
+}
+
+/// Values computed once per job and kept for its other tiles, by key, up to
+/// [`JobCache::BUDGET`] bytes: beyond it a value is not kept, and whoever needs it computes it
+/// again, to the same bits (a value depends only on the job and its key). Nothing is evicted:
+/// the tiles of a job ask for the same keys in the same order, a pattern that evicting the
+/// oldest would turn into a miss on every request.
+#[derive(Default)]
+pub struct JobCache {
+    /// Bytes kept, and the values by key.
+    entries: std::sync::Mutex<(usize, Vec<(u64, CachedValue)>)>,
+}
+
+/// A value of [`JobCache`], of any type.
+type CachedValue = Arc<dyn std::any::Any + Send + Sync>;
+
+impl std::fmt::Debug for JobCache {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let e = self.entries.lock().unwrap_or_else(|e| e.into_inner());
+        write!(f, "JobCache({} values, {} bytes)", e.1.len(), e.0)
+    }
+}
+
+impl JobCache {
+    /// Bytes of values kept per job.
+    pub const BUDGET: usize = 256 << 20;
+
+    /// The value kept under `key`, if any (and of type `T`).
+    pub(crate) fn get<T: Send + Sync + 'static>(&self, key: u64) -> Option<Arc<T>> {
+        let e = self.entries.lock().unwrap_or_else(|e| e.into_inner());
+        let v = e.1.iter().find(|(k, _)| *k == key)?.1.clone();
+        v.downcast::<T>().ok()
+    }
+
+    /// Keeps `value` (of `bytes` bytes) under `key` if the budget allows and the key is new.
+    /// The lock is held only here and in [`JobCache::get`], never while a value is computed.
+    pub(crate) fn insert<T: Send + Sync + 'static>(&self, key: u64, value: Arc<T>, bytes: usize) {
+        let mut e = self.entries.lock().unwrap_or_else(|e| e.into_inner());
+        if e.0 + bytes > Self::BUDGET || e.1.iter().any(|(k, _)| *k == key) {
+            return;
+        }
+        e.0 += bytes;
+        e.1.push((key, value));
+    }
+
+    /// Bytes kept.
+    pub fn bytes(&self) -> usize {
+        self.entries.lock().unwrap_or_else(|e| e.into_inner()).0
+    }
 }
 
 impl RenderJob {
@@ -69,6 +121,7 @@ impl RenderJob {
             filter: FilterSampler::new(settings.filter),
             environment: None,
             lights: LightSet::default(),
+            cache: Arc::default(),
         };
         Ok(job.with_environment(scene, environment))
     }
@@ -83,6 +136,7 @@ impl RenderJob {
         let power = environment.as_ref().map(|e| e.power(scene.radius));
         self.lights = LightSet::new(&scene.lights, scene.radius, power);
         self.environment = environment;
+        self.cache = Arc::default();
         self
     }
 
@@ -90,6 +144,11 @@ impl RenderJob {
     #[inline]
     pub fn environment(&self) -> Option<&Environment> {
         self.environment.as_deref()
+    }
+
+    /// Bytes of values the job keeps for its other tiles ([`JobCache`]).
+    pub fn cache_bytes(&self) -> usize {
+        self.cache.bytes()
     }
 
     /// The light distribution: the scene's lights by index, then the environment.

@@ -1,0 +1,525 @@
+//! Stochastic progressive photon mapping (Hachisuka and Jensen 2009, as pbrt-v4's
+//! `SPPMIntegrator`): each iteration finds one visible point per pixel (the first surface
+//! with a BSDF that is not a delta, following mirrors and glass on the way), traces a
+//! photon pass from the lights, and updates each pixel's photon count N, search radius r and
+//! flux τ from the photons within r of its visible point (α = 2/3):
+//! N' = N + αM, r' = r √(N'/(N + M)), τ' = (τ + β Φ) r'²/r². After n iterations of P photons
+//! the pixel is L = τ / (n P π r²) + (direct light and emission seen on the way) / n.
+//! Consistent (the radius shrinks to zero), not unbiased.
+//!
+//! Deterministic and cut into tiles freely: a tile task runs every iteration for its pixels,
+//! keeping their (N, r, τ) in memory, so a pixel depends only on itself and on the photon maps.
+//! The photon map of iteration i holds photon k's deposits, traced with random numbers from
+//! (k, i, seed) alone, in photon order; lookups visit them in a fixed order. A job's maps are
+//! kept in its [`RenderJob`]'s cache for its other tiles (bounded; a map not kept is traced
+//! again, to the same bits). ARCHITECTURE.md, "Photon maps on the farm", says what this costs.
+//!
+//! Participating media are not rendered (as `path`); light transport on photon paths uses the
+//! adjoint BSDF, as `bdpt`'s light subpaths.
+
+use super::bdpt::{adjoint_f, sample_emission, scene_sphere};
+use super::direct::light_contribution;
+use super::Cancelled;
+use crate::light::range_window;
+use crate::material::Bsdf;
+use crate::sampling::warp::Frame;
+use crate::sampling::{hash_u32, Sampler};
+use crate::{RenderJob, Scene, Tile, TileAccum};
+use glam::{Vec2, Vec3, Vec3A};
+use rayon::prelude::*;
+use std::ops::Range;
+use std::sync::Arc;
+
+/// The fraction of new photons kept in a pixel's count per iteration.
+pub const ALPHA: f32 = 2.0 / 3.0;
+
+/// Initial search radius in pixels of the scene's extent: the scene's bounding-sphere
+/// diameter over the image's longer edge, times this.
+pub const INITIAL_RADIUS_PIXELS: f32 = 2.0;
+
+/// Mixed into the seed of photon samplers, so that photon k of iteration i draws numbers of its
+/// own, not those of pixel (k, 0)'s sample i.
+const PHOTON_SEED: u32 = 0x9e37_79b9;
+
+/// Photons traced per parallel work item (collected in photon order whatever the threads).
+const PHOTON_CHUNK: u32 = 4096;
+
+/// The initial search radius of every pixel of `job`: tile-independent, and the largest radius
+/// any lookup uses (radii only shrink), hence the photon grid's cell size.
+pub fn initial_radius(scene: &Scene, job: &RenderJob) -> f32 {
+    let edge = job.settings.width.max(job.settings.height).max(1) as f32;
+    INITIAL_RADIUS_PIXELS * 2.0 * scene_sphere(scene).1 / edge
+}
+
+/// Photons per iteration: one per pixel, as pbrt's default.
+pub fn photons_per_iteration(job: &RenderJob) -> u32 {
+    job.settings
+        .width
+        .saturating_mul(job.settings.height)
+        .max(1)
+}
+
+/// One photon's deposit: where it landed, the direction it came from, its power.
+#[derive(Clone, Copy, Debug)]
+struct Photon {
+    p: Vec3,
+    wi: Vec3,
+    beta: Vec3,
+}
+
+/// The photons of one iteration in a hashed uniform grid whose cells are as large as the
+/// largest search radius: a lookup visits the buckets of the 27 cells around the point, each
+/// bucket once, in increasing bucket order, and each bucket's photons in photon order.
+#[derive(Debug)]
+pub struct PhotonMap {
+    photons: Vec<Photon>,
+    /// `photons[start[b]..start[b + 1]]` are the photons of bucket b.
+    start: Vec<u32>,
+    inv_cell: f32,
+    /// Photon paths traced (for the measurement of repeated work).
+    pub traced: u32,
+}
+
+impl PhotonMap {
+    fn cell(&self, p: Vec3A) -> [i32; 3] {
+        let c = (p * self.inv_cell).floor();
+        [c.x as i32, c.y as i32, c.z as i32]
+    }
+
+    fn bucket(&self, c: [i32; 3]) -> usize {
+        let h = hash_u32(
+            (c[0] as u32).wrapping_mul(73_856_093)
+                ^ (c[1] as u32).wrapping_mul(19_349_663)
+                ^ (c[2] as u32).wrapping_mul(83_492_791),
+        );
+        (h as usize) & (self.start.len() - 2)
+    }
+
+    /// Builds the grid over `photons` (in photon order), for lookups of radius ≤ `cell`.
+    fn build(photons: Vec<Photon>, cell: f32, traced: u32) -> PhotonMap {
+        let buckets = photons.len().next_power_of_two().max(1);
+        let mut map = PhotonMap {
+            photons: Vec::new(),
+            start: vec![0; buckets + 1],
+            inv_cell: 1.0 / cell,
+            traced,
+        };
+        let keys: Vec<usize> = photons
+            .iter()
+            .map(|ph| map.bucket(map.cell(Vec3A::from(ph.p))))
+            .collect();
+        for &k in &keys {
+            map.start[k + 1] += 1;
+        }
+        for b in 0..buckets {
+            map.start[b + 1] += map.start[b];
+        }
+        // A stable counting sort: photon order within each bucket.
+        let mut next: Vec<u32> = map.start[..buckets].to_vec();
+        let mut sorted = photons.clone();
+        for (ph, &k) in photons.iter().zip(&keys) {
+            sorted[next[k] as usize] = *ph;
+            next[k] += 1;
+        }
+        map.photons = sorted;
+        map
+    }
+
+    /// Calls `f` with every photon within `r` of `p` (r ≤ the cell size), in a fixed order.
+    fn for_each_near(&self, p: Vec3A, r: f32, mut f: impl FnMut(&Photon)) {
+        if self.photons.is_empty() {
+            return;
+        }
+        let c = self.cell(p);
+        let mut buckets = [0usize; 27];
+        let mut n = 0;
+        for dz in -1..=1 {
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    buckets[n] = self.bucket([
+                        c[0].wrapping_add(dx),
+                        c[1].wrapping_add(dy),
+                        c[2].wrapping_add(dz),
+                    ]);
+                    n += 1;
+                }
+            }
+        }
+        buckets.sort_unstable();
+        let r2 = r * r;
+        let mut last = usize::MAX;
+        for &b in &buckets {
+            if b == last {
+                continue;
+            }
+            last = b;
+            let range = self.start[b] as usize..self.start[b + 1] as usize;
+            for ph in &self.photons[range] {
+                if (Vec3A::from(ph.p) - p).length_squared() <= r2 {
+                    f(ph);
+                }
+            }
+        }
+    }
+
+    fn memory_bytes(&self) -> usize {
+        self.photons.len() * std::mem::size_of::<Photon>() + self.start.len() * 4 + 64
+    }
+}
+
+/// The photon map of iteration `it` of `job`: from the job's cache, or traced (and kept if the
+/// cache has room).
+pub fn photon_map(scene: &Scene, job: &RenderJob, it: u32) -> Arc<PhotonMap> {
+    // The key names the integrator and the settings the map depends on besides the job.
+    let s = &job.settings;
+    let key = (0x5350_504d_u64 << 32 | it as u64)
+        ^ ((hash_u32(s.seed ^ hash_u32(s.max_depth ^ hash_u32(s.width ^ s.height << 16))) as u64)
+            << 20);
+    if let Some(m) = job.cache.get::<PhotonMap>(key) {
+        return m;
+    }
+    let m = Arc::new(trace_photons(scene, job, it));
+    job.cache.insert(key, m.clone(), m.memory_bytes());
+    m
+}
+
+/// Traces the photons of iteration `it` in parallel and gathers their deposits in photon order.
+fn trace_photons(scene: &Scene, job: &RenderJob, it: u32) -> PhotonMap {
+    let n = photons_per_iteration(job);
+    let sphere = scene_sphere(scene);
+    let chunks: Vec<Vec<Photon>> = (0..n.div_ceil(PHOTON_CHUNK))
+        .into_par_iter()
+        .map(|c| {
+            let mut out = Vec::new();
+            for k in c * PHOTON_CHUNK..((c + 1) * PHOTON_CHUNK).min(n) {
+                trace_photon(scene, job, sphere, k, it, &mut out);
+            }
+            out
+        })
+        .collect();
+    let photons: Vec<Photon> = chunks.into_iter().flatten().collect();
+    PhotonMap::build(photons, initial_radius(scene, job), n)
+}
+
+/// Photon `k` of iteration `it`: from a light chosen by power, scattered with the adjoint BSDF,
+/// deposited at every surface with a non-delta BSDF after the first (direct light is the
+/// camera pass's), until `max_depth` bounces or Russian roulette.
+fn trace_photon(
+    scene: &Scene,
+    job: &RenderJob,
+    sphere: (Vec3A, f32),
+    k: u32,
+    it: u32,
+    out: &mut Vec<Photon>,
+) {
+    let mut sampler = Sampler::new(k, 0, it, job.settings.seed ^ PHOTON_SEED);
+    let Some(e) = sample_emission(scene, job, sphere, &mut sampler) else {
+        return;
+    };
+    let mut beta = e.beta();
+    let mut ray = e.ray();
+    let max_depth = job.settings.max_depth;
+    let mut depth = 0u32;
+    let mut travelled = 0.0f32;
+    while depth < max_depth {
+        let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
+            return;
+        };
+        let si = scene.interaction(&ray, &hit);
+        if si.ng.dot(ray.d) > 0.0 {
+            let sigma = scene.absorption(si.object);
+            if sigma != Vec3A::ZERO {
+                beta *= (-sigma * hit.t).exp();
+            }
+        }
+        if scene.is_interface(si.object) {
+            travelled += hit.t;
+            ray = si.spawn_ray(ray.d);
+            continue;
+        }
+        if depth == 0 && e.range.is_finite() {
+            beta *= range_window(travelled + hit.t, e.range);
+        }
+        let bsdf = scene.bsdf(&si);
+        let wo_w = -ray.d;
+        if depth > 0 && !bsdf.is_delta() && beta.is_finite() && beta != Vec3A::ZERO {
+            out.push(Photon {
+                p: si.p.into(),
+                wi: wo_w.into(),
+                beta: beta.into(),
+            });
+        }
+        depth += 1;
+        let frame = si.shading_frame();
+        let wo = frame.to_local(wo_w);
+        sampler.align4();
+        let [u_lobe, u_rr, _] = sampler.hashed_3();
+        let u_dir = sampler.next_2d();
+        let Some(bs) = bsdf.sample(wo, u_lobe, u_dir) else {
+            return;
+        };
+        if !(bs.pdf > 0.0) {
+            return;
+        }
+        let wi_w = frame.to_world(bs.wi).normalize();
+        let f = adjoint_f(&bsdf, &si, wo, wo_w, wi_w, &bs);
+        let next = beta * f * (bs.wi.z.abs() / bs.pdf);
+        if !next.is_finite() || next.max_element() <= 0.0 {
+            return;
+        }
+        // Russian roulette on the change of throughput (pbrt's rule for photons).
+        let q = (1.0 - next.max_element() / beta.max_element()).max(0.0);
+        if u_rr < q {
+            return;
+        }
+        beta = next / (1.0 - q);
+        ray = si.spawn_ray(wi_w);
+    }
+}
+
+/// Where a camera ray of one iteration came to rest.
+struct VisiblePoint {
+    p: Vec3A,
+    wo: Vec3A,
+    frame: Frame,
+    bsdf: Bsdf,
+    beta: Vec3A,
+}
+
+/// The camera path of one pixel's iteration: emission seen directly or through delta BSDFs,
+/// direct light at the visible point (one light by power, no MIS: emitters found past the
+/// visible point are the photons' part), and the visible point itself.
+fn camera_pass(
+    scene: &Scene,
+    job: &RenderJob,
+    x: u32,
+    y: u32,
+    it: u32,
+) -> (Vec3A, Option<VisiblePoint>) {
+    let mut sampler = Sampler::new(x, y, it, job.settings.seed);
+    let offset = job.filter.sample(sampler.next_2d());
+    let lens = sampler.next_2d();
+    let film = Vec2::new(x as f32 + 0.5 + offset.x, y as f32 + 0.5 + offset.y);
+    let mut ray = job.camera.generate_ray(film, lens);
+    let mut l = Vec3A::ZERO;
+    let mut beta = Vec3A::ONE;
+    let max_depth = job.settings.max_depth;
+    let mut depth = 0u32;
+    loop {
+        let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
+            if let Some(env) = job.environment() {
+                l += beta * env.radiance(ray.d);
+            }
+            return (l, None);
+        };
+        let si = scene.interaction(&ray, &hit);
+        let wo_w = -ray.d;
+        if si.ng.dot(ray.d) > 0.0 {
+            let sigma = scene.absorption(si.object);
+            if sigma != Vec3A::ZERO {
+                beta *= (-sigma * hit.t).exp();
+            }
+        }
+        if scene.is_interface(si.object) {
+            ray = si.spawn_ray(ray.d);
+            continue;
+        }
+        l += beta * scene.emitted(&si, wo_w);
+        if depth >= max_depth {
+            return (l, None);
+        }
+        let bsdf = scene.bsdf(&si);
+        let frame = si.shading_frame();
+        let wo = frame.to_local(wo_w);
+        sampler.align4();
+        let [u_light, u_lobe, _] = sampler.hashed_3();
+        let u_ld = sampler.next_2d();
+        let u_dir = sampler.next_2d();
+        if !bsdf.is_delta() {
+            if let Some((index, pmf)) = job.lights().choose(u_light) {
+                let ld = light_contribution(scene, job, &si, &bsdf, &frame, wo, index, u_ld, false);
+                l += beta * ld / pmf;
+            }
+            let vp = VisiblePoint {
+                p: si.p,
+                wo,
+                frame,
+                bsdf,
+                beta,
+            };
+            return (l, Some(vp));
+        }
+        let Some(bs) = bsdf.sample(wo, u_lobe, u_dir) else {
+            return (l, None);
+        };
+        if !(bs.pdf > 0.0) {
+            return (l, None);
+        }
+        beta *= bs.f * (bs.wi.z.abs() / bs.pdf);
+        if !beta.is_finite() || beta == Vec3A::ZERO {
+            return (l, None);
+        }
+        ray = si.spawn_ray(frame.to_world(bs.wi).normalize());
+        depth += 1;
+    }
+}
+
+/// A pixel's state across iterations.
+#[derive(Clone, Copy)]
+struct PixelState {
+    /// Direct light and emission, summed over iterations.
+    ld: Vec3A,
+    /// Photon count N (fractional).
+    n: f32,
+    /// Search radius.
+    r: f32,
+    /// Flux τ.
+    tau: Vec3A,
+    /// Iterations dropped for a value that was not finite.
+    bad: u32,
+}
+
+/// Runs iterations `iterations` (the job's samples; every one of them: sppm is one pass) for
+/// every pixel of `tile`; the tile's pixels are (L × n, n) for n good iterations, so the film's
+/// division by the weight gives L. Looks at `cancel` before each iteration.
+pub fn render_tile(
+    scene: &Scene,
+    job: &RenderJob,
+    tile: Tile,
+    iterations: Range<u32>,
+    cancel: &super::Cancel,
+) -> Result<TileAccum, Cancelled> {
+    let w = tile.width() as usize;
+    let r0 = initial_radius(scene, job);
+    let mut state = vec![
+        PixelState {
+            ld: Vec3A::ZERO,
+            n: 0.0,
+            r: r0,
+            tau: Vec3A::ZERO,
+            bad: 0,
+        };
+        tile.pixel_count()
+    ];
+    let mut photons_total = 0.0f64;
+    for it in iterations.clone() {
+        if cancel.is_cancelled() {
+            return Err(Cancelled);
+        }
+        let map = photon_map(scene, job, it);
+        photons_total += map.traced as f64;
+        state
+            .par_chunks_mut(w.max(1))
+            .enumerate()
+            .for_each(|(row, px)| {
+                let y = tile.y0 + row as u32;
+                for (col, st) in px.iter_mut().enumerate() {
+                    let x = tile.x0 + col as u32;
+                    update_pixel(scene, job, &map, x, y, it, st);
+                }
+            });
+    }
+    let mut bad = 0u64;
+    let pixels = state
+        .iter()
+        .map(|st| {
+            bad += st.bad as u64;
+            let good = (iterations.len() as u32 - st.bad) as f32;
+            if good == 0.0 {
+                return [0.0; 4];
+            }
+            // Weight `good` to the film, which divides by it.
+            let area = (photons_total * std::f64::consts::PI * (st.r as f64).powi(2)) as f32;
+            let indirect = if area > 0.0 {
+                st.tau * (good / area)
+            } else {
+                Vec3A::ZERO
+            };
+            let l = st.ld + indirect;
+            if !l.is_finite() {
+                bad += good as u64;
+                return [0.0; 4];
+            }
+            [l.x, l.y, l.z, good]
+        })
+        .collect();
+    Ok(TileAccum {
+        tile,
+        pixels,
+        bad_samples: bad,
+        splats: Vec::new(),
+    })
+}
+
+/// One iteration of one pixel: its camera pass, then the radius and flux update from the
+/// photons near its visible point.
+fn update_pixel(
+    scene: &Scene,
+    job: &RenderJob,
+    map: &PhotonMap,
+    x: u32,
+    y: u32,
+    it: u32,
+    st: &mut PixelState,
+) {
+    let (ld, vp) = camera_pass(scene, job, x, y, it);
+    if !ld.is_finite() {
+        st.bad += 1;
+        return;
+    }
+    st.ld += ld;
+    let Some(vp) = vp else {
+        return;
+    };
+    let mut phi = Vec3A::ZERO;
+    let mut m = 0u32;
+    map.for_each_near(vp.p, st.r, |ph| {
+        let wi = vp.frame.to_local(Vec3A::from(ph.wi));
+        let f = vp.bsdf.eval(vp.wo, wi);
+        phi += Vec3A::from(ph.beta) * f;
+        m += 1;
+    });
+    if m == 0 || !phi.is_finite() {
+        return;
+    }
+    let n_new = st.n + ALPHA * m as f32;
+    let r_new = st.r * (n_new / (st.n + m as f32)).sqrt();
+    st.tau = (st.tau + vp.beta * phi) * ((r_new * r_new) / (st.r * st.r));
+    st.n = n_new;
+    st.r = r_new;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lookups_find_exactly_the_photons_within_the_radius_once_each() {
+        let mut photons = Vec::new();
+        let mut h = 1u32;
+        for _ in 0..2000 {
+            let mut c = [0.0f32; 3];
+            for v in &mut c {
+                h = hash_u32(h);
+                *v = (h >> 8) as f32 / 16_777_216.0 * 4.0 - 2.0;
+            }
+            photons.push(Photon {
+                p: Vec3::from(c),
+                wi: Vec3::Z,
+                beta: Vec3::ONE,
+            });
+        }
+        let map = PhotonMap::build(photons.clone(), 0.3, 2000);
+        for q in [Vec3A::ZERO, Vec3A::new(1.0, -0.5, 0.7), Vec3A::splat(1.9)] {
+            for r in [0.05, 0.2, 0.3] {
+                let mut got = 0;
+                map.for_each_near(q, r, |_| got += 1);
+                let want = photons
+                    .iter()
+                    .filter(|p| (Vec3A::from(p.p) - q).length_squared() <= r * r)
+                    .count();
+                assert_eq!(got, want, "{q} {r}");
+            }
+        }
+    }
+}

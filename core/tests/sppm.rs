@@ -1,0 +1,138 @@
+//! Stochastic progressive photon mapping against known answers: a closed diffuse furnace, `path`
+//! on the Cornell box, the caustic of a glass ball under a point light (which `path` cannot
+//! render), and bit-identical images whatever the tiling, the threads and the job's cache.
+//!
+//! An sppm image's pixels are not independent (neighbours share photons), so the standard
+//! error of its mean is measured across renders with independent seeds, not across pixels.
+//! sppm is consistent, not unbiased: the settings below (iterations, the initial radius of
+//! `sppm::INITIAL_RADIUS_PIXELS`) keep the bias of the compared means under the tolerance, and
+//! each test says by how much.
+
+mod estimates;
+
+use estimates::{caustic_under_point_light, image, load, load_file, stats};
+use raytile_core::integrator::sppm;
+use raytile_core::{render_tile, Cancel, IntegratorKind, RenderJob, RenderSettings};
+
+fn settings(w: u32, h: u32, spp: u32, integrator: IntegratorKind) -> RenderSettings {
+    RenderSettings {
+        width: w,
+        height: h,
+        spp,
+        max_depth: 8,
+        integrator,
+        ..Default::default()
+    }
+}
+
+/// Mean and standard error of the image mean over renders with seeds `0..seeds`.
+fn seed_stats(scene: &raytile_core::Scene, s: &RenderSettings, seeds: u32) -> ([f64; 3], [f64; 3]) {
+    let means: Vec<[f32; 3]> = (0..seeds)
+        .map(|seed| {
+            let s = RenderSettings { seed, ..s.clone() };
+            let (m, _) = stats(&image(scene, &s));
+            [m[0] as f32, m[1] as f32, m[2] as f32]
+        })
+        .collect();
+    stats(&means)
+}
+
+#[test]
+fn furnace_a_closed_emitting_diffuse_sphere() {
+    // Inside a sphere that emits Le = 1 and reflects diffusely with albedo ρ = 0.5, radiance
+    // is Le / (1 − ρ) = 2 everywhere: 1 seen directly, 0.5 by direct light at the visible
+    // point, 0.5 by photons. A sphere's surface within distance r of a point on it has area
+    // exactly π r², so the density estimate has no bias here.
+    let scene = load(
+        r#"{
+  "materials": {"wall": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5],
+                         "emission": [1, 1, 1], "two_sided": true}},
+  "objects": [{"shape": {"type": "sphere", "radius": 1}, "material": "wall"}],
+  "camera": {"position": [0, 0, 0.3], "look_at": [0, 0, -1], "fov": 60}
+}"#,
+    );
+    let mut s = settings(24, 24, 16, IntegratorKind::Sppm);
+    s.max_depth = 40;
+    let (mean, se) = seed_stats(&scene, &s, 6);
+    eprintln!("sppm furnace: mean {mean:.4?}, standard error {se:.4?}, want 2");
+    for k in 0..3 {
+        assert!(se[k] < 0.02, "too noisy: {se:?}");
+        assert!(
+            (mean[k] - 2.0).abs() <= 4.0 * se[k] + 1e-3,
+            "{mean:?} ± {se:?}"
+        );
+    }
+}
+
+#[test]
+fn sppm_matches_path_on_the_cornell_box() {
+    let scene = load_file("cornell-box.json");
+    // Both means with their standard errors across seeds (a mean over pixels varies with the
+    // picture, not only with the noise).
+    let (pm, pse) = seed_stats(&scene, &settings(32, 32, 16, IntegratorKind::Path), 6);
+    let (sm, sse) = seed_stats(&scene, &settings(32, 32, 32, IntegratorKind::Sppm), 6);
+    eprintln!("cornell: path {pm:.4?} ± {pse:.4?}, sppm {sm:.4?} ± {sse:.4?} (standard errors)");
+    for k in 0..3 {
+        let se = (pse[k].powi(2) + sse[k].powi(2)).sqrt();
+        assert!(pm[k] > 0.05 && se < 0.005, "{pm:?} ± {se}");
+        assert!(
+            (sm[k] - pm[k]).abs() <= 4.0 * se + 1e-3,
+            "channel {k}: sppm {} vs path {} (standard error {se})",
+            sm[k],
+            pm[k]
+        );
+    }
+}
+
+#[test]
+fn the_caustic_under_a_point_light_is_there_with_sppm_and_not_with_path() {
+    estimates::check_caustic_under_point_light(IntegratorKind::Sppm);
+}
+
+#[test]
+fn sppm_is_deterministic_whatever_the_tiling_the_threads_and_the_cache() {
+    let scene = caustic_under_point_light();
+    let bits = |px: &[[f32; 3]]| px.iter().flatten().map(|v| v.to_bits()).collect::<Vec<_>>();
+    let mut s = settings(40, 30, 4, IntegratorKind::Sppm);
+    s.tile_size = 8;
+    let a = image(&scene, &s);
+    s.tile_size = 64;
+    let b = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap()
+        .install(|| image(&scene, &s));
+    assert!(a.iter().flatten().any(|&v| v > 0.0));
+    assert_eq!(bits(&a), bits(&b));
+    // Every tile with a job of its own (no photon map kept from another tile): the same bits.
+    s.tile_size = 16;
+    let mut film = raytile_core::Film::new(s.width, s.height);
+    for t in s.tiles() {
+        let job = RenderJob::new(&scene, &s).unwrap();
+        film.add_tile(&render_tile(&scene, &job, t, 0..s.spp, &Cancel::new()).unwrap())
+            .unwrap();
+    }
+    assert_eq!(bits(&a), bits(&film.resolve()));
+}
+
+#[test]
+fn a_job_traces_each_photon_map_once_and_keeps_it_for_its_other_tiles() {
+    let scene = load_file("cornell-box.json");
+    let mut s = settings(32, 32, 4, IntegratorKind::Sppm);
+    s.tile_size = 16;
+    let job = RenderJob::new(&scene, &s).unwrap();
+    let first = sppm::photon_map(&scene, &job, 0);
+    let again = sppm::photon_map(&scene, &job, 0);
+    assert!(std::sync::Arc::ptr_eq(&first, &again));
+    assert_eq!(first.traced, 32 * 32);
+    assert!(job.cache_bytes() > 0);
+}
+
+#[test]
+fn sppm_renders_in_one_pass() {
+    let scene = load_file("cornell-box.json");
+    let mut s = settings(8, 8, 4, IntegratorKind::Sppm);
+    s.passes = 2;
+    let e = RenderJob::new(&scene, &s).unwrap_err().to_string();
+    assert!(e.contains("passes") && e.contains("sppm"), "{e}");
+}
