@@ -82,7 +82,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     }
     let pool = pool.build().context("starting worker threads")?;
     let loaded = start.elapsed().as_secs_f64();
-    let scene = pool.install(|| Scene::build(&desc))?;
+    let scene = pool.install(move || Scene::build_owned(desc))?;
     let built = start.elapsed().as_secs_f64() - loaded;
     // An environment map given on the command line is read as given (relative to the
     // current folder).
