@@ -290,7 +290,7 @@ impl LeafTris {
         assert_eq!(next, slots, "leaves must cover the slots once each");
         let mut data = vec![0.0f32; FLOATS * slots + 3];
         // Runs of whole leaves, each with its part of `data`, packed in parallel.
-        let mut tasks: Vec<(&[(u32, u32)], &mut [f32])> = Vec::new();
+        let mut tasks = Vec::new();
         let (mut rest, mut first) = (data.as_mut_slice(), 0usize);
         let mut run_start = 0usize;
         for (i, &(start, count)) in sorted.iter().enumerate() {
@@ -542,7 +542,7 @@ mod tests {
         let base = |slot: u32| TriangleGeom::new([v(3 * slot), v(3 * slot + 1), v(3 * slot + 2)]);
         // Every 11th slot repeats the one before: equal distances, the lower lane must win.
         let tri = |slot: u32| {
-            base(if slot % 11 == 0 && slot > 0 {
+            base(if slot.is_multiple_of(11) && slot > 0 {
                 slot - 1
             } else {
                 slot
