@@ -671,7 +671,7 @@ fn load_and_build(file: &Path, limits: SceneLoadLimits) -> anyhow::Result<Scene>
     let f = file.to_path_buf();
     match std::panic::catch_unwind(move || -> Result<Scene, raytile_core::SceneError> {
         let desc = raytile_core::load_scene_with(&f, &files)?;
-        Scene::build(&desc)
+        Scene::build_owned(desc)
     }) {
         Ok(Ok(scene)) => Ok(scene),
         Ok(Err(e)) => Err(anyhow!("scene: {e}")),

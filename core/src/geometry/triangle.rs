@@ -1,6 +1,7 @@
 //! Triangle meshes: storage in object space and the ray–triangle test.
 
 use glam::{Vec2, Vec3A, Vec4};
+use rayon::prelude::*;
 
 /// A mesh ready for rendering, in object space. Shared by every object that instances it.
 #[derive(Clone, Debug, Default)]
@@ -176,58 +177,249 @@ impl Tri4 {
         tmin: f32,
         tmax: f32,
     ) -> Option<(usize, f32, f32, f32)> {
-        let (hits, t, b1, b2) = self.test(o, d, tmin, tmax);
-        if hits == 0 {
-            return None;
-        }
-        let (t, b1, b2) = (t.to_array(), b1.to_array(), b2.to_array());
-        let mut best = hits.trailing_zeros() as usize;
-        let mut rest = hits & (hits - 1);
-        while rest != 0 {
-            let lane = rest.trailing_zeros() as usize;
-            rest &= rest - 1;
-            if t[lane] < t[best] {
-                best = lane;
-            }
-        }
-        Some((best, t[best], b1[best], b2[best]))
+        nearest_lane(test4(&self.v0, &self.e1, &self.e2, o, d, tmin, tmax))
     }
 
     /// Whether any of the four is hit within (tmin, tmax).
     #[inline(always)]
     pub fn any(&self, o: Vec3A, d: Vec3A, tmin: f32, tmax: f32) -> bool {
-        self.test(o, d, tmin, tmax).0 != 0
+        test4(&self.v0, &self.e1, &self.e2, o, d, tmin, tmax).0 != 0
+    }
+}
+
+/// Of the lanes hit (a mask, and every lane's t, b1, b2), the nearest: the lowest lane among
+/// equal distances.
+#[inline(always)]
+fn nearest_lane((hits, t, b1, b2): (u32, Vec4, Vec4, Vec4)) -> Option<(usize, f32, f32, f32)> {
+    if hits == 0 {
+        return None;
+    }
+    let (t, b1, b2) = (t.to_array(), b1.to_array(), b2.to_array());
+    let mut best = hits.trailing_zeros() as usize;
+    let mut rest = hits & (hits - 1);
+    while rest != 0 {
+        let lane = rest.trailing_zeros() as usize;
+        rest &= rest - 1;
+        if t[lane] < t[best] {
+            best = lane;
+        }
+    }
+    Some((best, t[best], b1[best], b2[best]))
+}
+
+/// One SIMD Möller–Trumbore of four triangles given lane by lane (v0, e1, e2 by axis): the
+/// lanes hit within (tmin, tmax), and every lane's t, b1, b2. Each lane computes exactly what
+/// [`TriangleGeom::intersect`] computes.
+#[inline(always)]
+fn test4(
+    v0: &[Vec4; 3],
+    e1: &[Vec4; 3],
+    e2: &[Vec4; 3],
+    o: Vec3A,
+    d: Vec3A,
+    tmin: f32,
+    tmax: f32,
+) -> (u32, Vec4, Vec4, Vec4) {
+    let [e1x, e1y, e1z] = *e1;
+    let [e2x, e2y, e2z] = *e2;
+    let (dx, dy, dz) = (Vec4::splat(d.x), Vec4::splat(d.y), Vec4::splat(d.z));
+    let px = dy * e2z - dz * e2y;
+    let py = dz * e2x - dx * e2z;
+    let pz = dx * e2y - dy * e2x;
+    let det = e1x * px + e1y * py + e1z * pz;
+    let inv = Vec4::ONE / det;
+    let sx = Vec4::splat(o.x) - v0[0];
+    let sy = Vec4::splat(o.y) - v0[1];
+    let sz = Vec4::splat(o.z) - v0[2];
+    let b1 = (sx * px + sy * py + sz * pz) * inv;
+    let qx = sy * e1z - sz * e1y;
+    let qy = sz * e1x - sx * e1z;
+    let qz = sx * e1y - sy * e1x;
+    let b2 = (dx * qx + dy * qy + dz * qz) * inv;
+    let t = (e2x * qx + e2y * qy + e2z * qz) * inv;
+    let ok = det.cmpne(Vec4::ZERO)
+        & det.abs().cmplt(Vec4::INFINITY)
+        & b1.cmpge(Vec4::ZERO)
+        & b1.cmple(Vec4::ONE)
+        & b2.cmpge(Vec4::ZERO)
+        & (b1 + b2).cmple(Vec4::ONE)
+        & t.cmpgt(Vec4::splat(tmin))
+        & t.cmplt(Vec4::splat(tmax));
+    (ok.bitmask(), t, b1, b2)
+}
+
+/// Floats per triangle in a [`LeafTris`]: v0, e1 and e2, three components each.
+const FLOATS: usize = 9;
+
+/// Leaves with at least this many slots are packed by one parallel task each.
+const PACK_TASK_SLOTS: usize = 1 << 14;
+
+/// The triangles of a BVH's leaves, stored for the SIMD test with nothing else and no padding
+/// lanes: 36 bytes per slot (a [`Tri4`] per leaf takes 144 bytes, however few triangles the
+/// leaf holds). Slots are BVH positions; a leaf of `count` slots from `start` keeps, for each
+/// of the nine components (v0, e1, e2 by axis), its `count` lanes one after the other from
+/// float `9 · start`. Four lanes are read with one unaligned load: in a leaf of fewer than four
+/// slots the extra lanes hold the next component's values (or the three floats of padding at
+/// the end) and are masked off, so the arithmetic per lane is exactly [`Tri4`]'s and the
+/// results are the scalar test's to the bit. Slots that are not triangles hold zeros and must
+/// not be tested as triangles.
+#[derive(Clone, Debug, Default)]
+pub struct LeafTris {
+    data: Vec<f32>,
+}
+
+impl LeafTris {
+    /// Packs `slots` slots for the leaves `leaves` ((first slot, count), in any order; they
+    /// must cover `0..slots` exactly, as [`crate::accel::Bvh::leaves`] does), with `geom(slot)`
+    /// the triangle in each slot (`None`: not a triangle). In parallel on rayon's pool.
+    pub fn new(
+        slots: usize,
+        leaves: &[(u32, u32)],
+        geom: impl Fn(usize) -> Option<TriangleGeom> + Sync,
+    ) -> Self {
+        let mut sorted = leaves.to_vec();
+        sorted.sort_unstable();
+        let mut next = 0usize;
+        for &(start, count) in &sorted {
+            assert!(
+                start as usize == next && count > 0,
+                "leaves must cover the slots once each"
+            );
+            next += count as usize;
+        }
+        assert_eq!(next, slots, "leaves must cover the slots once each");
+        let mut data = vec![0.0f32; FLOATS * slots + 3];
+        // Runs of whole leaves, each with its part of `data`, packed in parallel.
+        let mut tasks = Vec::new();
+        let (mut rest, mut first) = (data.as_mut_slice(), 0usize);
+        let mut run_start = 0usize;
+        for (i, &(start, count)) in sorted.iter().enumerate() {
+            let end = (start + count) as usize;
+            if end - run_start >= PACK_TASK_SLOTS || i + 1 == sorted.len() {
+                let (part, tail) =
+                    std::mem::take(&mut rest).split_at_mut(FLOATS * (end - run_start));
+                tasks.push((&sorted[first..=i], part));
+                rest = tail;
+                first = i + 1;
+                run_start = end;
+            }
+        }
+        tasks.into_par_iter().for_each(|(run, part)| {
+            let base = run.first().map_or(0, |l| l.0 as usize);
+            for &(start, count) in run {
+                let at = FLOATS * (start as usize - base);
+                let n = count as usize;
+                let leaf = &mut part[at..at + FLOATS * n];
+                for lane in 0..n {
+                    let Some(g) = geom(start as usize + lane) else {
+                        continue;
+                    };
+                    for (c, v) in [g.v0, g.e1, g.e2]
+                        .iter()
+                        .flat_map(|v| v.to_array())
+                        .enumerate()
+                    {
+                        leaf[c * n + lane] = v;
+                    }
+                }
+            }
+        });
+        Self { data }
     }
 
-    /// The lanes hit, and every lane's t, b1, b2.
+    /// The triangle in lane `lane` of the leaf of `count` slots from `start`.
+    #[inline]
+    pub fn geom(&self, start: u32, count: u32, lane: u32) -> TriangleGeom {
+        let (n, at) = (count as usize, FLOATS * start as usize + lane as usize);
+        let c = |k: usize| self.data[at + k * n];
+        TriangleGeom {
+            v0: Vec3A::new(c(0), c(1), c(2)),
+            e1: Vec3A::new(c(3), c(4), c(5)),
+            e2: Vec3A::new(c(6), c(7), c(8)),
+        }
+    }
+
+    /// The nearest hit among the triangles of the leaf of `count` slots from `start` within
+    /// (tmin, tmax): (lane, t, b1, b2), the lowest lane among equal distances, what testing
+    /// them one by one with [`TriangleGeom::intersect`] gives.
     #[inline(always)]
-    fn test(&self, o: Vec3A, d: Vec3A, tmin: f32, tmax: f32) -> (u32, Vec4, Vec4, Vec4) {
-        let [e1x, e1y, e1z] = self.e1;
-        let [e2x, e2y, e2z] = self.e2;
-        let (dx, dy, dz) = (Vec4::splat(d.x), Vec4::splat(d.y), Vec4::splat(d.z));
-        let px = dy * e2z - dz * e2y;
-        let py = dz * e2x - dx * e2z;
-        let pz = dx * e2y - dy * e2x;
-        let det = e1x * px + e1y * py + e1z * pz;
-        let inv = Vec4::ONE / det;
-        let sx = Vec4::splat(o.x) - self.v0[0];
-        let sy = Vec4::splat(o.y) - self.v0[1];
-        let sz = Vec4::splat(o.z) - self.v0[2];
-        let b1 = (sx * px + sy * py + sz * pz) * inv;
-        let qx = sy * e1z - sz * e1y;
-        let qy = sz * e1x - sx * e1z;
-        let qz = sx * e1y - sy * e1x;
-        let b2 = (dx * qx + dy * qy + dz * qz) * inv;
-        let t = (e2x * qx + e2y * qy + e2z * qz) * inv;
-        let ok = det.cmpne(Vec4::ZERO)
-            & det.abs().cmplt(Vec4::INFINITY)
-            & b1.cmpge(Vec4::ZERO)
-            & b1.cmple(Vec4::ONE)
-            & b2.cmpge(Vec4::ZERO)
-            & (b1 + b2).cmple(Vec4::ONE)
-            & t.cmpgt(Vec4::splat(tmin))
-            & t.cmplt(Vec4::splat(tmax));
-        (ok.bitmask(), t, b1, b2)
+    pub fn intersect(
+        &self,
+        start: u32,
+        count: u32,
+        o: Vec3A,
+        d: Vec3A,
+        tmin: f32,
+        tmax: f32,
+    ) -> Option<(usize, f32, f32, f32)> {
+        let leaf = self.leaf(start, count);
+        let n = count as usize;
+        if n <= 4 {
+            let (hits, t, b1, b2) = Self::test(leaf, n, 0, o, d, tmin, tmax);
+            return nearest_lane((hits & ((1 << n) - 1), t, b1, b2));
+        }
+        // Wider leaves four lanes at a time; each group only sees hits nearer than the
+        // previous groups' best, so the lowest lane still wins among equal distances.
+        let mut best = None;
+        let mut tmax = tmax;
+        for first in (0..n).step_by(4) {
+            let (hits, t, b1, b2) = Self::test(leaf, n, first, o, d, tmin, tmax);
+            let lanes = (n - first).min(4);
+            if let Some((lane, th, b1, b2)) = nearest_lane((hits & ((1 << lanes) - 1), t, b1, b2)) {
+                tmax = th;
+                best = Some((first + lane, th, b1, b2));
+            }
+        }
+        best
+    }
+
+    /// Whether any triangle of the leaf of `count` slots from `start` is hit within
+    /// (tmin, tmax).
+    #[inline(always)]
+    pub fn any(&self, start: u32, count: u32, o: Vec3A, d: Vec3A, tmin: f32, tmax: f32) -> bool {
+        let leaf = self.leaf(start, count);
+        let n = count as usize;
+        (0..n).step_by(4).any(|first| {
+            let lanes = (n - first).min(4);
+            Self::test(leaf, n, first, o, d, tmin, tmax).0 & ((1 << lanes) - 1) != 0
+        })
+    }
+
+    /// The floats of the leaf of `count` slots from `start`, with the three that may be read
+    /// past its last component.
+    #[inline(always)]
+    fn leaf(&self, start: u32, count: u32) -> &[f32] {
+        let at = FLOATS * start as usize;
+        &self.data[at..at + FLOATS * count as usize + 3]
+    }
+
+    /// [`test4`] on lanes `first..first + 4` of a leaf of `n` slots (`leaf` from
+    /// [`LeafTris::leaf`]); lanes at `n` and beyond hold other values and must be masked off.
+    #[inline(always)]
+    fn test(
+        leaf: &[f32],
+        n: usize,
+        first: usize,
+        o: Vec3A,
+        d: Vec3A,
+        tmin: f32,
+        tmax: f32,
+    ) -> (u32, Vec4, Vec4, Vec4) {
+        debug_assert!(first < n && leaf.len() >= FLOATS * n + 3);
+        let load = |c: usize| {
+            let at = c * n + first;
+            // SAFETY: `first < n`, so `at + 3 <= 8n + n - 1 + 3 < 9n + 3 <= leaf.len()`.
+            Vec4::from_array(unsafe { leaf.as_ptr().add(at).cast::<[f32; 4]>().read_unaligned() })
+        };
+        let v0 = [load(0), load(1), load(2)];
+        let e1 = [load(3), load(4), load(5)];
+        let e2 = [load(6), load(7), load(8)];
+        test4(&v0, &e1, &e2, o, d, tmin, tmax)
+    }
+
+    /// Bytes held.
+    pub fn memory_bytes(&self) -> usize {
+        self.data.capacity() * std::mem::size_of::<f32>()
     }
 }
 
@@ -328,5 +520,78 @@ mod tests {
             hits += usize::from(want.is_some());
         }
         assert!(hits > 500, "too few hits to mean anything: {hits}");
+    }
+
+    /// Leaves of one to eight triangles packed without padding lanes (and a slot that is not a
+    /// triangle) give what testing their triangles one by one gives, to the bit: the lane, t,
+    /// b1, b2 of the nearest (the lowest lane among equals), any-hit, and the corners back.
+    #[test]
+    fn leaf_tris_match_scalar_bit_for_bit() {
+        use crate::sampling::hash_u32;
+        let r = |i: u32| (hash_u32(i) >> 8) as f32 / (1 << 24) as f32 * 2.0 - 1.0;
+        let v = |i: u32| Vec3A::new(r(3 * i), r(3 * i + 1), r(3 * i + 2));
+        // Leaves of 1..=8 slots, listed out of slot order as a BVH's may be.
+        let mut leaves = Vec::new();
+        let mut slots = 0u32;
+        for k in 0..600u32 {
+            let count = 1 + hash_u32(k + 77) % 8;
+            leaves.push((slots, count));
+            slots += count;
+        }
+        leaves.reverse();
+        let base = |slot: u32| TriangleGeom::new([v(3 * slot), v(3 * slot + 1), v(3 * slot + 2)]);
+        // Every 11th slot repeats the one before: equal distances, the lower lane must win.
+        let tri = |slot: u32| {
+            base(if slot.is_multiple_of(11) && slot > 0 {
+                slot - 1
+            } else {
+                slot
+            })
+        };
+        let hole = |slot: u32| slot % 97 == 5; // not a triangle: zeros, never tested as one
+        let pack = LeafTris::new(slots as usize, &leaves, |s| {
+            (!hole(s as u32)).then(|| tri(s as u32))
+        });
+        let mut hits = 0;
+        for (n, &(start, count)) in leaves.iter().enumerate() {
+            let n = n as u32;
+            let tris: Vec<Option<TriangleGeom>> = (start..start + count)
+                .map(|s| (!hole(s)).then(|| tri(s)))
+                .collect();
+            for (lane, t) in tris.iter().enumerate() {
+                let got = pack.geom(start, count, lane as u32);
+                assert_eq!(got, t.unwrap_or(TriangleGeom::new([Vec3A::ZERO; 3])));
+            }
+            let Some(aim) = tris.iter().flatten().next() else {
+                continue;
+            };
+            for k in 0..8u32 {
+                let o = v(900_000 + 8 * n + k) * 2.0;
+                let d = aim.point(0.3, 0.3) + v(800_000 + 8 * n + k) * 0.4 - o;
+                let tmax = if k % 3 == 0 { 1.5 } else { f32::INFINITY };
+                let mut want = None;
+                let mut best = tmax;
+                for (lane, t) in tris.iter().enumerate() {
+                    if let Some((th, b1, b2)) = t.and_then(|t| t.intersect(o, d, 0.0, best)) {
+                        best = th;
+                        want = Some((lane, th, b1, b2));
+                    }
+                }
+                if tris.iter().all(Option::is_some) {
+                    let got = pack.intersect(start, count, o, d, 0.0, tmax);
+                    let bits = |h: Option<(usize, f32, f32, f32)>| {
+                        h.map(|g| (g.0, g.1.to_bits(), g.2.to_bits(), g.3.to_bits()))
+                    };
+                    assert_eq!(bits(got), bits(want), "leaf {n} ray {k}");
+                    assert_eq!(pack.any(start, count, o, d, 0.0, tmax), want.is_some());
+                    if count <= 4 {
+                        let packet = Tri4::new(&tris.iter().flatten().copied().collect::<Vec<_>>());
+                        assert_eq!(bits(packet.intersect(o, d, 0.0, tmax)), bits(want));
+                    }
+                }
+                hits += usize::from(want.is_some());
+            }
+        }
+        assert!(hits > 1000, "too few hits to mean anything: {hits}");
     }
 }

@@ -12,21 +12,25 @@
 use super::{ObjectKind, Scene};
 use crate::accel::Bvh;
 use crate::geometry::interaction::NO_SLOT;
-use crate::geometry::triangle::{Mesh, Tri4, TriangleGeom};
+use crate::geometry::triangle::{LeafTris, Mesh, TriangleGeom};
 use crate::geometry::{Aabb, Hit, Ray};
 use crate::material::AlphaMode;
 use crate::sampling::hash_u32;
 use glam::Vec4;
+use rayon::prelude::*;
 
-/// A top-level BVH primitive, stored in BVH slot order.
+/// A top-level BVH primitive, stored in BVH slot order. Twelve bytes: a triangle's corners
+/// live in the aggregate's [`LeafTris`], at its leaf (the slot minus `lane`).
 #[derive(Clone, Copy, Debug)]
 pub(crate) enum Prim {
     Tri {
-        geom: TriangleGeom,
         object: u32,
         tri: u32,
         /// The material is not opaque: hits need the alpha test.
         alpha: bool,
+        /// Its lane in its BVH leaf, and the leaf's slot count.
+        lane: u8,
+        count: u8,
     },
     Analytic {
         object: u32,
@@ -36,45 +40,51 @@ pub(crate) enum Prim {
     },
 }
 
+/// The top level's primitives before the build, in input order, as runs: from `.0` on (up to
+/// the next run) the triangles of one flattened object, or one other primitive. A
+/// million-triangle mesh is one run, not a million primitives.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum Run {
+    /// Triangle `i − first` of `object` at input index `i`.
+    Tris { object: u32, alpha: bool },
+    /// One primitive.
+    One(Prim),
+}
+
 /// The per-mesh BVH of an instanced mesh (object space).
 #[derive(Clone)]
 pub(crate) struct MeshBlas {
     bvh: Bvh,
-    tris: Vec<(TriangleGeom, u32)>,
-    /// By leaf: its triangles packed for the 4-wide test (used for opaque instances).
-    packets: Vec<Tri4>,
+    /// By slot: the corners, leaf by leaf.
+    tris: LeafTris,
+    /// By slot: the mesh's triangle.
+    index: Vec<u32>,
 }
 
 impl MeshBlas {
     /// The BVH of mesh `m`, one of the trees of a scene of `scene_prims` primitives.
     pub(crate) fn new(m: &Mesh, scene_prims: usize) -> Self {
-        let geoms: Vec<(TriangleGeom, u32)> = (0..m.indices.len())
-            .map(|i| (TriangleGeom::new(m.corners(i)), i as u32))
-            .collect();
         let bounds: Vec<Aabb> = (0..m.indices.len())
+            .into_par_iter()
             .map(|i| Aabb::from_points(&m.corners(i)))
             .collect();
-        let (bvh, order) = Bvh::build_in_scene(&bounds, scene_prims);
-        let tris: Vec<(TriangleGeom, u32)> = order.iter().map(|&i| geoms[i as usize]).collect();
-        let packets = bvh
-            .leaves()
-            .iter()
-            .map(|&(start, count)| {
-                let leaf: Vec<TriangleGeom> = tris[start as usize..(start + count) as usize]
-                    .iter()
-                    .map(|t| t.0)
-                    .collect();
-                Tri4::new(&leaf)
-            })
-            .collect();
-        MeshBlas { bvh, tris, packets }
+        let (bvh, mut order) = Bvh::build_in_scene(&bounds, scene_prims);
+        drop(bounds);
+        order.shrink_to_fit();
+        let tris = LeafTris::new(order.len(), bvh.leaves(), |slot| {
+            Some(TriangleGeom::new(m.corners(order[slot] as usize)))
+        });
+        MeshBlas {
+            bvh,
+            tris,
+            index: order,
+        }
     }
 
     fn memory_bytes(&self) -> usize {
-        use std::mem::size_of;
         self.bvh.memory_bytes()
-            + self.tris.capacity() * size_of::<(TriangleGeom, u32)>()
-            + self.packets.capacity() * size_of::<Tri4>()
+            + self.tris.memory_bytes()
+            + self.index.capacity() * std::mem::size_of::<u32>()
     }
 }
 
@@ -83,9 +93,11 @@ pub(crate) struct Aggregate {
     bvh: Bvh,
     /// The top level's primitives in BVH slot order.
     pub(crate) prims: Vec<Prim>,
-    /// By BVH leaf: its triangles packed for the 4-wide test, when the leaf holds only opaque
-    /// triangles (else its primitives are tested one by one).
-    packets: Vec<Option<Tri4>>,
+    /// By slot, leaf by leaf: the corners of flattened triangles (world space).
+    pub(crate) tris: LeafTris,
+    /// Bit `leaf` (of word `leaf / 64`) set: the leaf holds only opaque triangles, tested at
+    /// once by [`LeafTris::intersect`] (else its primitives are tested one by one).
+    packed: Vec<u64>,
     /// By BVH slot, for flattened triangles: the unit world-space front normal (xyz), and in w
     /// 1 when the shading normal is that normal (no vertex normals, or all three equal to it),
     /// else 0. What a hit record needs without going back to the mesh and its transform.
@@ -96,30 +108,92 @@ pub(crate) struct Aggregate {
     blas: Vec<Option<MeshBlas>>,
 }
 
+/// What [`Aggregate::new`] builds the top level from.
+pub(crate) struct TopLevel {
+    /// Every primitive's world bounds, in input order.
+    pub(crate) bounds: Vec<Aabb>,
+    /// The primitives in input order (see [`Run`]), by first input index.
+    pub(crate) runs: Vec<(u32, Run)>,
+}
+
 impl Aggregate {
-    /// The top-level BVH over `prims` (with their world bounds) for a scene of `scene_prims`
-    /// primitives; `tri_shading` gives a flattened triangle's entry of
-    /// [`Aggregate::tri_shading`]. Returns the aggregate and the bounds of its primitives.
+    /// The top-level BVH over `top` for a scene of `scene_prims` primitives. `geom(object,
+    /// tri)` gives a flattened triangle's world-space corners, `tri_shading(object, tri)` its
+    /// entry of [`Aggregate::tri_shading`]. Returns the aggregate and the bounds of its
+    /// primitives. The bounds are freed once the BVH is built, before the primitives and their
+    /// corners are laid out in slot order.
     pub(crate) fn new(
-        prims: Vec<(Aabb, Prim)>,
+        top: TopLevel,
         unbounded: Vec<u32>,
         blas: Vec<Option<MeshBlas>>,
         scene_prims: usize,
-        tri_shading: impl Fn(&Prim) -> Vec4,
+        geom: impl Fn(u32, u32) -> TriangleGeom + Sync,
+        tri_shading: impl Fn(u32, u32) -> Vec4 + Sync,
     ) -> (Self, Aabb) {
-        let bounds_list: Vec<Aabb> = prims.iter().map(|(b, _)| *b).collect();
-        let mut bounds = Aabb::empty();
-        for b in &bounds_list {
-            bounds = bounds.union(b);
-        }
+        let TopLevel {
+            bounds: bounds_list,
+            runs,
+        } = top;
+        let bounds = bounds_list
+            .par_iter()
+            .fold(Aabb::empty, |a, b| a.union(b))
+            .reduce(Aabb::empty, |a, b| a.union(&b));
         let (bvh, order) = Bvh::build_in_scene(&bounds_list, scene_prims);
-        let prims: Vec<Prim> = order.iter().map(|&i| prims[i as usize].1).collect();
-        let packets = leaf_packets(&bvh, &prims);
-        let tri_shading = prims.iter().map(tri_shading).collect();
+        drop(bounds_list);
+        let prim = |i: u32| {
+            let (first, run) = runs[runs.partition_point(|r| r.0 <= i) - 1];
+            match run {
+                Run::Tris { object, alpha } => Prim::Tri {
+                    object,
+                    tri: i - first,
+                    alpha,
+                    lane: 0,
+                    count: 0,
+                },
+                Run::One(p) => p,
+            }
+        };
+        let mut prims: Vec<Prim> = order.par_iter().map(|&i| prim(i)).collect();
+        drop(order);
+        let leaves = bvh.leaves();
+        let mut packed = vec![0u64; leaves.len().div_ceil(64)];
+        for (leaf, &(start, count)) in leaves.iter().enumerate() {
+            let mut opaque = true;
+            for lane in 0..count {
+                match &mut prims[(start + lane) as usize] {
+                    Prim::Tri {
+                        alpha,
+                        lane: l,
+                        count: c,
+                        ..
+                    } => {
+                        *l = u8::try_from(lane).expect("leaves hold at most 255 primitives");
+                        *c = u8::try_from(count).expect("leaves hold at most 255 primitives");
+                        opaque &= !*alpha;
+                    }
+                    _ => opaque = false,
+                }
+            }
+            if opaque {
+                packed[leaf / 64] |= 1 << (leaf % 64);
+            }
+        }
+        let tris = LeafTris::new(prims.len(), leaves, |slot| match prims[slot] {
+            Prim::Tri { object, tri, .. } => Some(geom(object, tri)),
+            _ => None,
+        });
+        let tri_shading = prims
+            .par_iter()
+            .map(|p| match *p {
+                Prim::Tri { object, tri, .. } => tri_shading(object, tri),
+                _ => Vec4::ZERO,
+            })
+            .collect();
         let aggregate = Aggregate {
             bvh,
             prims,
-            packets,
+            tris,
+            packed,
             tri_shading,
             unbounded,
             blas,
@@ -127,12 +201,27 @@ impl Aggregate {
         (aggregate, bounds)
     }
 
+    /// Whether leaf `leaf` is tested at once (only opaque triangles).
+    #[inline(always)]
+    fn is_packed(&self, leaf: u32) -> bool {
+        (self.packed[leaf as usize / 64] >> (leaf % 64)) & 1 != 0
+    }
+
+    /// The world-space corners of the flattened triangle in `slot`, at `lane` of a leaf of
+    /// `count` slots.
+    #[inline]
+    pub(crate) fn tri_geom(&self, slot: u32, lane: u8, count: u8) -> TriangleGeom {
+        self.tris
+            .geom(slot - u32::from(lane), u32::from(count), u32::from(lane))
+    }
+
     /// Bytes held by the BVHs and primitives.
     pub(crate) fn memory_bytes(&self) -> usize {
         use std::mem::size_of;
         self.bvh.memory_bytes()
             + self.prims.capacity() * size_of::<Prim>()
-            + self.packets.capacity() * size_of::<Option<Tri4>>()
+            + self.tris.memory_bytes()
+            + self.packed.capacity() * size_of::<u64>()
             + self.tri_shading.capacity() * size_of::<Vec4>()
             + self.unbounded.capacity() * size_of::<u32>()
             + self.blas.capacity() * size_of::<Option<MeshBlas>>()
@@ -143,26 +232,6 @@ impl Aggregate {
                 .map(MeshBlas::memory_bytes)
                 .sum::<usize>()
     }
-}
-
-/// For each BVH leaf, its triangles packed four-wide when the leaf holds only opaque triangles.
-fn leaf_packets(bvh: &Bvh, prims: &[Prim]) -> Vec<Option<Tri4>> {
-    bvh.leaves()
-        .iter()
-        .map(|&(start, count)| {
-            let range = &prims[start as usize..(start + count) as usize];
-            let geoms: Option<Vec<TriangleGeom>> = range
-                .iter()
-                .map(|p| match *p {
-                    Prim::Tri {
-                        geom, alpha: false, ..
-                    } => Some(geom),
-                    _ => None,
-                })
-                .collect();
-            geoms.filter(|g| g.len() <= 4).map(|g| Tri4::new(&g))
-        })
-        .collect()
 }
 
 impl Scene {
@@ -189,8 +258,9 @@ impl Scene {
         let found = agg
             .bvh
             .closest_leaves(ray, tmax, |leaf, start, count, tmax| {
-                if let Some(p) = &agg.packets[leaf as usize] {
-                    let (lane, t, b1, b2) = p.intersect(ray.o, ray.d, 0.0, tmax)?;
+                if agg.is_packed(leaf) {
+                    let (lane, t, b1, b2) =
+                        agg.tris.intersect(start, count, ray.o, ray.d, 0.0, tmax)?;
                     let slot = start as usize + lane;
                     let Prim::Tri { object, tri, .. } = agg.prims[slot] else {
                         unreachable!("packets hold triangles only");
@@ -229,11 +299,13 @@ impl Scene {
     fn intersect_prim(&self, slot: usize, ray: &Ray, tmax: f32) -> Option<Hit> {
         match self.aggregate.prims[slot] {
             Prim::Tri {
-                geom,
                 object,
                 tri,
                 alpha,
+                lane,
+                count,
             } => {
+                let geom = self.aggregate.tri_geom(slot as u32, lane, count);
                 let (t, b1, b2) = geom.intersect(ray.o, ray.d, 0.0, tmax)?;
                 (!alpha || self.alpha_passes(object, tri, b1, b2, t)).then_some(Hit {
                     t,
@@ -269,29 +341,30 @@ impl Scene {
             }
         }
         agg.bvh.any_leaves(ray, tmax, |leaf, start, count| {
-            match &agg.packets[leaf as usize] {
-                Some(p) => p.any(ray.o, ray.d, 0.0, tmax),
-                None => {
-                    (start as usize..(start + count) as usize).any(|slot| match agg.prims[slot] {
-                        Prim::Tri {
-                            geom,
-                            object,
-                            tri,
-                            alpha,
-                        } => match geom.intersect(ray.o, ray.d, 0.0, tmax) {
-                            Some((t, b1, b2)) => {
-                                !alpha || self.alpha_passes(object, tri, b1, b2, t)
-                            }
-                            None => false,
-                        },
-                        Prim::Analytic { object } => {
-                            self.intersect_analytic(object, ray, tmax).is_some()
-                        }
-                        Prim::Instance { object } => {
-                            self.intersect_instance(object, ray, tmax).is_some()
-                        }
-                    })
-                }
+            if agg.is_packed(leaf) {
+                agg.tris.any(start, count, ray.o, ray.d, 0.0, tmax)
+            } else {
+                (start as usize..(start + count) as usize).any(|slot| match agg.prims[slot] {
+                    Prim::Tri {
+                        object,
+                        tri,
+                        alpha,
+                        lane,
+                        count,
+                    } => match agg
+                        .tri_geom(slot as u32, lane, count)
+                        .intersect(ray.o, ray.d, 0.0, tmax)
+                    {
+                        Some((t, b1, b2)) => !alpha || self.alpha_passes(object, tri, b1, b2, t),
+                        None => false,
+                    },
+                    Prim::Analytic { object } => {
+                        self.intersect_analytic(object, ray, tmax).is_some()
+                    }
+                    Prim::Instance { object } => {
+                        self.intersect_instance(object, ray, tmax).is_some()
+                    }
+                })
             }
         })
     }
@@ -370,9 +443,10 @@ impl Scene {
         if self.material_of(object).alpha_mode == AlphaMode::Opaque {
             let (slot, t) = blas
                 .bvh
-                .closest_leaves(&local, tmax, |leaf, start, _, tmax| {
-                    let (lane, t, b1, b2) =
-                        blas.packets[leaf as usize].intersect(local.o, local.d, 0.0, tmax)?;
+                .closest_leaves(&local, tmax, |_, start, count, tmax| {
+                    let (lane, t, b1, b2) = blas
+                        .tris
+                        .intersect(start, count, local.o, local.d, 0.0, tmax)?;
                     let slot = start as usize + lane;
                     cand = Some((b1, b2));
                     Some((slot, t))
@@ -381,30 +455,39 @@ impl Scene {
             return Some(Hit {
                 t,
                 object,
-                prim: blas.tris[slot].1,
+                prim: blas.index[slot],
                 b1,
                 b2,
                 slot: NO_SLOT,
             });
         }
+        // Triangles one by one, as `Bvh::closest` offers them, with the alpha test.
         let mut cand = None;
-        blas.bvh.closest(&local, tmax, |slot, tmax| {
-            let (geom, tri) = blas.tris[slot];
-            match geom.intersect(local.o, local.d, 0.0, tmax) {
-                Some((t, b1, b2)) if self.alpha_passes(object, tri, b1, b2, t) => {
-                    cand = Some(Hit {
-                        t,
-                        object,
-                        prim: tri,
-                        b1,
-                        b2,
-                        slot: NO_SLOT,
-                    });
-                    t
+        blas.bvh
+            .closest_leaves(&local, tmax, |_, start, count, mut tmax| {
+                let mut best = None;
+                for lane in 0..count {
+                    let slot = (start + lane) as usize;
+                    let tri = blas.index[slot];
+                    let geom = blas.tris.geom(start, count, lane);
+                    match geom.intersect(local.o, local.d, 0.0, tmax) {
+                        Some((t, b1, b2)) if self.alpha_passes(object, tri, b1, b2, t) => {
+                            cand = Some(Hit {
+                                t,
+                                object,
+                                prim: tri,
+                                b1,
+                                b2,
+                                slot: NO_SLOT,
+                            });
+                            tmax = t;
+                            best = Some((slot, t));
+                        }
+                        _ => {}
+                    }
                 }
-                _ => f32::INFINITY,
-            }
-        })?;
+                best
+            })?;
         cand
     }
 
@@ -580,6 +663,37 @@ mod tests {
             }
         }
         assert!(hits > 5000, "{hits}");
+    }
+
+    /// A flattened triangle costs its top-level primitive (12 bytes), its corners (36), its
+    /// shading entry (16) and a share of a node: no copy of its corners elsewhere.
+    #[test]
+    fn primitives_stay_small() {
+        assert!(std::mem::size_of::<super::Prim>() <= 12);
+        let scene = scene();
+        let agg = &scene.aggregate;
+        // Every flattened triangle's corners come back from the leaf data as placed.
+        for (slot, p) in agg.prims.iter().enumerate() {
+            if let super::Prim::Tri {
+                object,
+                tri,
+                lane,
+                count,
+                ..
+            } = *p
+            {
+                let o = &scene.objects[object as usize];
+                let crate::scene::ObjectKind::Mesh { mesh } = o.kind else {
+                    panic!("a triangle of a shape");
+                };
+                let m = &scene.meshes[mesh as usize];
+                let want = crate::geometry::triangle::TriangleGeom::new(
+                    m.corners(tri as usize)
+                        .map(|v| o.to_world.transform_point3a(v)),
+                );
+                assert_eq!(agg.tri_geom(slot as u32, lane, count), want);
+            }
+        }
     }
 
     #[test]

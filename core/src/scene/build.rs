@@ -9,9 +9,10 @@
 //! object), the scene's environment and its cameras. What a render job chooses (camera, image
 //! size, which environment) is left to [`super::RenderJob`].
 
-use super::aggregate::{Aggregate, MeshBlas, Prim};
+use super::aggregate::{Aggregate, MeshBlas, Prim, Run, TopLevel};
 use super::desc::{
-    BsdfDesc, EnvironmentDesc, MaterialDesc, MediumDesc, SceneDesc, ShapeDesc, TextureRef, WrapMode,
+    BsdfDesc, EnvironmentDesc, MaterialDesc, MediumDesc, MeshDesc, SceneDesc, ShapeDesc,
+    TextureRef, WrapMode,
 };
 use super::files::SceneFiles;
 use super::{Object, ObjectKind, RenderJob, Scene, SceneCamera, SceneError, SceneStats};
@@ -24,6 +25,7 @@ use crate::medium::{GridMedium, HomogeneousMedium, Medium};
 use crate::settings::{EnvironmentChoice, RenderSettings};
 use crate::texture::{TexSlot, Texture, TextureLookup};
 use glam::{Affine3A, Vec2, Vec3, Vec3A, Vec4};
+use rayon::prelude::*;
 use std::f32::consts::PI;
 use std::path::Path;
 use std::sync::Arc;
@@ -39,7 +41,16 @@ fn finite3(v: Vec3) -> bool {
 impl Scene {
     /// Builds the scene described by `desc`: every check, the BVHs and the lights. The result
     /// depends on nothing else, so it can be kept and rendered by any number of jobs.
+    /// [`Scene::build_owned`] when the description is not needed afterwards (it holds less
+    /// memory at once).
     pub fn build(desc: &SceneDesc) -> Result<Scene, SceneError> {
+        Self::build_owned(desc.clone())
+    }
+
+    /// Builds the scene described by `desc`, as [`Scene::build`], consuming the description:
+    /// each mesh's arrays are freed as soon as its runtime mesh is made, before the BVHs are
+    /// built (on rayon's pool, in parallel where it pays: bounds, corners, validation).
+    pub fn build_owned(mut desc: SceneDesc) -> Result<Scene, SceneError> {
         let textures: Vec<Texture> = desc
             .textures
             .iter()
@@ -58,11 +69,13 @@ impl Scene {
             .map(|m| build_material(m, desc.textures.len()))
             .collect::<Result<Vec<_>, _>>()?;
 
-        // Meshes: validate and convert.
-        let mut meshes = Vec::with_capacity(desc.meshes.len());
-        for (mi, m) in desc.meshes.iter().enumerate() {
+        // Meshes: validate and convert, each description freed once converted.
+        let mesh_descs = std::mem::take(&mut desc.meshes);
+        let mut meshes = Vec::with_capacity(mesh_descs.len());
+        for (mi, m) in mesh_descs.into_iter().enumerate() {
             meshes.push(build_mesh(mi, m)?);
         }
+        let desc = &desc;
         let mut uses = vec![0u32; meshes.len()];
         for o in &desc.objects {
             if let ShapeDesc::Mesh { mesh } = o.shape {
@@ -83,7 +96,20 @@ impl Scene {
                 .map(|(m, _)| m.indices.len())
                 .sum::<usize>();
         let mut objects = Vec::with_capacity(desc.objects.len());
-        let mut prims: Vec<(Aabb, Prim)> = Vec::new();
+        // The top level: every primitive's world bounds (allocated once, at their number) and
+        // what they are, as runs (a flattened mesh is one run).
+        let top_prims = desc
+            .objects
+            .iter()
+            .map(|o| match o.shape {
+                ShapeDesc::Mesh { mesh } if uses.get(mesh).is_some_and(|&u| u <= 1) => {
+                    meshes[mesh].indices.len()
+                }
+                _ => 1,
+            })
+            .sum::<usize>();
+        let mut bounds: Vec<Aabb> = Vec::with_capacity(top_prims);
+        let mut runs: Vec<(u32, Run)> = Vec::new();
         let mut unbounded = Vec::new();
         let mut blas: Vec<Option<MeshBlas>> = vec![None; meshes.len()];
         // |det| of each object's linear part: scales the area of its emitting shape.
@@ -177,19 +203,17 @@ impl Scene {
                     let flattened = uses[mesh_i] <= 1;
                     if flattened {
                         let needs_alpha = materials[o.material].alpha_mode != AlphaMode::Opaque;
-                        for (ti, _) in m.indices.iter().enumerate() {
-                            let c = m.corners(ti).map(|v| to_world.transform_point3a(v));
-                            let geom = TriangleGeom::new(c);
-                            prims.push((
-                                Aabb::from_points(&c),
-                                Prim::Tri {
-                                    geom,
-                                    object: oi as u32,
-                                    tri: ti as u32,
-                                    alpha: needs_alpha,
-                                },
-                            ));
-                        }
+                        runs.push((
+                            bounds.len() as u32,
+                            Run::Tris {
+                                object: oi as u32,
+                                alpha: needs_alpha,
+                            },
+                        ));
+                        // The corners as `Aggregate::new`'s `geom` places them.
+                        bounds.par_extend((0..m.indices.len()).into_par_iter().map(|ti| {
+                            Aabb::from_points(&m.corners(ti).map(|v| to_world.transform_point3a(v)))
+                        }));
                         stats.flattened_triangles += m.indices.len();
                     } else {
                         if blas[mesh_i].is_none() {
@@ -201,7 +225,11 @@ impl Scene {
                             b.extend(to_world.transform_point3a(*v));
                         }
                         if !m.indices.is_empty() {
-                            prims.push((b, Prim::Instance { object: oi as u32 }));
+                            runs.push((
+                                bounds.len() as u32,
+                                Run::One(Prim::Instance { object: oi as u32 }),
+                            ));
+                            bounds.push(b);
                         }
                     }
                     ObjectKind::Mesh {
@@ -212,10 +240,13 @@ impl Scene {
                     let a =
                         build_analytic(shape).map_err(|e| invalid(format!("{}: {e}", ctx())))?;
                     match a.bounds() {
-                        Some(b) => prims.push((
-                            transform_aabb(&to_world, &b),
-                            Prim::Analytic { object: oi as u32 },
-                        )),
+                        Some(b) => {
+                            runs.push((
+                                bounds.len() as u32,
+                                Run::One(Prim::Analytic { object: oi as u32 }),
+                            ));
+                            bounds.push(transform_aabb(&to_world, &b));
+                        }
                         None => unbounded.push(oi as u32),
                     }
                     ObjectKind::Analytic(a)
@@ -265,17 +296,30 @@ impl Scene {
             dets.push(det.abs());
         }
 
-        let (aggregate, bounds) =
-            Aggregate::new(prims, unbounded, blas, scene_prims, |p| match *p {
-                Prim::Tri { object, tri, .. } => {
-                    let o = &objects[object as usize];
-                    let ObjectKind::Mesh { mesh } = o.kind else {
-                        unreachable!("triangles belong to meshes");
-                    };
-                    tri_shading(o, &meshes[mesh as usize], tri)
-                }
-                _ => Vec4::ZERO,
-            });
+        let mesh_of = |object: u32| {
+            let o = &objects[object as usize];
+            let ObjectKind::Mesh { mesh } = o.kind else {
+                unreachable!("triangles belong to meshes");
+            };
+            (o, &meshes[mesh as usize])
+        };
+        let (aggregate, bounds) = Aggregate::new(
+            TopLevel { bounds, runs },
+            unbounded,
+            blas,
+            scene_prims,
+            |object, tri| {
+                let (o, m) = mesh_of(object);
+                TriangleGeom::new(
+                    m.corners(tri as usize)
+                        .map(|v| o.to_world.transform_point3a(v)),
+                )
+            },
+            |object, tri| {
+                let (o, m) = mesh_of(object);
+                tri_shading(o, m, tri)
+            },
+        );
         let radius = if bounds.min.cmple(bounds.max).all() {
             (bounds.diagonal().length() * 0.5).max(1e-3)
         } else {
@@ -445,10 +489,12 @@ fn transform_aabb(m: &Affine3A, b: &Aabb) -> Aabb {
     out
 }
 
-fn build_mesh(mi: usize, m: &super::desc::MeshDesc) -> Result<Mesh, SceneError> {
+/// Validates and converts mesh `mi`, reusing its arrays where the runtime keeps them as they are
+/// (indices, uvs, tangents). Checked and converted in parallel.
+fn build_mesh(mi: usize, m: MeshDesc) -> Result<Mesh, SceneError> {
     let ctx = || format!("mesh {mi} ('{}')", m.name);
     let n = m.positions.len();
-    if m.positions.iter().any(|p| !finite3(*p)) {
+    if m.positions.par_iter().any(|p| !finite3(*p)) {
         return Err(invalid(format!(
             "{}: a vertex position is NaN or infinite",
             ctx()
@@ -487,27 +533,32 @@ fn build_mesh(mi: usize, m: &super::desc::MeshDesc) -> Result<Mesh, SceneError> 
             m.tangents.len()
         )));
     }
-    if let Some(bad) = m.indices.iter().flatten().find(|&&i| i as usize >= n) {
+    let out_of_range = m
+        .indices
+        .par_iter()
+        .find_first(|t| t.iter().any(|&i| i as usize >= n))
+        .and_then(|t| t.iter().find(|&&i| i as usize >= n));
+    if let Some(bad) = out_of_range {
         return Err(invalid(format!(
             "{}: index {bad} out of range ({n} vertices)",
             ctx()
         )));
     }
     // Degenerate triangles cannot be hit and would give NaN normals: drop them.
-    let positions: Vec<Vec3A> = m.positions.iter().map(|&p| p.into()).collect();
-    let indices = m
-        .indices
-        .iter()
-        .copied()
-        .filter(|&[a, b, c]| {
-            let (a, b, c) = (
-                positions[a as usize],
-                positions[b as usize],
-                positions[c as usize],
-            );
-            (b - a).cross(c - a).length_squared() > 0.0
-        })
-        .collect();
+    let positions: Vec<Vec3A> = m.positions.par_iter().map(|&p| p.into()).collect();
+    let keep = |&[a, b, c]: &[u32; 3]| {
+        let (a, b, c) = (
+            positions[a as usize],
+            positions[b as usize],
+            positions[c as usize],
+        );
+        (b - a).cross(c - a).length_squared() > 0.0
+    };
+    let mut indices = m.indices;
+    if !indices.par_iter().all(keep) {
+        indices.retain(keep);
+        indices.shrink_to_fit();
+    }
     let clean_normal = |v: &Vec3| {
         let v = Vec3A::from(*v);
         if v.is_finite() && v.length_squared() > 0.0 {
@@ -517,14 +568,14 @@ fn build_mesh(mi: usize, m: &super::desc::MeshDesc) -> Result<Mesh, SceneError> 
         }
     };
     Ok(Mesh {
-        name: m.name.clone(),
+        name: m.name,
         positions,
-        normals: m.normals.iter().map(clean_normal).collect(),
-        tangents: m.tangents.clone(),
-        uvs: [m.uvs[0].clone(), m.uvs[1].clone()],
+        normals: m.normals.par_iter().map(clean_normal).collect(),
+        tangents: m.tangents,
+        uvs: m.uvs,
         colors: m
             .colors
-            .iter()
+            .par_iter()
             .map(|c| Vec3A::from(*c).max(Vec3A::ZERO))
             .collect(),
         indices,

@@ -50,9 +50,10 @@ impl Scene {
         };
         // A flattened triangle: its world-space corners and normal are at hand (the BVH slot).
         let agg = &self.aggregate;
-        if let Some(Prim::Tri { geom, .. }) = agg.prims.get(hit.slot as usize) {
+        if let Some(&Prim::Tri { lane, count, .. }) = agg.prims.get(hit.slot as usize) {
             let shading = agg.tri_shading[hit.slot as usize];
             if shading.w != 0.0 && mat.slots.normal.is_none() {
+                let geom = agg.tri_geom(hit.slot, lane, count);
                 let ng = Vec3A::from_vec4(shading);
                 return Interaction {
                     p: geom.point(b1, b2),

@@ -4,6 +4,7 @@
 
 use super::Loader;
 use gltf::accessor::{DataType, Dimensions};
+use rayon::prelude::*;
 
 /// Accessors without a buffer view (all zeros, possibly with sparse values) cost memory that no
 /// file data backs, so their element count is capped.
@@ -82,26 +83,36 @@ impl Loader<'_> {
             })
     }
 
-    /// Reads `accessor` as `count × components` values converted by `conv`, after checking
-    /// that every byte it names lies inside its buffer view and buffer.
-    fn read_with<T: Copy + Default>(
+    /// Reads `accessor` as `count` elements of `N` components converted by `conv`, after
+    /// checking that every byte it names lies inside its buffer view and buffer (`N` is the
+    /// accessor's component count, checked by the caller). Decoded in parallel.
+    fn read_with<T: Copy + Default + Send + Sync, const N: usize>(
         &mut self,
         accessor: &gltf::Accessor,
         label: &str,
-        conv: impl Fn(DataType, bool, &[u8]) -> T,
-    ) -> Result<Vec<T>, String> {
+        conv: impl Fn(DataType, bool, &[u8]) -> T + Sync,
+    ) -> Result<Vec<[T; N]>, String> {
         let ai = accessor.index();
         let dt = accessor.data_type();
         let normalized = accessor.normalized();
         let csize = component_size(dt);
         let ncomp = component_count(accessor.dimensions());
+        if ncomp != N {
+            return Err(format!(
+                "{label}: accessor {ai} has {ncomp} components, expected {N}"
+            ));
+        }
         let elem = csize * ncomp;
+        // One element from its bytes (`elem` of them).
+        let element = |b: &[u8]| -> [T; N] {
+            std::array::from_fn(|c| conv(dt, normalized, b.get(c * csize..).unwrap_or(&[])))
+        };
         let count = accessor.count();
         let values = count
             .checked_mul(ncomp)
             .ok_or_else(|| format!("{label}: accessor {ai} count {count} is absurd"))?;
 
-        let mut out: Vec<T>;
+        let mut out: Vec<[T; N]>;
         match accessor.view() {
             Some(view) => {
                 let bytes = self.view_bytes(&view, label)?;
@@ -133,17 +144,15 @@ impl Loader<'_> {
                     }
                 }
                 self.charge(values.saturating_mul(std::mem::size_of::<T>()), label)?;
-                out = Vec::with_capacity(values);
-                for i in 0..count {
-                    let e = start + i * stride;
-                    for c in 0..ncomp {
-                        let at = e + c * csize;
-                        let b = bytes.get(at..at + csize).ok_or_else(|| {
-                            format!("{label}: accessor {ai} reads past the end of its buffer view")
-                        })?;
-                        out.push(conv(dt, normalized, b));
-                    }
-                }
+                // Every element lies inside `bytes` (checked just above).
+                out = (0..count)
+                    .into_par_iter()
+                    .with_min_len(1 << 12)
+                    .map(|i| {
+                        let at = start + i * stride;
+                        bytes.get(at..at + elem).map_or([T::default(); N], element)
+                    })
+                    .collect();
             }
             None => {
                 if accessor.sparse().is_none() {
@@ -157,7 +166,7 @@ impl Loader<'_> {
                     ));
                 }
                 self.charge(values.saturating_mul(std::mem::size_of::<T>()), label)?;
-                out = vec![T::default(); values];
+                out = vec![[T::default(); N]; count];
             }
         }
 
@@ -205,25 +214,22 @@ impl Loader<'_> {
                         "{label}: accessor {ai}: sparse index {target} is out of range ({count} elements)"
                     ));
                 }
-                for c in 0..ncomp {
-                    let at = s * elem + c * csize;
-                    let b = vbytes.get(at..at + csize).unwrap_or(&[]);
-                    if let Some(slot) = out.get_mut(target * ncomp + c) {
-                        *slot = conv(dt, normalized, b);
-                    }
+                if let Some(slot) = out.get_mut(target) {
+                    *slot = element(vbytes.get(s * elem..).unwrap_or(&[]));
                 }
             }
         }
         Ok(out)
     }
 
-    /// Reads a float (or normalised integer) attribute with the expected dimensions.
-    pub(super) fn read_floats(
+    /// Reads a float (or normalised integer) attribute with the expected dimensions (`N`
+    /// components).
+    pub(super) fn read_floats<const N: usize>(
         &mut self,
         accessor: &gltf::Accessor,
         label: &str,
         expected: Dimensions,
-    ) -> Result<Vec<f32>, String> {
+    ) -> Result<Vec<[f32; N]>, String> {
         if accessor.dimensions() != expected {
             return Err(format!(
                 "{label}: accessor {} is {:?}, expected {expected:?}",
@@ -231,12 +237,12 @@ impl Loader<'_> {
                 accessor.dimensions()
             ));
         }
-        let v = self.read_with(accessor, label, to_f32)?;
-        if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+        let v = self.read_with::<f32, N>(accessor, label, to_f32)?;
+        let finite = |e: &[f32; N]| e.iter().all(|x| x.is_finite());
+        if let Some(i) = v.par_iter().position_first(|e| !finite(e)) {
             return Err(format!(
-                "{label}: accessor {} element {} is not finite (NaN or infinite)",
+                "{label}: accessor {} element {i} is not finite (NaN or infinite)",
                 accessor.index(),
-                i / component_count(expected)
             ));
         }
         Ok(v)
@@ -257,6 +263,7 @@ impl Loader<'_> {
                 accessor.index()
             ));
         }
-        self.read_with(accessor, label, |dt, _, b| to_u32(dt, b))
+        let v = self.read_with::<u32, 1>(accessor, label, |dt, _, b| to_u32(dt, b))?;
+        Ok(v.into_iter().map(|[i]| i).collect())
     }
 }

@@ -7,6 +7,7 @@ use glam::{Vec2, Vec3};
 use gltf::accessor::Dimensions;
 use gltf::mesh::Mode;
 use gltf::Semantic;
+use rayon::prelude::*;
 
 /// Converts a strip or fan (or a list) of indices to triangles, following glTF 2.0 §3.7.2.1.
 /// Degenerate triangles of strips and fans (often used to stitch strips) are dropped.
@@ -30,8 +31,9 @@ pub(super) fn triangulate(mode: Mode, idx: &[u32]) -> Vec<[u32; 3]> {
     }
 }
 
-fn pairs<T>(v: Vec<f32>, f: impl Fn(&[f32]) -> T, n: usize) -> Vec<T> {
-    v.chunks_exact(n).map(f).collect()
+/// Elements read as arrays to the type the description holds (in place: the same bytes).
+fn to_vecs<const N: usize, T>(v: Vec<[f32; N]>, f: impl Fn([f32; N]) -> T) -> Vec<T> {
+    v.into_iter().map(f).collect()
 }
 
 impl Loader<'_> {
@@ -59,10 +61,9 @@ impl Loader<'_> {
             return Ok(None);
         };
         let plabel = format!("{label} (POSITION)");
-        let positions: Vec<Vec3> = pairs(
+        let positions: Vec<Vec3> = to_vecs(
             self.read_floats(&pos_acc, &plabel, Dimensions::Vec3)?,
-            Vec3::from_slice,
-            3,
+            Vec3::from_array,
         );
         let n = positions.len();
         let same_count = |acc: &gltf::Accessor, what: &str| -> Result<(), String> {
@@ -78,30 +79,24 @@ impl Loader<'_> {
         let mut normals = Vec::new();
         if let Some(acc) = prim.get(&Semantic::Normals) {
             same_count(&acc, "NORMAL")?;
-            normals = pairs(
+            normals = to_vecs(
                 self.read_floats(&acc, &format!("{label} (NORMAL)"), Dimensions::Vec3)?,
-                Vec3::from_slice,
-                3,
+                Vec3::from_array,
             );
         }
         let mut tangents = Vec::new();
         if let Some(acc) = prim.get(&Semantic::Tangents) {
             same_count(&acc, "TANGENT")?;
-            tangents = pairs(
-                self.read_floats(&acc, &format!("{label} (TANGENT)"), Dimensions::Vec4)?,
-                |c| [c[0], c[1], c[2], c[3]],
-                4,
-            );
+            tangents = self.read_floats(&acc, &format!("{label} (TANGENT)"), Dimensions::Vec4)?;
         }
         let mut uvs: [Vec<Vec2>; 2] = [Vec::new(), Vec::new()];
         for (set, slot) in uvs.iter_mut().enumerate() {
             if let Some(acc) = prim.get(&Semantic::TexCoords(set as u32)) {
                 let what = format!("TEXCOORD_{set}");
                 same_count(&acc, &what)?;
-                *slot = pairs(
+                *slot = to_vecs(
                     self.read_floats(&acc, &format!("{label} ({what})"), Dimensions::Vec2)?,
-                    Vec2::from_slice,
-                    2,
+                    Vec2::from_array,
                 );
             }
         }
@@ -111,16 +106,13 @@ impl Loader<'_> {
             let what = format!("{label} (COLOR_0)");
             colors = if acc.dimensions() == Dimensions::Vec4 {
                 // Alpha is not used: the surface's alpha comes from the material.
-                pairs(
-                    self.read_floats(&acc, &what, Dimensions::Vec4)?,
-                    |c| Vec3::new(c[0], c[1], c[2]),
-                    4,
-                )
+                to_vecs(self.read_floats::<4>(&acc, &what, Dimensions::Vec4)?, |c| {
+                    Vec3::new(c[0], c[1], c[2])
+                })
             } else {
-                pairs(
+                to_vecs(
                     self.read_floats(&acc, &what, Dimensions::Vec3)?,
-                    Vec3::from_slice,
-                    3,
+                    Vec3::from_array,
                 )
             };
         }
@@ -131,7 +123,8 @@ impl Loader<'_> {
         let raw_indices = match prim.indices() {
             Some(acc) => {
                 let idx = self.read_indices(&acc, &format!("{label} (indices)"))?;
-                if let Some((i, &v)) = idx.iter().enumerate().find(|(_, &v)| v as usize >= n) {
+                if let Some(i) = idx.par_iter().position_first(|&v| v as usize >= n) {
+                    let v = idx[i];
                     return Err(format!(
                         "{label}: index {v} at position {i} of accessor {} is out of range ({n} vertices)",
                         acc.index()

@@ -26,6 +26,7 @@ use super::files::{folder_of, SceneFiles};
 use super::SceneError;
 use glam::{Mat4, Quat, Vec3};
 use serde_json::Value;
+use std::borrow::Cow;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
@@ -137,7 +138,9 @@ pub(super) struct Loader<'a> {
     base_dir: Option<&'a Path>,
     /// Reads the files URIs name and holds the scene's memory budget.
     files: &'a SceneFiles,
-    buffers: Vec<Vec<u8>>,
+    /// The buffers' bytes: the GLB binary chunk in place (not copied), external and data-URI
+    /// buffers as read.
+    buffers: Vec<Cow<'a, [u8]>>,
     /// Bytes the loader may still allocate (see [`GltfOptions::memory_limit`]).
     budget: std::cell::Cell<usize>,
     desc: SceneDesc,
@@ -369,21 +372,25 @@ fn node_matrix(node: &gltf::Node) -> Result<Mat4, String> {
     Ok(m)
 }
 
-impl Loader<'_> {
-    fn load_buffers(&mut self, bin: Option<&[u8]>) -> Result<(), String> {
+impl<'a> Loader<'a> {
+    fn load_buffers(&mut self, bin: Option<&'a [u8]>) -> Result<(), String> {
         let doc = self.doc;
         for buffer in doc.buffers() {
             let what = format!("buffer {}", buffer.index());
             let len = buffer.length();
-            let mut data = match buffer.source() {
-                gltf::buffer::Source::Bin => bin
-                    .ok_or_else(|| {
-                        format!("{what} refers to the GLB binary chunk, which is missing")
-                    })?
-                    .to_vec(),
+            let data: Cow<'a, [u8]> = match buffer.source() {
+                gltf::buffer::Source::Bin => Cow::Borrowed(bin.ok_or_else(|| {
+                    format!("{what} refers to the GLB binary chunk, which is missing")
+                })?),
                 gltf::buffer::Source::Uri(uri) => {
                     let field = format!("buffers[{}].uri", buffer.index());
-                    container::load_uri(uri, self.base_dir, self.files, &field, MAX_FILE_BYTES)?
+                    Cow::Owned(container::load_uri(
+                        uri,
+                        self.base_dir,
+                        self.files,
+                        &field,
+                        MAX_FILE_BYTES,
+                    )?)
                 }
             };
             if data.len() < len {
@@ -392,8 +399,13 @@ impl Loader<'_> {
                     data.len()
                 ));
             }
-            data.truncate(len);
-            self.buffers.push(data);
+            self.buffers.push(match data {
+                Cow::Borrowed(b) => Cow::Borrowed(&b[..len]),
+                Cow::Owned(mut v) => {
+                    v.truncate(len);
+                    Cow::Owned(v)
+                }
+            });
         }
         Ok(())
     }
