@@ -62,5 +62,7 @@ pub use settings::{
 /// passes straight through; glTF `COLOR_0` is used (2026-12-01).
 /// 5: the `bdpt` integrator, and tile results that carry splats (2026-12-01); other
 /// integrators' images unchanged.
-/// 6: the `sppm` integrator (2026-12-01); other integrators' images unchanged.
+/// 6: the `sppm` integrator; absorption inside bodies (glass, `KHR_materials_volume`) through
+/// the deterministic `detmath::exp` instead of the C library's, which may round differently on
+/// CPUs with FMA (2026-12-02).
 pub const RENDER_VERSION: u32 = 6;

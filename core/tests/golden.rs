@@ -275,11 +275,11 @@ fn image_hash(integrator: IntegratorKind) -> String {
 
 /// The hashes of the current arithmetic, pinned with [`raytile_core::RENDER_VERSION`].
 const GOLDEN: [(IntegratorKind, &str); 9] = [
-    (IntegratorKind::Path, "e42b0dffd5424c36"),
-    (IntegratorKind::Volpath, "40d1d0dd55338aa1"),
-    (IntegratorKind::Bdpt, "ae758213072bb27d"),
-    (IntegratorKind::Sppm, "2c75e87e840263b5"),
-    (IntegratorKind::Whitted, "2c57b1f1af7bd9a0"),
+    (IntegratorKind::Path, "c7d40730432a6662"),
+    (IntegratorKind::Volpath, "b4b63600f55cadb0"),
+    (IntegratorKind::Bdpt, "672d7c5e534d19ae"),
+    (IntegratorKind::Sppm, "5428c88a0b638557"),
+    (IntegratorKind::Whitted, "1fb03513b2104f1a"),
     (IntegratorKind::Normals, "7bc0a2763bfb615f"),
     (IntegratorKind::Albedo, "ad105da7432cb490"),
     (IntegratorKind::Depth, "148ad63ba7c210d5"),

@@ -17,6 +17,7 @@
 use crate::geometry::{Interaction, Ray};
 use crate::light::{range_window, spot_falloff, Light};
 use crate::material::Bsdf;
+use crate::sampling::detmath::exp3;
 use crate::sampling::warp::{concentric_disk, cosine_hemisphere, uniform_cone, uniform_sphere};
 use crate::sampling::warp::{Frame, UNIFORM_SPHERE_PDF};
 use crate::sampling::{hash_u32, Sampler};
@@ -398,7 +399,7 @@ fn g(ctx: &Ctx, a: &Vertex, b: &Vertex) -> Vec3A {
     if sigma == Vec3A::ZERO {
         Vec3A::splat(g)
     } else {
-        Vec3A::splat(g) * (-sigma * dist).exp()
+        Vec3A::splat(g) * exp3(-sigma * dist)
     }
 }
 
@@ -453,7 +454,7 @@ fn random_walk(
         if it.ng.dot(ray.d) > 0.0 {
             let sigma = ctx.scene.absorption(it.object);
             if sigma != Vec3A::ZERO {
-                beta *= (-sigma * hit.t).exp();
+                beta *= exp3(-sigma * hit.t);
             }
         }
         if ctx.scene.is_interface(it.object) {

@@ -9,6 +9,7 @@
 
 use super::direct::sample_one_light;
 use crate::geometry::{Interaction, Ray};
+use crate::sampling::detmath::exp3;
 use crate::sampling::{power_heuristic, Sampler};
 use crate::{RenderJob, Scene};
 use glam::Vec3A;
@@ -48,7 +49,7 @@ pub fn li(
         if it.ng.dot(ray.d) > 0.0 {
             let sigma = scene.absorption(it.object);
             if sigma != Vec3A::ZERO {
-                beta *= (-sigma * hit.t).exp();
+                beta *= exp3(-sigma * hit.t);
             }
         }
         // An interface (a medium boundary) does not scatter: cross it, as if it were not there.

@@ -22,6 +22,7 @@ use super::direct::light_contribution;
 use super::Cancelled;
 use crate::light::range_window;
 use crate::material::Bsdf;
+use crate::sampling::detmath::exp3;
 use crate::sampling::warp::Frame;
 use crate::sampling::{hash_u32, Sampler};
 use crate::{RenderJob, Scene, Tile, TileAccum};
@@ -229,7 +230,7 @@ fn trace_photon(
         if si.ng.dot(ray.d) > 0.0 {
             let sigma = scene.absorption(si.object);
             if sigma != Vec3A::ZERO {
-                beta *= (-sigma * hit.t).exp();
+                beta *= exp3(-sigma * hit.t);
             }
         }
         if scene.is_interface(si.object) {
@@ -317,7 +318,7 @@ fn camera_pass(
         if si.ng.dot(ray.d) > 0.0 {
             let sigma = scene.absorption(si.object);
             if sigma != Vec3A::ZERO {
-                beta *= (-sigma * hit.t).exp();
+                beta *= exp3(-sigma * hit.t);
             }
         }
         if scene.is_interface(si.object) {

@@ -31,6 +31,7 @@
 use crate::geometry::{Interaction, Ray};
 use crate::material::Bsdf;
 use crate::medium::{sample_t_maj, HashRng, HenyeyGreenstein, RandomSource};
+use crate::sampling::detmath::exp3;
 use crate::sampling::warp::Frame;
 use crate::sampling::Sampler;
 use crate::{RenderJob, Scene};
@@ -186,7 +187,7 @@ pub fn li(
         if object.media.is_none() && it.ng.dot(ray.d) > 0.0 {
             let sigma = scene.absorption(it.object);
             if sigma != Vec3A::ZERO {
-                beta *= (-sigma * hit.t).exp();
+                beta *= exp3(-sigma * hit.t);
             }
         }
         // An interface: cross into the medium on its other side.

@@ -9,6 +9,7 @@
 use super::direct::light_contribution;
 use crate::geometry::Ray;
 use crate::material::{fresnel_dielectric, refract, Bsdf};
+use crate::sampling::detmath::exp3;
 use crate::sampling::Sampler;
 use crate::{RenderJob, Scene};
 use glam::Vec3A;
@@ -57,7 +58,7 @@ fn trace(
     if it.ng.dot(ray.d) > 0.0 {
         let sigma = scene.absorption(it.object);
         if sigma != Vec3A::ZERO {
-            transmittance = (-sigma * hit.t).exp();
+            transmittance = exp3(-sigma * hit.t);
         }
     }
     let mut l = scene.emitted(&it, wo_world);
