@@ -99,7 +99,8 @@ fi
 ALBEDO=$REF_DIR/caustic-$key-albedo.hdr
 [ -f "$ALBEDO" ] || render albedo 1 0 "$ALBEDO" > /dev/null
 
-if ! "$RAYTILE_BIN" render --help | grep -q sppm; then
+if ! "$RAYTILE_BIN" render "$SCENE" -o "$OUT/sppm-check.hdr" --width 8 --height 6 --spp 1 \
+    --integrator sppm --passes 1 > /dev/null 2>&1; then
     echo "caustic-compare.sh: $RAYTILE_BIN has no sppm integrator (rebuild it)" >&2; exit 2
 fi
 
