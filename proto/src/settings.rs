@@ -490,7 +490,7 @@ pub struct RenderOverrides {
     #[serde(skip_serializing_if = "Option::is_none")]
     #[cfg_attr(feature = "clap", arg(long))]
     pub max_depth: Option<u32>,
-    /// Integrator: path, volpath, bdpt, whitted, normals, albedo, depth, ao.
+    /// Integrator: path, volpath, bdpt, sppm (needs --passes 1), whitted, normals, albedo, depth, ao.
     #[serde(skip_serializing_if = "Option::is_none")]
     #[cfg_attr(feature = "clap", arg(long))]
     pub integrator: Option<IntegratorKind>,
