@@ -128,10 +128,11 @@ pub(super) fn job_queue(
     jobs: &HashMap<String, Job>,
     eligible: impl Fn(&Job) -> bool,
 ) -> Vec<String> {
-    let mut order: Vec<(i32, u64, &str)> = jobs
+    // `Reverse`, not negation: `-i32::MIN` overflows (a priority is any i32).
+    let mut order: Vec<(std::cmp::Reverse<i32>, u64, &str)> = jobs
         .values()
         .filter(|j| eligible(j))
-        .map(|j| (-j.priority, j.seq, j.id.as_str()))
+        .map(|j| (std::cmp::Reverse(j.priority), j.seq, j.id.as_str()))
         .collect();
     order.sort_unstable();
     order.into_iter().map(|(_, _, id)| id.to_string()).collect()

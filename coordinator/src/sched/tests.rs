@@ -127,6 +127,24 @@ fn priority_then_fifo_then_pass_order() {
 }
 
 #[test]
+fn the_extreme_priorities_order_without_overflow() {
+    // A priority is any i32: i32::MIN once panicked the queue's ordering (it negated it).
+    let dir = tempfile::tempdir().unwrap();
+    let now = t0();
+    let mut s = open(dir.path(), now);
+    let w = s.register("w", 1, now).unwrap();
+    let low = s.new_job("s".into(), small(2), i32::MIN, now).unwrap().id;
+    let high = s.new_job("s".into(), small(2), i32::MAX, now).unwrap().id;
+    let first = finish(&mut s, &w, now).unwrap();
+    assert_eq!(first.job, high);
+    let mut last = first;
+    while let Some(g) = finish(&mut s, &w, now) {
+        last = g;
+    }
+    assert_eq!(last.job, low);
+}
+
+#[test]
 fn timestamps_come_from_the_callers_clock() {
     let dir = tempfile::tempdir().unwrap();
     let start = t0();
