@@ -50,7 +50,8 @@ pub struct BenchArgs {
     /// Skip the BVH build benchmark.
     #[arg(long)]
     pub no_bvh: bool,
-    /// BVH builds to measure (repeatable; default every preset): a preset name, or
+    /// BVH builds to measure (repeatable; default `binned_sah` and every obvhs preset):
+    /// `binned_sah` (the builder of scenes above 65,536 primitives), an obvhs preset name, or
     /// `fast_build` changed by `key=value` pairs, e.g. `search=14,threshold=3,reinsert=0.05,post=2`
     /// (keys: search 1/2/6/14/24/32, threshold, reinsert, post, sort 64/128, leaf, cost).
     #[arg(long = "build")]
@@ -59,6 +60,9 @@ pub struct BenchArgs {
     #[arg(long = "width")]
     pub widths: Vec<u32>,
 }
+
+/// The `--build` name of the binned-SAH builder.
+const BINNED_SAH: &str = "binned_sah";
 
 /// The obvhs parameters a `--build` names.
 fn build_params(spec: &str) -> Result<BvhBuildParams> {
@@ -287,7 +291,10 @@ pub fn run(args: BenchArgs) -> Result<()> {
         })
         .collect();
     let builds: Vec<String> = if args.builds.is_empty() {
-        PRESETS.iter().map(|(n, _)| n.to_string()).collect()
+        std::iter::once(BINNED_SAH)
+            .chain(PRESETS.iter().map(|(n, _)| *n))
+            .map(String::from)
+            .collect()
     } else {
         args.builds.clone()
     };
@@ -297,15 +304,24 @@ pub fn run(args: BenchArgs) -> Result<()> {
         args.widths.clone()
     };
     for name in &builds {
-        let params = build_params(name)?;
+        let params = if name == BINNED_SAH {
+            None
+        } else {
+            Some(build_params(name)?)
+        };
         for &w in &widths {
             let width = match w {
                 4 => Width::Four,
                 8 => Width::Eight,
                 _ => anyhow::bail!("--width {w}: 4 or 8"),
             };
+            // The binned builder consumes its bounds: a copy, made before the clock starts.
+            let owned = params.is_none().then(|| bounds.clone());
             let t = Instant::now();
-            let (bvh, order) = Bvh::build_wide(&bounds, params, width);
+            let (bvh, order) = match (params, owned) {
+                (Some(params), _) => Bvh::build_wide(&bounds, params, width),
+                (None, owned) => Bvh::build_sah(owned.unwrap_or_default(), width),
+            };
             let build = t.elapsed().as_secs_f64();
             let ordered: Vec<TriangleGeom> = order.iter().map(|&i| tris[i as usize]).collect();
             // As the renderer does: each leaf's triangles packed for the 4-wide test.

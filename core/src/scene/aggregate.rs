@@ -68,8 +68,7 @@ impl MeshBlas {
             .into_par_iter()
             .map(|i| Aabb::from_points(&m.corners(i)))
             .collect();
-        let (bvh, mut order) = Bvh::build_in_scene(&bounds, scene_prims);
-        drop(bounds);
+        let (bvh, mut order) = Bvh::build_in_scene(bounds, scene_prims);
         order.shrink_to_fit();
         let tris = LeafTris::new(order.len(), bvh.leaves(), |slot| {
             Some(TriangleGeom::new(m.corners(order[slot] as usize)))
@@ -138,8 +137,7 @@ impl Aggregate {
             .par_iter()
             .fold(Aabb::empty, |a, b| a.union(b))
             .reduce(Aabb::empty, |a, b| a.union(&b));
-        let (bvh, order) = Bvh::build_in_scene(&bounds_list, scene_prims);
-        drop(bounds_list);
+        let (bvh, order) = Bvh::build_in_scene(bounds_list, scene_prims);
         let prim = |i: u32| {
             let (first, run) = runs[runs.partition_point(|r| r.0 <= i) - 1];
             match run {

@@ -4,11 +4,15 @@
 //! otherwise):
 //! the leaves a ray enters are intersected at once, and traversal descends into the
 //! nearest inner child, pushing the others (no sorting: on random rays its branches were the
-//! most mispredicted of the renderer). obvhs builds it: a PLOC binary BVH, reinsertion
-//! optimisation and SAH leaf collapsing ([`obvhs::bvh2::builder::build_bvh2`]); we then collapse
-//! the binary tree into wide nodes, always opening the child with the largest surface area
-//! (Embree's and pbrt's way of making wide BVHs from binary ones). This is the only module that
-//! talks to obvhs.
+//! most mispredicted of the renderer).
+//!
+//! Two builders. Small scenes: obvhs's PLOC binary BVH with reinsertion optimisation and SAH
+//! leaf collapsing ([`obvhs::bvh2::builder::build_bvh2`]), collapsed into wide nodes by always
+//! opening the child with the largest surface area (Embree's and pbrt's way of making wide
+//! BVHs from binary ones). Large scenes: our own binned-SAH builder ([`binned`]), which makes
+//! the wide nodes directly, in parallel, with one 32-byte reference per primitive made in place
+//! from the caller's bounds (obvhs's PLOC needed about 150 bytes per primitive at its peak).
+//! This is the only module that talks to obvhs.
 //!
 //! Why our own traversal: the closure that intersects a leaf is inlined into the loop, the slab
 //! test needs no decompression, the ray's reciprocal direction and octant are computed once,
@@ -39,6 +43,8 @@ pub use obvhs::BvhBuildParams;
 use std::mem::MaybeUninit;
 use std::time::Duration;
 
+mod binned;
+
 /// obvhs build presets, fastest to best quality.
 pub const PRESETS: [(&str, BvhBuildParams); 6] = [
     ("fastest_build", BvhBuildParams::fastest_build()),
@@ -49,7 +55,8 @@ pub const PRESETS: [(&str, BvhBuildParams); 6] = [
     ("very_slow_build", BvhBuildParams::very_slow_build()),
 ];
 
-/// Largest primitive count [`Bvh::build`] builds with the thorough preset.
+/// Largest primitive count [`Bvh::build_in_scene`] builds with obvhs's thorough preset (above,
+/// the binned-SAH builder).
 pub const SMALL_BUILD: usize = 1 << 16;
 
 /// Most primitives in one leaf.
@@ -115,6 +122,10 @@ pub enum Width {
 impl Width {
     /// The width traversal is fastest with on this CPU: eight with AVX2, four otherwise. Both
     /// find the same hits to the bit (see [`Bvh::closest_leaves`]), so the choice is speed only.
+    /// Measured on a 2-core AMD EPYC with AVX2 (2026-12-02, `raytile render` at 256×256, 64
+    /// spp, 2 threads, the binaries run alternately): the Cornell box with a 1 M-triangle
+    /// sphere 0.577 → 0.616 M samples/s (+7 %), the 36-triangle Cornell box 1.557 → 1.602
+    /// (+3 %); `raytile bench`'s 1 M-triangle mesh, incoherent rays 1.28 → 1.57 M/s.
     pub fn native() -> Self {
         if avx2() {
             Width::Eight
@@ -526,10 +537,11 @@ pub struct Bvh {
 }
 
 impl Bvh {
-    /// Builds over `bounds` with a preset chosen by size; returns the BVH and the slot order
+    /// Builds over `bounds` with a builder chosen by size; returns the BVH and the slot order
     /// (`order[slot]` = index into `bounds`). [`Bvh::build_in_scene`] with the tree alone.
-    pub fn build(bounds: &[Aabb]) -> (Self, Vec<u32>) {
-        Self::build_in_scene(bounds, bounds.len())
+    pub fn build(bounds: Vec<Aabb>) -> (Self, Vec<u32>) {
+        let n = bounds.len();
+        Self::build_in_scene(bounds, n)
     }
 
     /// Builds one of the BVHs of a scene of `scene_prims` primitives (all its trees together).
@@ -538,24 +550,48 @@ impl Bvh {
     /// a wide PLOC search and full reinsertion): it costs milliseconds there, and a small scene
     /// of big primitives (a room, a Cornell box) is where tree quality shows most; measured on
     /// the glTF Cornell box, 6 % fewer instructions per path sample than `fast_build`. Above,
-    /// `fast_build`, whose build time stays under a second per million triangles. The scene's
-    /// size decides, not the tree's, so that many instanced meshes do not each pay for the
-    /// thorough build.
-    pub fn build_in_scene(bounds: &[Aabb], scene_prims: usize) -> (Self, Vec<u32>) {
-        let params = if scene_prims <= SMALL_BUILD {
-            BvhBuildParams::very_slow_build()
+    /// the binned-SAH builder ([`Bvh::build_sah`]): on a million-triangle mesh a better tree
+    /// than obvhs's `fast_build` in a fraction of its time and memory. The scene's size
+    /// decides, not the tree's, so that many instanced meshes do not each pay for the thorough
+    /// build.
+    pub fn build_in_scene(bounds: Vec<Aabb>, scene_prims: usize) -> (Self, Vec<u32>) {
+        if scene_prims <= SMALL_BUILD {
+            Self::build_with(&bounds, BvhBuildParams::very_slow_build())
         } else {
-            BvhBuildParams::fast_build()
+            Self::build_sah(bounds, Width::native())
+        }
+    }
+
+    /// Builds with the binned-SAH builder (see [`binned`]), nodes of the given width; consumes
+    /// the bounds (their memory becomes the builder's references).
+    pub fn build_sah(bounds: Vec<Aabb>, width: Width) -> (Self, Vec<u32>) {
+        if bounds.is_empty() {
+            return (Self::default(), Vec::new());
+        }
+        let mut bvh = Self {
+            avx2: avx2(),
+            ..Self::default()
         };
-        Self::build_with(bounds, params)
+        let order = match width {
+            Width::Four => {
+                let (nodes, leaves, order) = binned::build::<4>(bounds);
+                (bvh.nodes4, bvh.leaves) = (nodes, leaves);
+                order
+            }
+            Width::Eight => {
+                let (nodes, leaves, order) = binned::build::<8>(bounds);
+                (bvh.nodes8, bvh.leaves) = (nodes, leaves);
+                order
+            }
+        };
+        (bvh, order)
     }
 
     /// Builds with explicit obvhs parameters (leaves hold at most 4 primitives: the triangle
-    /// packets are four wide), 4-wide nodes: 8-wide ones ([`Width::native`] with AVX2) find
-    /// the same hits, and become the default once an optimised build measures them faster
-    /// (`raytile bench --width 4 --width 8`).
+    /// packets are four wide), nodes of the CPU's [`Width::native`]: both widths find the same
+    /// hits, and 8-wide nodes with AVX2 measured faster (see [`Width::native`]).
     pub fn build_with(bounds: &[Aabb], params: BvhBuildParams) -> (Self, Vec<u32>) {
-        Self::build_wide(bounds, params, Width::Four)
+        Self::build_wide(bounds, params, Width::native())
     }
 
     /// [`Bvh::build_with`] with nodes of the given width. The slot order and the leaves do not
@@ -882,32 +918,38 @@ mod tests {
                     .iter()
                     .map(|t| Aabb::from_points(&[t.v0, t.v0 + t.e1, t.v0 + t.e2]))
                     .collect();
-                let (bvh, order) = Bvh::build_with(&bounds, params);
-                for k in 0..300u32 {
-                    let o = v(20_000 + k) * 6.0 - 1.0;
-                    let d = (v(40_000 + k) - 0.5).normalize();
-                    let ray = Ray::new(o, d);
-                    let brute = tris
-                        .iter()
-                        .enumerate()
-                        .filter_map(|(i, t)| {
-                            t.intersect(o, d, 0.0, f32::INFINITY).map(|h| (i, h.0))
-                        })
-                        .min_by(|a, b| a.1.total_cmp(&b.1));
-                    let got = bvh
-                        .closest(&ray, f32::INFINITY, |slot, tmax| {
+                let builds = [
+                    Bvh::build_with(&bounds, params),
+                    Bvh::build_sah(bounds.clone(), Width::Four),
+                    Bvh::build_sah(bounds.clone(), Width::Eight),
+                ];
+                for (b, (bvh, order)) in builds.iter().enumerate() {
+                    for k in 0..300u32 {
+                        let o = v(20_000 + k) * 6.0 - 1.0;
+                        let d = (v(40_000 + k) - 0.5).normalize();
+                        let ray = Ray::new(o, d);
+                        let brute = tris
+                            .iter()
+                            .enumerate()
+                            .filter_map(|(i, t)| {
+                                t.intersect(o, d, 0.0, f32::INFINITY).map(|h| (i, h.0))
+                            })
+                            .min_by(|a, b| a.1.total_cmp(&b.1));
+                        let got = bvh
+                            .closest(&ray, f32::INFINITY, |slot, tmax| {
+                                tris[order[slot] as usize]
+                                    .intersect(o, d, 0.0, tmax)
+                                    .map_or(f32::INFINITY, |h| h.0)
+                            })
+                            .map(|(slot, t)| (order[slot] as usize, t));
+                        assert_eq!(got, brute, "{name}, build {b}, n={n}, ray {k}");
+                        let any = bvh.any(&ray, f32::INFINITY, |slot| {
                             tris[order[slot] as usize]
-                                .intersect(o, d, 0.0, tmax)
-                                .map_or(f32::INFINITY, |h| h.0)
-                        })
-                        .map(|(slot, t)| (order[slot] as usize, t));
-                    assert_eq!(got, brute, "{name}, n={n}, ray {k}");
-                    let any = bvh.any(&ray, f32::INFINITY, |slot| {
-                        tris[order[slot] as usize]
-                            .intersect(o, d, 0.0, f32::INFINITY)
-                            .is_some()
-                    });
-                    assert_eq!(any, brute.is_some());
+                                .intersect(o, d, 0.0, f32::INFINITY)
+                                .is_some()
+                        });
+                        assert_eq!(any, brute.is_some());
+                    }
                 }
             }
         }
@@ -952,10 +994,34 @@ mod tests {
             .map(|t| Aabb::from_points(&[t.v0, t.v0 + t.e1, t.v0 + t.e2]))
             .collect();
         let params = BvhBuildParams::fast_build();
-        let (narrow, order) = Bvh::build_wide(&bounds, params, Width::Four);
-        let (wide, order8) = Bvh::build_wide(&bounds, params, Width::Eight);
-        assert_eq!(order, order8, "the slot order must not depend on the width");
-        assert_eq!(narrow.leaves(), wide.leaves());
+        for sah in [false, true] {
+            let ((narrow, order), (wide, order8)) = if sah {
+                (
+                    Bvh::build_sah(bounds.clone(), Width::Four),
+                    Bvh::build_sah(bounds.clone(), Width::Eight),
+                )
+            } else {
+                (
+                    Bvh::build_wide(&bounds, params, Width::Four),
+                    Bvh::build_wide(&bounds, params, Width::Eight),
+                )
+            };
+            assert_eq!(order, order8, "the slot order must not depend on the width");
+            assert_eq!(narrow.leaves(), wide.leaves());
+            paths_hit_identically(&tris, &narrow, &wide, &order, g, p);
+        }
+    }
+
+    /// The rays of [`wide_and_narrow_paths_hit_identically`] through `narrow` and `wide`, two
+    /// BVHs of the same slot `order` over `tris`.
+    fn paths_hit_identically(
+        tris: &[TriangleGeom],
+        narrow: &Bvh,
+        wide: &Bvh,
+        order: &[u32],
+        g: u32,
+        p: impl Fn(u32, u32) -> Vec3A,
+    ) {
         let slots: Vec<TriangleGeom> = order.iter().map(|&i| tris[i as usize]).collect();
         let packets: Vec<Tri4> = narrow
             .leaves()
@@ -1007,7 +1073,7 @@ mod tests {
             }
             hits += usize::from(want.is_some());
             ties += usize::from(at_best > 1);
-            for (bvh, simd) in [(&narrow, false), (&wide, false), (&wide, true)] {
+            for (bvh, simd) in [(narrow, false), (wide, false), (wide, true)] {
                 let packet = bvh
                     .closest_leaves_on(
                         &ray,
@@ -1045,9 +1111,67 @@ mod tests {
         );
     }
 
+    /// The binned-SAH builder: every slot in exactly one leaf of at most [`MAX_LEAF`], leaves
+    /// in slot order, and the same tree on one thread as on several (its parallel paths run
+    /// above `PAR_PRIMS` primitives), including primitives with NaN and infinite bounds.
+    #[test]
+    fn binned_build_is_complete_and_thread_independent() {
+        let n = 150_000u32;
+        let mut bounds: Vec<Aabb> = (0..n)
+            .map(|i| {
+                // Clusters of many sizes, and runs of identical boxes (no split separates them).
+                let c = if i % 7 == 0 {
+                    Vec3A::splat((i / 1000) as f32)
+                } else {
+                    v(i) * (1 + i % 13) as f32
+                };
+                Aabb::new(c, c + v(i + n) * 0.01)
+            })
+            .collect();
+        bounds[17].min.x = f32::NAN;
+        bounds[18].max = Vec3A::splat(f32::INFINITY);
+        bounds[19].min = Vec3A::splat(f32::NEG_INFINITY);
+        let build = |threads: usize, width: Width| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| Bvh::build_sah(bounds.clone(), width))
+        };
+        for width in [Width::Four, Width::Eight] {
+            let (one, order1) = build(1, width);
+            let (many, order4) = build(4, width);
+            assert_eq!(order1, order4, "{width:?}: slot order");
+            assert_eq!(one.leaves(), many.leaves(), "{width:?}: leaves");
+            let bits = |b: &Bvh| -> Vec<u32> {
+                let words = |n: &[f32]| n.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+                b.nodes4
+                    .iter()
+                    .flat_map(|n| n.bounds.iter().flat_map(|r| words(r)).chain(n.child))
+                    .chain(
+                        b.nodes8
+                            .iter()
+                            .flat_map(|n| n.bounds.iter().flat_map(|r| words(r)).chain(n.child)),
+                    )
+                    .collect()
+            };
+            assert_eq!(bits(&one), bits(&many), "{width:?}: nodes");
+            let mut sorted = order1.clone();
+            sorted.sort_unstable();
+            assert!(sorted.iter().copied().eq(0..n), "every primitive once");
+            let mut next = 0;
+            for &(start, count) in one.leaves() {
+                assert_eq!(start, next, "leaves in slot order, none missing");
+                assert!((1..=MAX_LEAF).contains(&count));
+                next += count;
+            }
+            assert_eq!(next, n);
+        }
+    }
+
     #[test]
     fn empty_bvh_misses() {
-        let (bvh, order) = Bvh::build(&[]);
+        let (bvh, order) = Bvh::build(Vec::new());
         assert!(order.is_empty());
         assert!(bvh
             .closest(&Ray::new(Vec3A::ZERO, Vec3A::X), 1.0, |_, _| 0.0)
