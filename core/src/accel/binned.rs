@@ -18,7 +18,7 @@
 
 use super::{Node, MAX_LEAF};
 use crate::geometry::Aabb;
-use glam::Vec4;
+use glam::{BVec4A, Vec4};
 use rayon::prelude::*;
 
 /// Bins per axis: more for large ranges (where the split matters most and the bins' own cost
@@ -39,8 +39,10 @@ const PAR_PRIMS: usize = 16 * 1024;
 /// Primitives binned per parallel chunk.
 const CHUNK: usize = 8 * 1024;
 
-/// A primitive's bounds; the w lane of `lo` holds its input index (its bits), that of `hi` is
-/// unused. The same size and alignment as [`Aabb`], so the references are made in place.
+/// A primitive's bounds; the w lane of `lo` holds its input index (its bits: mostly a
+/// subnormal float, so it is masked out before any arithmetic, which subnormals slow down on
+/// some CPUs), that of `hi` is 0. The same size and alignment as [`Aabb`], so the references
+/// are made in place.
 #[derive(Clone, Copy)]
 #[repr(C)]
 struct Ref {
@@ -54,11 +56,31 @@ impl Ref {
         self.lo.w.to_bits()
     }
 
-    /// Twice the centroid (the factor is the same everywhere, so it is left out).
+    /// The lower corner with w = 0 (a bitwise select, no arithmetic on the id).
+    #[inline(always)]
+    fn lo(&self) -> Vec4 {
+        Vec4::select(BVec4A::new(true, true, true, false), self.lo, Vec4::ZERO)
+    }
+
+    /// The centroid, clamped to the finite floats: halves added (no overflow), NaN (a box
+    /// infinite both ways) to −f32::MAX, ±∞ to ±f32::MAX. [`centroid_on`] computes one lane
+    /// of it with exactly these operations.
     #[inline(always)]
     fn centroid(&self) -> Vec4 {
-        self.lo + self.hi
+        (self.lo() * 0.5 + self.hi * 0.5)
+            .max(Vec4::splat(-f32::MAX))
+            .min(Vec4::splat(f32::MAX))
     }
+}
+
+/// Lane `axis` of [`Ref::centroid`], by the same operations on scalars (max returns the
+/// non-NaN operand, as SSE's maxps returns its second).
+#[inline(always)]
+#[allow(clippy::manual_clamp)] // clamp keeps NaN; max maps it to −f32::MAX, as maxps does
+fn centroid_on(p: &Ref, axis: usize) -> f32 {
+    (p.lo[axis] * 0.5 + p.hi[axis] * 0.5)
+        .max(-f32::MAX)
+        .min(f32::MAX)
 }
 
 /// A box in the xyz lanes (w is ignored).
@@ -74,6 +96,7 @@ impl Box3 {
         hi: Vec4::splat(f32::NEG_INFINITY),
     };
 
+    /// Grows to include the box `lo`..`hi` (w lanes must be ordinary floats, e.g. 0).
     #[inline(always)]
     fn grow(&mut self, lo: Vec4, hi: Vec4) {
         self.lo = self.lo.min(lo);
@@ -88,15 +111,19 @@ impl Box3 {
         }
     }
 
-    /// Half the surface area (0 for an empty box).
+    /// Half the surface area (0 for an empty box), in f64 from extents clamped to the finite
+    /// floats: a huge or infinite box stays comparable (no ∞, no ∞ · 0).
     #[inline(always)]
-    fn half_area(&self) -> f32 {
-        let e = (self.hi - self.lo).max(Vec4::ZERO);
+    fn half_area(&self) -> f64 {
+        let e = (self.hi - self.lo)
+            .max(Vec4::ZERO)
+            .min(Vec4::splat(f32::MAX))
+            .as_dvec4();
         e.x * e.y + e.y * e.z + e.z * e.x
     }
 }
 
-/// A primitive range being built: its bounds, the bounds of its (doubled) centroids, and
+/// A primitive range being built: its bounds, the bounds of its centroids, and
 /// its position in the reference array.
 #[derive(Clone, Copy, Debug)]
 struct Range {
@@ -122,7 +149,7 @@ impl Range {
 
     #[inline(always)]
     fn add(&mut self, p: &Ref) {
-        self.bounds.grow(p.lo, p.hi);
+        self.bounds.grow(p.lo(), p.hi);
         let c = p.centroid();
         self.cent.grow(c, c);
     }
@@ -141,12 +168,13 @@ struct Binner<const B: usize> {
 
 impl<const B: usize> Binner<B> {
     fn new(cent: &Box3) -> Self {
-        let extent = cent.hi - cent.lo;
-        // Just under B so that the largest centroid lands in the last bin; a flat axis
-        // (or a non-finite extent) puts everything in bin 0, which never splits.
+        // Halves: the centroids are finite, their extent may not be.
+        let half_extent = cent.hi * 0.5 - cent.lo * 0.5;
+        // Just under B so that the largest centroid lands in the last bin; a flat axis puts
+        // everything in bin 0, which never splits.
         let scale = Vec4::select(
-            extent.cmpgt(Vec4::ZERO) & extent.cmplt(Vec4::splat(f32::INFINITY)),
-            Vec4::splat(B as f32 * 0.999_99) / extent,
+            half_extent.cmpgt(Vec4::ZERO),
+            Vec4::splat(B as f32 * 0.5 * 0.999_99) / half_extent,
             Vec4::ZERO,
         );
         Self {
@@ -155,7 +183,7 @@ impl<const B: usize> Binner<B> {
         }
     }
 
-    /// The bin on each axis (lanes x, y, z). NaN lands in bin 0.
+    /// The bin on each axis (lanes x, y, z). NaN (∞ · 0 on a flat axis) lands in bin 0.
     #[inline(always)]
     fn bins(&self, p: &Ref) -> [usize; 3] {
         // max returns its second operand for NaN (SSE's rule, and f32::max's): NaN -> 0.
@@ -216,7 +244,7 @@ impl<const B: usize> Bins<B> {
         for p in refs {
             for (axis, &k) in binner.bins(p).iter().enumerate() {
                 let k = k.min(B - 1);
-                self.boxes[axis][k].grow(p.lo, p.hi);
+                self.boxes[axis][k].grow(p.lo(), p.hi);
                 self.counts[axis][k] += 1;
             }
         }
@@ -233,15 +261,16 @@ impl<const B: usize> Bins<B> {
     }
 
     /// The split of least SAH cost as (axis, first bin of the right side), if any split has
-    /// primitives on both sides. Ties go to the lowest axis, then the lowest bin.
+    /// primitives on both sides. Among equal costs (primitives on a line have no area) the
+    /// most balanced wins, then the lowest axis, then the lowest bin.
     fn best(&self) -> Option<(usize, usize)> {
-        let blocks = |n: u32| n.div_ceil(MAX_LEAF) as f32;
+        let blocks = |n: u32| f64::from(n.div_ceil(MAX_LEAF));
         let mut best = None;
-        let mut best_cost = f32::INFINITY;
+        let mut best_cost = (f64::INFINITY, u32::MAX);
         for axis in 0..3 {
             let (boxes, counts) = (&self.boxes[axis], &self.counts[axis]);
             // Right side of each split k (bins k..), accumulated from the right.
-            let mut right_cost = [0.0f32; B];
+            let mut right_cost = [0.0f64; B];
             let mut right_n = [0u32; B];
             let (mut b, mut n) = (Box3::EMPTY, 0);
             for k in (1..B).rev() {
@@ -257,7 +286,10 @@ impl<const B: usize> Bins<B> {
                 if n == 0 || right_n[k] == 0 {
                     continue;
                 }
-                let cost = b.half_area() * blocks(n) + right_cost[k];
+                let cost = (
+                    b.half_area() * blocks(n) + right_cost[k],
+                    n.abs_diff(right_n[k]),
+                );
                 if cost < best_cost {
                     best_cost = cost;
                     best = Some((axis, k));
@@ -290,14 +322,12 @@ fn split_in<const B: usize>(refs: &mut [Ref], r: &Range) -> (Range, Range) {
         Bins::new().add(refs, &binner)
     };
     let Some((axis, k)) = bins.best() else {
-        let mid = refs.len() / 2;
-        let (a, b) = refs.split_at(mid);
-        return (Range::of(a, r.start), Range::of(b, r.start + mid));
+        return median(refs, r);
     };
-    // Bin < k, computed on the split axis alone: the same sum, difference and product as
-    // `Binner::bins`, and for x ≥ 0 truncation below k means x below k (NaN goes to bin 0).
+    // Bin < k, computed on the split axis alone: the same operations as `Binner::bins`, and
+    // for x ≥ 0 truncation below k means x below k (NaN goes to bin 0).
     let (o, sc, kf) = (binner.origin[axis], binner.scale[axis], k as f32);
-    let goes_left = |p: &Ref| !(((p.lo[axis] + p.hi[axis]) - o) * sc >= kf);
+    let goes_left = |p: &Ref| !((centroid_on(p, axis) - o) * sc >= kf);
     let mut left = Range {
         bounds: Box3::EMPTY,
         cent: Box3::EMPTY,
@@ -320,14 +350,41 @@ fn split_in<const B: usize>(refs: &mut [Ref], r: &Range) -> (Range, Range) {
         }
         refs.swap(i, j - 1);
     }
-    left.end = r.start + i;
-    right.start = left.end;
     debug_assert_eq!(
         i as u32,
         bins.counts[axis][..k].iter().sum::<u32>(),
         "the partition disagrees with the bins"
     );
+    if i == 0 || i == refs.len() {
+        // Cannot happen while the partition agrees with the bins; if it ever did, an empty
+        // side would be split again forever.
+        return median(refs, r);
+    }
+    left.end = r.start + i;
+    right.start = left.end;
     (left, right)
+}
+
+/// Splits `refs` (the range `r`) at its median centroid on the axis of largest centroid
+/// extent (ties by input index, so the halves do not depend on the current order): for
+/// ranges no binned split separates.
+fn median(refs: &mut [Ref], r: &Range) -> (Range, Range) {
+    let e = (r.cent.hi * 0.5 - r.cent.lo * 0.5).to_array();
+    let axis = if e[0] >= e[1] && e[0] >= e[2] {
+        0
+    } else if e[1] >= e[2] {
+        1
+    } else {
+        2
+    };
+    let mid = refs.len() / 2;
+    refs.select_nth_unstable_by(mid, |a, b| {
+        centroid_on(a, axis)
+            .total_cmp(&centroid_on(b, axis))
+            .then(a.id().cmp(&b.id()))
+    });
+    let (a, b) = refs.split_at(mid);
+    (Range::of(a, r.start), Range::of(b, r.start + mid))
 }
 
 /// Nodes and leaves of a subtree: node 0 is its root; inner children index `nodes`, leaf
@@ -391,7 +448,8 @@ fn build_node<const N: usize>(refs: &mut [Ref], r: Range, out: &mut Sub<N>) -> u
     // The inner children's references, each its own slice (disjoint, in lane order).
     let mut rest = refs;
     let mut at = offset;
-    let mut inner: Vec<(usize, &mut [Ref], Range)> = Vec::new();
+    let mut slices: [Option<&mut [Ref]>; N] = std::array::from_fn(|_| None);
+    let (mut inner, mut inner_prims) = (0, 0);
     for (lane, k) in kids[..len].iter().enumerate() {
         let (skip, tail) = std::mem::take(&mut rest).split_at_mut(k.start - at);
         debug_assert!(skip.is_empty());
@@ -399,26 +457,35 @@ fn build_node<const N: usize>(refs: &mut [Ref], r: Range, out: &mut Sub<N>) -> u
         rest = tail;
         at = k.end;
         if k.len() > MAX_LEAF as usize {
-            inner.push((lane, mine, *k));
+            slices[lane] = Some(mine);
+            inner += 1;
+            inner_prims += k.len();
         }
     }
-    let parallel = inner.iter().filter(|c| c.2.len() > PAR_PRIMS).count() > 1;
-    let mut subs: Vec<Option<Sub<N>>> = if parallel {
-        inner
-            .par_iter_mut()
-            .map(|(_, refs, k)| {
+    // Subtrees built in parallel each into their own nodes, appended below in lane order:
+    // the same arrays as building them in place (the choice depends on sizes alone).
+    let mut subs: [Option<Sub<N>>; N] = std::array::from_fn(|_| None);
+    if inner > 1 && inner_prims > PAR_PRIMS {
+        let jobs: Vec<(usize, &mut [Ref])> = slices
+            .iter_mut()
+            .enumerate()
+            .filter_map(|(lane, s)| s.take().map(|s| (lane, s)))
+            .collect();
+        let built: Vec<(usize, Sub<N>)> = jobs
+            .into_par_iter()
+            .map(|(lane, refs)| {
                 let mut s = Sub {
                     nodes: Vec::new(),
                     leaves: Vec::new(),
                 };
-                build_node(refs, *k, &mut s);
-                Some(s)
+                build_node(refs, kids[lane], &mut s);
+                (lane, s)
             })
-            .collect()
-    } else {
-        Vec::new()
-    };
-    let mut next = 0;
+            .collect();
+        for (lane, s) in built {
+            subs[lane] = Some(s);
+        }
+    }
     for (lane, k) in kids[..len].iter().enumerate() {
         if k.len() <= MAX_LEAF as usize {
             node.child[lane] = out.leaves.len() as u32;
@@ -426,15 +493,12 @@ fn build_node<const N: usize>(refs: &mut [Ref], r: Range, out: &mut Sub<N>) -> u
             out.leaves.push((k.start as u32, k.len() as u32));
             continue;
         }
-        let (l, refs, k) = &mut inner[next];
-        debug_assert_eq!(*l, lane);
-        node.child[lane] = if parallel {
-            out.append(subs[next].take().expect("each subtree is appended once"))
-        } else {
-            build_node(refs, *k, out)
+        node.child[lane] = match (subs[lane].take(), slices[lane].take()) {
+            (Some(sub), _) => out.append(sub),
+            (None, Some(refs)) => build_node(refs, *k, out),
+            (None, None) => unreachable!("every inner child is built once"),
         };
         node.inner_mask |= 1 << lane;
-        next += 1;
     }
     out.nodes[index] = node;
     index as u32
@@ -457,7 +521,7 @@ pub(super) fn build<const N: usize>(
             // A box with a NaN (a primitive with a NaN corner, which nothing hits) becomes a
             // point at the origin: NaN would make min and max depend on operand order, and
             // so the tree on how bins were merged.
-            let (lo, hi) = if (b.min + b.max).is_nan() {
+            let (lo, hi) = if b.min.is_nan() || b.max.is_nan() {
                 (Vec4::ZERO, Vec4::ZERO)
             } else {
                 (b.min.extend(0.0), b.max.extend(0.0))

@@ -1147,12 +1147,20 @@ mod tests {
                 let words = |n: &[f32]| n.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
                 b.nodes4
                     .iter()
-                    .flat_map(|n| n.bounds.iter().flat_map(|r| words(r)).chain(n.child))
-                    .chain(
-                        b.nodes8
+                    .flat_map(|n| {
+                        n.bounds
                             .iter()
-                            .flat_map(|n| n.bounds.iter().flat_map(|r| words(r)).chain(n.child)),
-                    )
+                            .flat_map(|r| words(r))
+                            .chain(n.child)
+                            .chain([n.leaf_mask, n.inner_mask])
+                    })
+                    .chain(b.nodes8.iter().flat_map(|n| {
+                        n.bounds
+                            .iter()
+                            .flat_map(|r| words(r))
+                            .chain(n.child)
+                            .chain([n.leaf_mask, n.inner_mask])
+                    }))
                     .collect()
             };
             assert_eq!(bits(&one), bits(&many), "{width:?}: nodes");
@@ -1166,7 +1174,84 @@ mod tests {
                 next += count;
             }
             assert_eq!(next, n);
+            let slot_bounds: Vec<Aabb> = order1.iter().map(|&i| bounds[i as usize]).collect();
+            let depth = match width {
+                Width::Four => check_tree(&one.nodes4, one.leaves(), &slot_bounds),
+                Width::Eight => check_tree(&one.nodes8, one.leaves(), &slot_bounds),
+            };
+            assert!(depth <= 40, "{width:?}: depth {depth}");
         }
+        // Points on a line (no split has any area): balanced, not peeled a bin at a time.
+        let line: Vec<Aabb> = (0..20_000)
+            .map(|i| {
+                Aabb::new(
+                    Vec3A::new(i as f32, 0.0, 0.0),
+                    Vec3A::new(i as f32, 0.0, 0.0),
+                )
+            })
+            .collect();
+        let (bvh, order) = Bvh::build_sah(line.clone(), Width::Four);
+        let slot_bounds: Vec<Aabb> = order.iter().map(|&i| line[i as usize]).collect();
+        let depth = check_tree(&bvh.nodes4, bvh.leaves(), &slot_bounds);
+        assert!(depth <= 12, "points on a line: depth {depth}");
+    }
+
+    /// Checks a tree's structure: every node but the root referenced once, masks disjoint,
+    /// empty lanes empty, every lane's box containing its child's boxes or its primitives'
+    /// (`bounds` by slot; NaN boxes skipped). Returns the depth.
+    fn check_tree<const N: usize>(
+        nodes: &[Node<N>],
+        leaves: &[(u32, u32)],
+        bounds: &[Aabb],
+    ) -> usize {
+        let contains = |n: &Node<N>, lane: usize, b: &Aabb| {
+            let (lo, hi) = (b.min.to_array(), b.max.to_array());
+            (0..3).all(|a| n.bounds[2 * a][lane] <= lo[a] && hi[a] <= n.bounds[2 * a + 1][lane])
+        };
+        let lane_box = |n: &Node<N>, lane: usize| {
+            let c = |row: usize| n.bounds[row][lane];
+            Aabb::new(Vec3A::new(c(0), c(2), c(4)), Vec3A::new(c(1), c(3), c(5)))
+        };
+        let mut seen = vec![false; nodes.len()];
+        let mut leaf_seen = vec![false; leaves.len()];
+        let mut work = vec![(0usize, 1usize)];
+        let mut depth = 0;
+        while let Some((i, d)) = work.pop() {
+            assert!(!seen[i], "node {i} referenced twice");
+            seen[i] = true;
+            depth = depth.max(d);
+            let n = &nodes[i];
+            assert_eq!(n.leaf_mask & n.inner_mask, 0);
+            for lane in 0..N {
+                let c = n.child[lane] as usize;
+                if (n.inner_mask >> lane) & 1 == 1 {
+                    for l in 0..N {
+                        if (nodes[c].leaf_mask | nodes[c].inner_mask) >> l & 1 == 1 {
+                            assert!(contains(n, lane, &lane_box(&nodes[c], l)));
+                        }
+                    }
+                    work.push((c, d + 1));
+                } else if (n.leaf_mask >> lane) & 1 == 1 {
+                    assert!(!leaf_seen[c], "leaf {c} referenced twice");
+                    leaf_seen[c] = true;
+                    let (start, count) = leaves[c];
+                    for b in &bounds[start as usize..(start + count) as usize] {
+                        if !(b.min.is_nan() || b.max.is_nan()) {
+                            assert!(contains(n, lane, b), "leaf {c} sticks out of its box");
+                        }
+                    }
+                } else {
+                    assert_eq!(n.child[lane], EMPTY);
+                    assert!(
+                        n.bounds[0][lane] > n.bounds[1][lane],
+                        "empty lane not empty"
+                    );
+                }
+            }
+        }
+        assert!(seen.iter().all(|&s| s), "unreachable nodes");
+        assert!(leaf_seen.iter().all(|&s| s), "unreachable leaves");
+        depth
     }
 
     #[test]
