@@ -1,20 +1,24 @@
 //! A binned-SAH builder that makes wide nodes directly (Wald's binning, 2007; the top-down
 //! wide build of Embree's `BVHBuilderBinnedSAH`): a node takes its primitive range, splits it
-//! at the surface-area heuristic's best of 32 bins per axis, and keeps splitting the child with
-//! the largest surface area until it has `N` children (the same rule [`super::collapse`]
-//! applies to a binary tree). A leaf holds at most [`MAX_LEAF`] primitives, and the heuristic
-//! counts a leaf's cost by 4-wide packets (`⌈n / 4⌉`, Embree's block size), so full leaves cost
-//! what a single triangle does.
+//! at the surface-area heuristic's best bin boundary (32, 16 or 8 bins per axis by the range's
+//! size), and keeps splitting the child with the largest surface area until it has `N`
+//! children (the same rule [`super::collapse`] applies to a binary tree). A leaf holds at most
+//! [`MAX_LEAF`] primitives, and the heuristic counts a leaf's cost by 4-wide packets
+//! (`⌈n / 4⌉`, Embree's block size), so full leaves cost what a single triangle does. Ranges
+//! no bin boundary separates are split at their median.
 //!
 //! Memory: one 32-byte reference per primitive, made in place from the caller's bounds (the
-//! same allocation), and the nodes; no binary tree. Time: subtrees of more than [`PAR_PRIMS`]
-//! primitives are built in parallel (rayon) and binned in parallel chunks; each returns its own
-//! nodes, which the parent relocates once.
+//! same allocation), and the nodes; no binary tree. Time: a node's subtrees are built in
+//! parallel (rayon) when they hold more than [`PAR_PRIMS`] primitives together, and large
+//! ranges are binned in parallel chunks; a subtree built apart returns its own nodes, which the
+//! parent relocates once.
 //!
 //! Deterministic: every decision depends on the primitives' bounds and input order alone
 //! (bins merge by min, max and integer counts, which do not depend on how chunks are split
-//! between threads; ties go to the lowest axis and bin), so the tree is the same bits on one
-//! thread or many, on every CPU.
+//! between threads; NaN boxes become a point; among equal costs the most balanced split wins,
+//! then the lowest axis and bin), so the tree is the same bits on one thread or many, on every
+//! CPU. Huge and infinite boxes are handled in f64 areas and clamped centroids, so one of them
+//! is split off near the root rather than spoiling the splits above it.
 
 use super::{Node, MAX_LEAF};
 use crate::geometry::Aabb;
