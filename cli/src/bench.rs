@@ -13,7 +13,7 @@ use clap::Args;
 use glam::{Vec2, Vec3A};
 use rayon::prelude::*;
 use raytile_core::accel::{Bvh, BvhBuildParams, PlocSearchDistance, SortPrecision, Width, PRESETS};
-use raytile_core::geometry::triangle::{Tri4, TriangleGeom};
+use raytile_core::geometry::triangle::{LeafTris, TriangleGeom};
 use raytile_core::geometry::{Aabb, Ray};
 use raytile_core::sampling::hash_u32;
 use raytile_core::{load_scene, render, RenderJob, RenderSettings, Scene};
@@ -323,15 +323,10 @@ pub fn run(args: BenchArgs) -> Result<()> {
                 (None, owned) => Bvh::build_sah(owned.unwrap_or_default(), width),
             };
             let build = t.elapsed().as_secs_f64();
-            let ordered: Vec<TriangleGeom> = order.iter().map(|&i| tris[i as usize]).collect();
             // As the renderer does: each leaf's triangles packed for the 4-wide test.
-            let packets: Vec<Tri4> = bvh
-                .leaves()
-                .iter()
-                .map(|&(start, count)| {
-                    Tri4::new(&ordered[start as usize..(start + count) as usize])
-                })
-                .collect();
+            let packed = LeafTris::new(order.len(), bvh.leaves(), |slot| {
+                Some(tris[order[slot] as usize])
+            });
             let mut figures = Vec::new();
             for rays in [&coherent, &incoherent] {
                 let t = Instant::now();
@@ -340,9 +335,9 @@ pub fn run(args: BenchArgs) -> Result<()> {
                     .map(|c| {
                         c.iter()
                             .filter(|r| {
-                                bvh.closest_leaves(r, f32::INFINITY, |leaf, start, _, tmax| {
-                                    packets[leaf as usize]
-                                        .intersect(r.o, r.d, 0.0, tmax)
+                                bvh.closest_leaves(r, f32::INFINITY, |_, start, count, tmax| {
+                                    packed
+                                        .intersect(start, count, r.o, r.d, 0.0, tmax)
                                         .map(|(lane, t, _, _)| (start as usize + lane, t))
                                 })
                                 .is_some()

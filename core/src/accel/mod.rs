@@ -82,15 +82,24 @@ struct Node<const N: usize> {
     /// `bounds[2 * axis]` holds the children's minima on `axis`, `bounds[2 * axis + 1]` their
     /// maxima. Empty lanes hold an empty box (min +∞, max −∞), which no ray enters.
     bounds: [[f32; N]; 6],
-    /// Internal child: its node index. Leaf: its index in [`Bvh::leaves`]. Empty lane:
-    /// [`EMPTY`].
+    /// Internal child: its node index. Leaf: its first slot (while building: its index in
+    /// [`Bvh::leaves`], until [`inline_leaves`]). Empty lane: [`EMPTY`].
     child: [u32; N],
+    /// Leaf child: its primitive count (at most [`MAX_LEAF`]). With the first slot in `child`,
+    /// a leaf is reached without a look-up in another array (one cache miss fewer per leaf).
+    count: [u8; N],
     /// Bit `lane` set: that child is a leaf.
     leaf_mask: u32,
     /// Bit `lane` set: that child is an internal node. (Empty lanes are in neither mask, so
     /// whatever the slab test says about them, traversal never follows one.)
     inner_mask: u32,
+    /// Bit `lane` set: that leaf is marked (see [`Bvh::mark_leaves`]).
+    mark_mask: u32,
 }
+
+// Two and four cache lines: the per-leaf fields fit in what alignment pads anyway.
+const _: () = assert!(std::mem::size_of::<Node<4>>() == 128);
+const _: () = assert!(std::mem::size_of::<Node<8>>() == 256);
 
 impl<const N: usize> Node<N> {
     const EMPTY: Self = Self {
@@ -103,9 +112,25 @@ impl<const N: usize> Node<N> {
             [f32::NEG_INFINITY; N],
         ],
         child: [EMPTY; N],
+        count: [0; N],
         leaf_mask: 0,
         inner_mask: 0,
+        mark_mask: 0,
     };
+}
+
+/// Replaces each leaf child's index in `leaves` by its first slot and count, once the tree is
+/// built.
+fn inline_leaves<const N: usize>(nodes: &mut [Node<N>], leaves: &[(u32, u32)]) {
+    for n in nodes {
+        for lane in 0..N {
+            if (n.leaf_mask >> lane) & 1 == 1 {
+                let (start, count) = leaves[n.child[lane] as usize];
+                n.child[lane] = start;
+                n.count[lane] = u8::try_from(count).expect("leaves hold at most MAX_LEAF");
+            }
+        }
+    }
 }
 
 /// Node width of a [`Bvh`]: how many children each node tests at once.
@@ -356,14 +381,42 @@ impl<const N: usize> Stack<N> {
 /// Entries on the stack that live on the call stack.
 const STACK: usize = 64;
 
+/// Asks the CPU to bring the cache lines of `*p` in (no effect on results; a prefetch never
+/// faults, whatever the address).
+#[inline(always)]
+fn prefetch<T>(p: *const T) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        let p = p.cast::<i8>();
+        for line in (0..std::mem::size_of::<T>()).step_by(64) {
+            // SAFETY: a prefetch does not access memory architecturally.
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(line)) };
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = p;
+}
+
+/// Prefetches the inner children of `n` in `mask`: their nodes arrive while the leaves of `n`
+/// are intersected (a node fetched only when it is visited stalls traversal on every miss).
+#[inline(always)]
+fn prefetch_inner<const N: usize>(nodes: &[Node<N>], n: &Node<N>, mask: u32) {
+    let mut inner = mask & n.inner_mask;
+    while inner != 0 {
+        let lane = inner.trailing_zeros() as usize;
+        inner &= inner - 1;
+        prefetch(nodes.as_ptr().wrapping_add(n.child[lane] as usize));
+    }
+}
+
 /// Closest-hit traversal of `N`-wide nodes; `test` is the node's slab test. See
 /// [`Bvh::closest_leaves`].
 #[inline(always)]
 fn closest_in<const N: usize>(
     nodes: &[Node<N>],
-    leaves: &[(u32, u32)],
     tmax: f32,
-    leaf: &mut impl FnMut(u32, u32, u32, f32) -> Option<(usize, f32)>,
+    leaf: &mut impl FnMut(bool, u32, u32, f32) -> Option<(usize, f32)>,
     test: impl Fn(&Node<N>, f32) -> ([f32; N], u32),
 ) -> Option<(usize, f32)> {
     if nodes.is_empty() {
@@ -377,6 +430,7 @@ fn closest_in<const N: usize>(
     loop {
         let n = &nodes[node as usize];
         let (tn, mask) = test(n, cull);
+        prefetch_inner(nodes, n, mask);
         // Leaves the ray enters are intersected at once (in lane order: each hit shrinks
         // tmax, and a leaf entered beyond it, give or take `CULL`, is skipped).
         let mut lanes = mask & n.leaf_mask;
@@ -384,8 +438,7 @@ fn closest_in<const N: usize>(
             let lane = lanes.trailing_zeros() as usize;
             lanes &= lanes - 1;
             if tn[lane] <= cull {
-                let id = n.child[lane];
-                let (start, count) = leaves[id as usize];
+                let start = n.child[lane];
                 // Among hits at the same distance the lowest slot wins, whatever order the
                 // leaves come in (which depends on the node width): a leaf of lower slots than
                 // the best hit may also return a hit at exactly `tmax`.
@@ -393,36 +446,47 @@ fn closest_in<const N: usize>(
                     Some(b) if (start as usize) < b => next_above(tmax),
                     _ => tmax,
                 };
-                if let Some((slot, th)) = leaf(id, start, count, limit) {
+                let marked = (n.mark_mask >> lane) & 1 == 1;
+                if let Some((slot, th)) = leaf(marked, start, u32::from(n.count[lane]), limit) {
                     tmax = th;
                     cull = th * CULL;
                     best = Some(slot);
                 }
             }
         }
-        // Inner children: descend into the nearest at once, push the others. No sorting
-        // and no push/pop for the common single child: fewer unpredictable branches.
+        // Inner children entered: descend into the nearest, push the others farthest first
+        // (so that the nearer pop first and shrink tmax early). No sorting and no push or
+        // pop for the common single child.
         let mut inner = mask & n.inner_mask;
-        let (mut near, mut near_t) = (EMPTY, f32::INFINITY);
+        let mut hit = [(0u32, 0.0f32); N];
+        let mut len = 0;
         while inner != 0 {
             let lane = inner.trailing_zeros() as usize;
             inner &= inner - 1;
             let t = tn[lane];
-            if t > cull {
-                continue;
-            }
-            let c = n.child[lane];
-            if near == EMPTY {
-                (near, near_t) = (c, t);
-            } else if t < near_t {
-                stack.push((near, near_t));
-                (near, near_t) = (c, t);
-            } else {
-                stack.push((c, t));
+            if t <= cull {
+                hit[len] = (n.child[lane], t);
+                len += 1;
             }
         }
-        if near != EMPTY {
-            node = near;
+        if len > 0 {
+            if len > 1 {
+                // Insertion sort, nearest last (the order of equal distances does not matter:
+                // the result never depends on the order nodes are visited in).
+                for i in 1..len {
+                    let e = hit[i];
+                    let mut j = i;
+                    while j > 0 && hit[j - 1].1 < e.1 {
+                        hit[j] = hit[j - 1];
+                        j -= 1;
+                    }
+                    hit[j] = e;
+                }
+                for &e in &hit[..len - 1] {
+                    stack.push(e);
+                }
+            }
+            node = hit[len - 1].0;
             continue;
         }
         loop {
@@ -442,9 +506,8 @@ fn closest_in<const N: usize>(
 #[inline(always)]
 fn any_in<const N: usize>(
     nodes: &[Node<N>],
-    leaves: &[(u32, u32)],
     tmax: f32,
-    leaf: &mut impl FnMut(u32, u32, u32) -> bool,
+    leaf: &mut impl FnMut(bool, u32, u32) -> bool,
     test: impl Fn(&Node<N>, f32) -> ([f32; N], u32),
 ) -> bool {
     if nodes.is_empty() {
@@ -456,13 +519,13 @@ fn any_in<const N: usize>(
     loop {
         let n = &nodes[node as usize];
         let (_, mask) = test(n, cull);
+        prefetch_inner(nodes, n, mask);
         let mut lanes = mask & n.leaf_mask;
         while lanes != 0 {
             let lane = lanes.trailing_zeros() as usize;
             lanes &= lanes - 1;
-            let id = n.child[lane];
-            let (start, count) = leaves[id as usize];
-            if leaf(id, start, count) {
+            let marked = (n.mark_mask >> lane) & 1 == 1;
+            if leaf(marked, n.child[lane], u32::from(n.count[lane])) {
                 return true;
             }
         }
@@ -497,14 +560,13 @@ mod traverse8 {
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn closest(
         nodes: &[Node<8>],
-        leaves: &[(u32, u32)],
         ray: &Ray,
         tmax: f32,
-        leaf: &mut impl FnMut(u32, u32, u32, f32) -> Option<(usize, f32)>,
+        leaf: &mut impl FnMut(bool, u32, u32, f32) -> Option<(usize, f32)>,
     ) -> Option<(usize, f32)> {
         // SAFETY: the caller checked AVX2.
         let sr = unsafe { SlabRay8::new(ray) };
-        closest_in(nodes, leaves, tmax, leaf, |n, t| unsafe { sr.test(n, t) })
+        closest_in(nodes, tmax, leaf, |n, t| unsafe { sr.test(n, t) })
     }
 
     /// # Safety
@@ -512,14 +574,13 @@ mod traverse8 {
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn any(
         nodes: &[Node<8>],
-        leaves: &[(u32, u32)],
         ray: &Ray,
         tmax: f32,
-        leaf: &mut impl FnMut(u32, u32, u32) -> bool,
+        leaf: &mut impl FnMut(bool, u32, u32) -> bool,
     ) -> bool {
         // SAFETY: the caller checked AVX2.
         let sr = unsafe { SlabRay8::new(ray) };
-        any_in(nodes, leaves, tmax, leaf, |n, t| unsafe { sr.test(n, t) })
+        any_in(nodes, tmax, leaf, |n, t| unsafe { sr.test(n, t) })
     }
 }
 
@@ -574,12 +635,14 @@ impl Bvh {
         };
         let order = match width {
             Width::Four => {
-                let (nodes, leaves, order) = binned::build::<4>(bounds);
+                let (mut nodes, leaves, order) = binned::build::<4>(bounds);
+                inline_leaves(&mut nodes, &leaves);
                 (bvh.nodes4, bvh.leaves) = (nodes, leaves);
                 order
             }
             Width::Eight => {
-                let (nodes, leaves, order) = binned::build::<8>(bounds);
+                let (mut nodes, leaves, order) = binned::build::<8>(bounds);
+                inline_leaves(&mut nodes, &leaves);
                 (bvh.nodes8, bvh.leaves) = (nodes, leaves);
                 order
             }
@@ -614,8 +677,14 @@ impl Bvh {
             ..Self::default()
         };
         match width {
-            Width::Four => bvh.nodes4 = collapse(&bvh2, &leaf_of),
-            Width::Eight => bvh.nodes8 = collapse(&bvh2, &leaf_of),
+            Width::Four => {
+                bvh.nodes4 = collapse(&bvh2, &leaf_of);
+                inline_leaves(&mut bvh.nodes4, &bvh.leaves);
+            }
+            Width::Eight => {
+                bvh.nodes8 = collapse(&bvh2, &leaf_of);
+                inline_leaves(&mut bvh.nodes8, &bvh.leaves);
+            }
         }
         (bvh, std::mem::take(&mut bvh2.primitive_indices))
     }
@@ -652,20 +721,20 @@ impl Bvh {
         })
     }
 
-    /// Closest hit, a leaf at a time: `leaf(id, first_slot, count, ray_tmax)` returns the
-    /// nearest hit in leaf `id` (see [`Bvh::leaves`]) before `ray_tmax`, as (slot, t), the
-    /// lowest slot among hits at the same distance. Returns the nearest hit before `tmax`, the
-    /// lowest slot among equals: a leaf whose slots are below the best hit's is offered a
-    /// `ray_tmax` one float above the best distance, so that a tie there wins. Which hit
-    /// wins therefore does not depend on the order leaves are visited in, nor on the node
-    /// width, and every hit `leaf` returns is the new best (so a closure may keep the latest
-    /// hit it returned).
+    /// Closest hit, a leaf at a time: `leaf(marked, first_slot, count, ray_tmax)` returns the
+    /// nearest hit in that leaf (`marked`: see [`Bvh::mark_leaves`]) before `ray_tmax`, as
+    /// (slot, t), the lowest slot among hits at the same distance. Returns the nearest hit
+    /// before `tmax`, the lowest slot among equals: a leaf whose slots are below the best
+    /// hit's is offered a `ray_tmax` one float above the best distance, so that a tie there
+    /// wins. Which hit wins therefore does not depend on the order leaves are visited in, nor
+    /// on the node width, and every hit `leaf` returns is the new best (so a closure may keep
+    /// the latest hit it returned).
     #[inline]
     pub fn closest_leaves(
         &self,
         ray: &Ray,
         tmax: f32,
-        leaf: impl FnMut(u32, u32, u32, f32) -> Option<(usize, f32)>,
+        leaf: impl FnMut(bool, u32, u32, f32) -> Option<(usize, f32)>,
     ) -> Option<(usize, f32)> {
         self.closest_leaves_on(ray, tmax, leaf, self.avx2)
     }
@@ -676,25 +745,21 @@ impl Bvh {
         &self,
         ray: &Ray,
         tmax: f32,
-        mut leaf: impl FnMut(u32, u32, u32, f32) -> Option<(usize, f32)>,
+        mut leaf: impl FnMut(bool, u32, u32, f32) -> Option<(usize, f32)>,
         simd: bool,
     ) -> Option<(usize, f32)> {
         if self.nodes8.is_empty() {
             let sr = SlabRay::new(ray);
-            return closest_in(&self.nodes4, &self.leaves, tmax, &mut leaf, |n, t| {
-                sr.test4(n, t)
-            });
+            return closest_in(&self.nodes4, tmax, &mut leaf, |n, t| sr.test4(n, t));
         }
         #[cfg(target_arch = "x86_64")]
         if simd && self.avx2 {
             // SAFETY: `self.avx2` says the CPU has AVX2.
-            return unsafe { traverse8::closest(&self.nodes8, &self.leaves, ray, tmax, &mut leaf) };
+            return unsafe { traverse8::closest(&self.nodes8, ray, tmax, &mut leaf) };
         }
         let _ = simd;
         let sr = SlabRay::new(ray);
-        closest_in(&self.nodes8, &self.leaves, tmax, &mut leaf, |n, t| {
-            sr.test8(n, t)
-        })
+        closest_in(&self.nodes8, tmax, &mut leaf, |n, t| sr.test8(n, t))
     }
 
     /// Any hit before `tmax`: `hit(slot)` says whether that primitive blocks the ray.
@@ -705,14 +770,14 @@ impl Bvh {
         })
     }
 
-    /// Any hit, a leaf at a time: `leaf(id, first_slot, count)` says whether anything in
-    /// leaf `id` blocks the ray.
+    /// Any hit, a leaf at a time: `leaf(marked, first_slot, count)` says whether anything in
+    /// that leaf (`marked`: see [`Bvh::mark_leaves`]) blocks the ray.
     #[inline]
     pub fn any_leaves(
         &self,
         ray: &Ray,
         tmax: f32,
-        leaf: impl FnMut(u32, u32, u32) -> bool,
+        leaf: impl FnMut(bool, u32, u32) -> bool,
     ) -> bool {
         self.any_leaves_on(ray, tmax, leaf, self.avx2)
     }
@@ -723,25 +788,41 @@ impl Bvh {
         &self,
         ray: &Ray,
         tmax: f32,
-        mut leaf: impl FnMut(u32, u32, u32) -> bool,
+        mut leaf: impl FnMut(bool, u32, u32) -> bool,
         simd: bool,
     ) -> bool {
         if self.nodes8.is_empty() {
             let sr = SlabRay::new(ray);
-            return any_in(&self.nodes4, &self.leaves, tmax, &mut leaf, |n, t| {
-                sr.test4(n, t)
-            });
+            return any_in(&self.nodes4, tmax, &mut leaf, |n, t| sr.test4(n, t));
         }
         #[cfg(target_arch = "x86_64")]
         if simd && self.avx2 {
             // SAFETY: `self.avx2` says the CPU has AVX2.
-            return unsafe { traverse8::any(&self.nodes8, &self.leaves, ray, tmax, &mut leaf) };
+            return unsafe { traverse8::any(&self.nodes8, ray, tmax, &mut leaf) };
         }
         let _ = simd;
         let sr = SlabRay::new(ray);
-        any_in(&self.nodes8, &self.leaves, tmax, &mut leaf, |n, t| {
-            sr.test8(n, t)
-        })
+        any_in(&self.nodes8, tmax, &mut leaf, |n, t| sr.test8(n, t))
+    }
+
+    /// Marks the leaves for which `marked(first_slot, count)` holds (and unmarks the others):
+    /// traversal passes each leaf's mark to the leaf callbacks of [`Bvh::closest_leaves`] and
+    /// [`Bvh::any_leaves`], from the node that holds the leaf (no look-up per leaf).
+    pub fn mark_leaves(&mut self, marked: impl Fn(u32, u32) -> bool) {
+        fn mark<const N: usize>(nodes: &mut [Node<N>], marked: impl Fn(u32, u32) -> bool) {
+            for n in nodes {
+                n.mark_mask = 0;
+                for lane in 0..N {
+                    if (n.leaf_mask >> lane) & 1 == 1
+                        && marked(n.child[lane], u32::from(n.count[lane]))
+                    {
+                        n.mark_mask |= 1 << lane;
+                    }
+                }
+            }
+        }
+        mark(&mut self.nodes4, &marked);
+        mark(&mut self.nodes8, &marked);
     }
 
     /// The leaves: (first slot, primitive count) by leaf id, in slot order. Every slot is in
@@ -1028,6 +1109,13 @@ mod tests {
             .iter()
             .map(|&(s, c)| Tri4::new(&slots[s as usize..(s + c) as usize]))
             .collect();
+        // Both widths have the same leaves; traversal names a leaf by its first slot.
+        assert_eq!(narrow.leaves(), wide.leaves());
+        let packet_at = |start: u32| {
+            let leaf = narrow.leaves().partition_point(|l| l.0 < start);
+            assert_eq!(narrow.leaves()[leaf].0, start, "a leaf starts at {start}");
+            &packets[leaf]
+        };
         let mut hits = 0;
         let mut ties = 0;
         for k in 0..6000u32 {
@@ -1078,8 +1166,8 @@ mod tests {
                     .closest_leaves_on(
                         &ray,
                         tmax,
-                        |leaf, start, _, tmax| {
-                            packets[leaf as usize]
+                        |_, start, _, tmax| {
+                            packet_at(start)
                                 .intersect(o, d, 0.0, tmax)
                                 .map(|(lane, t, _, _)| (start as usize + lane, t))
                         },
@@ -1091,7 +1179,7 @@ mod tests {
                 let any = bvh.any_leaves_on(
                     &ray,
                     tmax,
-                    |leaf, _, _| packets[leaf as usize].any(o, d, 0.0, tmax),
+                    |_, start, _| packet_at(start).any(o, d, 0.0, tmax),
                     simd,
                 );
                 assert_eq!(any, want.is_some(), "{width:?}, simd {simd}, ray {k}");
@@ -1152,14 +1240,16 @@ mod tests {
                             .iter()
                             .flat_map(|r| words(r))
                             .chain(n.child)
-                            .chain([n.leaf_mask, n.inner_mask])
+                            .chain(n.count.map(u32::from))
+                            .chain([n.leaf_mask, n.inner_mask, n.mark_mask])
                     })
                     .chain(b.nodes8.iter().flat_map(|n| {
                         n.bounds
                             .iter()
                             .flat_map(|r| words(r))
                             .chain(n.child)
-                            .chain([n.leaf_mask, n.inner_mask])
+                            .chain(n.count.map(u32::from))
+                            .chain([n.leaf_mask, n.inner_mask, n.mark_mask])
                     }))
                     .collect()
             };
@@ -1232,6 +1322,11 @@ mod tests {
                     }
                     work.push((c, d + 1));
                 } else if (n.leaf_mask >> lane) & 1 == 1 {
+                    // A leaf lane holds the leaf's first slot and count.
+                    let c = leaves
+                        .binary_search_by_key(&n.child[lane], |l| l.0)
+                        .expect("a leaf lane holds a leaf's first slot");
+                    assert_eq!(u32::from(n.count[lane]), leaves[c].1, "leaf {c}: count");
                     assert!(!leaf_seen[c], "leaf {c} referenced twice");
                     leaf_seen[c] = true;
                     let (start, count) = leaves[c];
@@ -1252,6 +1347,55 @@ mod tests {
         assert!(seen.iter().all(|&s| s), "unreachable nodes");
         assert!(leaf_seen.iter().all(|&s| s), "unreachable leaves");
         depth
+    }
+
+    #[test]
+    fn leaf_marks_reach_the_leaf_callbacks() {
+        let tris: Vec<TriangleGeom> = (0..3000u32)
+            .map(|i| {
+                let a = v(3 * i) * 4.0;
+                TriangleGeom::new([a, a + v(3 * i + 1) * 0.3, a + v(3 * i + 2) * 0.3])
+            })
+            .collect();
+        let bounds: Vec<Aabb> = tris
+            .iter()
+            .map(|t| Aabb::from_points(&[t.v0, t.v0 + t.e1, t.v0 + t.e2]))
+            .collect();
+        for (mut bvh, _) in [
+            Bvh::build_wide(&bounds, BvhBuildParams::fast_build(), Width::Four),
+            Bvh::build_sah(bounds.clone(), Width::Eight),
+        ] {
+            let marked = |start: u32, count: u32| (start + count).is_multiple_of(3);
+            bvh.mark_leaves(marked);
+            let (mut seen_marked, mut seen_plain) = (0, 0);
+            for k in 0..500u32 {
+                let ray = Ray::new(v(9000 + k) * 4.0, v(12_000 + k) - 0.5);
+                let mut check = |m: bool, start: u32, count: u32| {
+                    assert_eq!(m, marked(start, count), "leaf at {start}");
+                    assert_eq!(
+                        bvh.leaves().iter().find(|l| l.0 == start).map(|l| l.1),
+                        Some(count)
+                    );
+                    if m {
+                        seen_marked += 1;
+                    } else {
+                        seen_plain += 1;
+                    }
+                };
+                bvh.closest_leaves(&ray, f32::INFINITY, |m, start, count, _| {
+                    check(m, start, count);
+                    None
+                });
+                bvh.any_leaves(&ray, f32::INFINITY, |m, start, count| {
+                    check(m, start, count);
+                    false
+                });
+            }
+            assert!(
+                seen_marked > 100 && seen_plain > 100,
+                "{seen_marked}, {seen_plain}"
+            );
+        }
     }
 
     #[test]

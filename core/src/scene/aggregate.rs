@@ -19,6 +19,9 @@ use crate::sampling::hash_u32;
 use glam::Vec4;
 use rayon::prelude::*;
 
+/// [`Hit::object`] of a hit in a packed leaf before its primitive is looked up.
+const UNRESOLVED: u32 = u32::MAX;
+
 /// A top-level BVH primitive, stored in BVH slot order. Twelve bytes: a triangle's corners
 /// live in the aggregate's [`LeafTris`], at its leaf (the slot minus `lane`).
 #[derive(Clone, Copy, Debug)]
@@ -94,9 +97,6 @@ pub(crate) struct Aggregate {
     pub(crate) prims: Vec<Prim>,
     /// By slot, leaf by leaf: the corners of flattened triangles (world space).
     pub(crate) tris: LeafTris,
-    /// Bit `leaf` (of word `leaf / 64`) set: the leaf holds only opaque triangles, tested at
-    /// once by [`LeafTris::intersect`] (else its primitives are tested one by one).
-    packed: Vec<u64>,
     /// By BVH slot, for flattened triangles: the unit world-space front normal (xyz), and in w
     /// 1 when the shading normal is that normal (no vertex normals, or all three equal to it),
     /// else 0. What a hit record needs without going back to the mesh and its transform.
@@ -137,7 +137,7 @@ impl Aggregate {
             .par_iter()
             .fold(Aabb::empty, |a, b| a.union(b))
             .reduce(Aabb::empty, |a, b| a.union(&b));
-        let (bvh, order) = Bvh::build_in_scene(bounds_list, scene_prims);
+        let (mut bvh, order) = Bvh::build_in_scene(bounds_list, scene_prims);
         let prim = |i: u32| {
             let (first, run) = runs[runs.partition_point(|r| r.0 <= i) - 1];
             match run {
@@ -153,30 +153,25 @@ impl Aggregate {
         };
         let mut prims: Vec<Prim> = order.par_iter().map(|&i| prim(i)).collect();
         drop(order);
-        let leaves = bvh.leaves();
-        let mut packed = vec![0u64; leaves.len().div_ceil(64)];
-        for (leaf, &(start, count)) in leaves.iter().enumerate() {
-            let mut opaque = true;
+        for &(start, count) in bvh.leaves() {
             for lane in 0..count {
-                match &mut prims[(start + lane) as usize] {
-                    Prim::Tri {
-                        alpha,
-                        lane: l,
-                        count: c,
-                        ..
-                    } => {
-                        *l = u8::try_from(lane).expect("leaves hold at most 255 primitives");
-                        *c = u8::try_from(count).expect("leaves hold at most 255 primitives");
-                        opaque &= !*alpha;
-                    }
-                    _ => opaque = false,
+                if let Prim::Tri {
+                    lane: l, count: c, ..
+                } = &mut prims[(start + lane) as usize]
+                {
+                    *l = u8::try_from(lane).expect("leaves hold at most 255 primitives");
+                    *c = u8::try_from(count).expect("leaves hold at most 255 primitives");
                 }
             }
-            if opaque {
-                packed[leaf / 64] |= 1 << (leaf % 64);
-            }
         }
-        let tris = LeafTris::new(prims.len(), leaves, |slot| match prims[slot] {
+        // Marked: the leaf holds only opaque triangles, tested at once by
+        // [`LeafTris::intersect`] (else its primitives are tested one by one).
+        bvh.mark_leaves(|start, count| {
+            prims[start as usize..(start + count) as usize]
+                .iter()
+                .all(|p| matches!(p, Prim::Tri { alpha: false, .. }))
+        });
+        let tris = LeafTris::new(prims.len(), bvh.leaves(), |slot| match prims[slot] {
             Prim::Tri { object, tri, .. } => Some(geom(object, tri)),
             _ => None,
         });
@@ -191,18 +186,11 @@ impl Aggregate {
             bvh,
             prims,
             tris,
-            packed,
             tri_shading,
             unbounded,
             blas,
         };
         (aggregate, bounds)
-    }
-
-    /// Whether leaf `leaf` is tested at once (only opaque triangles).
-    #[inline(always)]
-    fn is_packed(&self, leaf: u32) -> bool {
-        (self.packed[leaf as usize / 64] >> (leaf % 64)) & 1 != 0
     }
 
     /// The world-space corners of the flattened triangle in `slot`, at `lane` of a leaf of
@@ -219,7 +207,6 @@ impl Aggregate {
         self.bvh.memory_bytes()
             + self.prims.capacity() * size_of::<Prim>()
             + self.tris.memory_bytes()
-            + self.packed.capacity() * size_of::<u64>()
             + self.tri_shading.capacity() * size_of::<Vec4>()
             + self.unbounded.capacity() * size_of::<u32>()
             + self.blas.capacity() * size_of::<Option<MeshBlas>>()
@@ -252,21 +239,20 @@ impl Scene {
                 });
             }
         }
-        let mut cand = None;
+        // The latest accepted hit; from a packed leaf, its object and triangle are looked up
+        // once at the end (`object` is UNRESOLVED until then), not for every hit on the way.
+        let mut cand: Option<Hit> = None;
         let found = agg
             .bvh
-            .closest_leaves(ray, tmax, |leaf, start, count, tmax| {
-                if agg.is_packed(leaf) {
+            .closest_leaves(ray, tmax, |packed, start, count, tmax| {
+                if packed {
                     let (lane, t, b1, b2) =
                         agg.tris.intersect(start, count, ray.o, ray.d, 0.0, tmax)?;
                     let slot = start as usize + lane;
-                    let Prim::Tri { object, tri, .. } = agg.prims[slot] else {
-                        unreachable!("packets hold triangles only");
-                    };
                     cand = Some(Hit {
                         t,
-                        object,
-                        prim: tri,
+                        object: UNRESOLVED,
+                        prim: 0,
                         b1,
                         b2,
                         slot: slot as u32,
@@ -287,7 +273,15 @@ impl Scene {
         // `cand` holds the latest accepted hit, which is the nearest: each accepted hit
         // shrinks tmax, so later candidates are always closer.
         if found.is_some() {
-            best = cand;
+            best = cand.map(|mut h| {
+                if h.object == UNRESOLVED {
+                    let Prim::Tri { object, tri, .. } = agg.prims[h.slot as usize] else {
+                        unreachable!("packed leaves hold triangles only");
+                    };
+                    (h.object, h.prim) = (object, tri);
+                }
+                h
+            });
         }
         best
     }
@@ -338,8 +332,8 @@ impl Scene {
                 return true;
             }
         }
-        agg.bvh.any_leaves(ray, tmax, |leaf, start, count| {
-            if agg.is_packed(leaf) {
+        agg.bvh.any_leaves(ray, tmax, |packed, start, count| {
+            if packed {
                 agg.tris.any(start, count, ray.o, ray.d, 0.0, tmax)
             } else {
                 (start as usize..(start + count) as usize).any(|slot| match agg.prims[slot] {
