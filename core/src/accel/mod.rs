@@ -82,8 +82,8 @@ struct Node<const N: usize> {
     /// `bounds[2 * axis]` holds the children's minima on `axis`, `bounds[2 * axis + 1]` their
     /// maxima. Empty lanes hold an empty box (min +∞, max −∞), which no ray enters.
     bounds: [[f32; N]; 6],
-    /// Internal child: its node index. Leaf: its first slot (while building: its index in
-    /// [`Bvh::leaves`], until [`inline_leaves`]). Empty lane: [`EMPTY`].
+    /// Internal child: its node index. Leaf: its first slot (while [`collapse`] builds: its
+    /// index in [`Bvh::leaves`], until [`inline_leaves`]). Empty lane: [`EMPTY`].
     child: [u32; N],
     /// Leaf child: its primitive count (at most [`MAX_LEAF`]). With the first slot in `child`,
     /// a leaf is reached without a look-up in another array (one cache miss fewer per leaf).
@@ -635,14 +635,12 @@ impl Bvh {
         };
         let order = match width {
             Width::Four => {
-                let (mut nodes, leaves, order) = binned::build::<4>(bounds);
-                inline_leaves(&mut nodes, &leaves);
+                let (nodes, leaves, order) = binned::build::<4>(bounds);
                 (bvh.nodes4, bvh.leaves) = (nodes, leaves);
                 order
             }
             Width::Eight => {
-                let (mut nodes, leaves, order) = binned::build::<8>(bounds);
-                inline_leaves(&mut nodes, &leaves);
+                let (nodes, leaves, order) = binned::build::<8>(bounds);
                 (bvh.nodes8, bvh.leaves) = (nodes, leaves);
                 order
             }
