@@ -497,8 +497,9 @@ fn build_node<const N: usize>(refs: &mut [Ref], r: Range, out: &mut Sub<N>) -> u
             inner_prims += k.len();
         }
     }
-    // Subtrees built in parallel each into their own nodes, appended below in lane order:
-    // the same arrays as building them in place (the choice depends on sizes alone).
+    // Subtrees built in parallel each into their own nodes, kept aside (`Sub::apart`) and
+    // placed after this subtree's nodes by `Sub::flatten`; whether a subtree is built apart
+    // depends on sizes alone, so the arrays do not depend on the number of threads.
     let mut subs: [Option<Sub<N>>; N] = std::array::from_fn(|_| None);
     if inner > 1 && inner_prims > PAR_PRIMS {
         let jobs: Vec<(usize, &mut [Ref])> = slices

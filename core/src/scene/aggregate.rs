@@ -511,6 +511,7 @@ impl Scene {
 
 #[cfg(test)]
 mod tests {
+    use crate::geometry::interaction::NO_SLOT;
     use crate::geometry::Ray;
     use crate::sampling::hash_u32;
     use crate::scene::desc::*;
@@ -534,6 +535,23 @@ mod tests {
             uvs: [vec![Vec2::ZERO, Vec2::X, Vec2::ONE, Vec2::Y], vec![]],
             colors: Vec::new(),
             indices: vec![[0, 1, 2], [0, 2, 3]],
+            ..Default::default()
+        }
+    }
+
+    /// 64 random triangles in the slab 1 < x < 1.5, away from the other objects.
+    fn soup() -> MeshDesc {
+        let p = |i: u32| {
+            Vec3::new(
+                1.0 + 0.5 * rnd(i),
+                3.0 * rnd(i + 1) - 1.5,
+                3.0 * rnd(i + 2) - 1.5,
+            )
+        };
+        MeshDesc {
+            name: "soup".into(),
+            positions: (0..192).map(|v| p(100_000 + 3 * v)).collect(),
+            indices: (0..64).map(|t| [3 * t, 3 * t + 1, 3 * t + 2]).collect(),
             ..Default::default()
         }
     }
@@ -583,7 +601,7 @@ mod tests {
                 ),
                 cutout,
             ],
-            meshes: vec![quad("once"), quad("shared"), quad("once-cutout")],
+            meshes: vec![quad("once"), quad("shared"), quad("once-cutout"), soup()],
             objects: vec![
                 object("flat", ShapeDesc::Mesh { mesh: 0 }, 0, at(0.0, 0.0, -1.0)),
                 object("inst-a", ShapeDesc::Mesh { mesh: 1 }, 0, at(0.7, 0.2, 0.0)),
@@ -612,6 +630,8 @@ mod tests {
                     0,
                     at(-0.5, -0.5, -0.3) * Mat4::from_rotation_z(0.4),
                 ),
+                // Opaque triangles enough to fill leaves of their own (tested as packets).
+                object("soup", ShapeDesc::Mesh { mesh: 3 }, 0, Mat4::IDENTITY),
                 object(
                     "floor",
                     ShapeDesc::Plane {
@@ -630,8 +650,21 @@ mod tests {
     #[test]
     fn closest_and_any_hit_agree_with_each_other_and_with_brute_force() {
         let scene = scene();
-        assert!(scene.stats.flattened_triangles == 4 && scene.stats.instanced_triangles == 2);
-        let mut hits = 0;
+        assert!(scene.stats.flattened_triangles == 68 && scene.stats.instanced_triangles == 2);
+        let (mut hits, mut packed_hits) = (0, 0);
+        // Whether the slot's leaf holds opaque triangles only (is tested as one packet).
+        let agg = &scene.aggregate;
+        let in_packed_leaf = |slot: u32| {
+            let &(start, count) = agg
+                .bvh
+                .leaves()
+                .iter()
+                .find(|l| l.0 <= slot && slot < l.0 + l.1)
+                .expect("every slot is in a leaf");
+            agg.prims[start as usize..(start + count) as usize]
+                .iter()
+                .all(|p| matches!(p, super::Prim::Tri { alpha: false, .. }))
+        };
         for i in 0..20_000u32 {
             let o = Vec3A::new(rnd(7 * i), rnd(7 * i + 1), rnd(7 * i + 2)) * 3.0 - 1.5;
             let d = (Vec3A::new(rnd(7 * i + 3), rnd(7 * i + 4), rnd(7 * i + 5)) - 0.5)
@@ -651,10 +684,15 @@ mod tests {
                     a.t < tmax && (a.t - b.t).abs() <= 1e-5 * a.t.max(1.0),
                     "ray {i}"
                 );
+                // The same primitive: a hit found in a packed leaf is resolved to its object
+                // and triangle after traversal.
+                assert_eq!((a.object, a.prim), (b.object, b.prim), "ray {i}");
                 hits += 1;
+                packed_hits += usize::from(a.slot != NO_SLOT && in_packed_leaf(a.slot));
             }
         }
         assert!(hits > 5000, "{hits}");
+        assert!(packed_hits > 200, "hits in packed leaves: {packed_hits}");
     }
 
     /// A flattened triangle costs its top-level primitive (12 bytes), its corners (36), its
