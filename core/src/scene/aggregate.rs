@@ -43,6 +43,13 @@ pub(crate) enum Prim {
     },
 }
 
+/// Whether a leaf of these primitives is tested as one packet: opaque triangles only.
+fn packable(prims: &[Prim]) -> bool {
+    prims
+        .iter()
+        .all(|p| matches!(p, Prim::Tri { alpha: false, .. }))
+}
+
 /// The top level's primitives before the build, in input order, as runs: from `.0` on (up to
 /// the next run) the triangles of one flattened object, or one other primitive. A
 /// million-triangle mesh is one run, not a million primitives.
@@ -166,11 +173,7 @@ impl Aggregate {
         }
         // Marked: the leaf holds only opaque triangles, tested at once by
         // [`LeafTris::intersect`] (else its primitives are tested one by one).
-        bvh.mark_leaves(|start, count| {
-            prims[start as usize..(start + count) as usize]
-                .iter()
-                .all(|p| matches!(p, Prim::Tri { alpha: false, .. }))
-        });
+        bvh.mark_leaves(|start, count| packable(&prims[start as usize..(start + count) as usize]));
         let tris = LeafTris::new(prims.len(), bvh.leaves(), |slot| match prims[slot] {
             Prim::Tri { object, tri, .. } => Some(geom(object, tri)),
             _ => None,
@@ -661,9 +664,7 @@ mod tests {
                 .iter()
                 .find(|l| l.0 <= slot && slot < l.0 + l.1)
                 .expect("every slot is in a leaf");
-            agg.prims[start as usize..(start + count) as usize]
-                .iter()
-                .all(|p| matches!(p, super::Prim::Tri { alpha: false, .. }))
+            super::packable(&agg.prims[start as usize..(start + count) as usize])
         };
         for i in 0..20_000u32 {
             let o = Vec3A::new(rnd(7 * i), rnd(7 * i + 1), rnd(7 * i + 2)) * 3.0 - 1.5;
