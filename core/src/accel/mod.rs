@@ -260,8 +260,11 @@ mod avx2 {
     use std::arch::x86_64::*;
 
     /// (bounds − origin) · reciprocal direction, for eight bounds.
-    #[inline]
-    #[target_feature(enable = "avx2")]
+    ///
+    /// # Safety
+    /// The CPU must have AVX2 (see [`SlabRay8::test`] for why this is not a
+    /// `target_feature` function).
+    #[inline(always)]
     unsafe fn slab(row: &[f32; 8], o: __m256, inv: __m256) -> __m256 {
         // SAFETY: `row` is eight floats.
         _mm256_mul_ps(
@@ -302,10 +305,14 @@ mod avx2 {
         /// Lane for lane the arithmetic of [`super::SlabRay::test`] (the same roundings, the
         /// same operand order for min/max, so the same NaN behaviour).
         ///
+        /// Not a `target_feature` function, so that it can be `inline(always)`: it is called
+        /// only from a closure that is inlined into the AVX2 traversal functions, where the
+        /// intrinsics inline too. As a `target_feature` function the compiler kept it a call
+        /// per node, with the ray reloaded from memory each time.
+        ///
         /// # Safety
         /// The CPU must have AVX2.
-        #[inline]
-        #[target_feature(enable = "avx2")]
+        #[inline(always)]
         pub(super) unsafe fn test(&self, n: &Node<8>, tmax: f32) -> ([f32; 8], u32) {
             let b = &n.bounds;
             let [nx, ny, nz] = self.neg.map(usize::from);
