@@ -68,4 +68,7 @@ pub use settings::{
 /// 7: scenes of more than 65,536 primitives are built with the binned-SAH builder (another
 /// slot order, so another winner where two primitives are hit at exactly the same distance);
 /// smaller scenes' images unchanged (2026-12-02).
-pub const RENDER_VERSION: u32 = 7;
+/// 8: the light of next-event estimation is chosen by the first number of the light's 2D
+/// Sobol point, stretched back for the point on it, instead of by a hashed number (`path`,
+/// `volpath`, `sppm`; 2026-12-02).
+pub const RENDER_VERSION: u32 = 8;

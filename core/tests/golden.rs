@@ -275,10 +275,10 @@ fn image_hash(integrator: IntegratorKind) -> String {
 
 /// The hashes of the current arithmetic, pinned with [`raytile_core::RENDER_VERSION`].
 const GOLDEN: [(IntegratorKind, &str); 9] = [
-    (IntegratorKind::Path, "c7d40730432a6662"),
-    (IntegratorKind::Volpath, "b4b63600f55cadb0"),
+    (IntegratorKind::Path, "fe5ea4ac10844075"),
+    (IntegratorKind::Volpath, "5092868d9501e75b"),
     (IntegratorKind::Bdpt, "672d7c5e534d19ae"),
-    (IntegratorKind::Sppm, "5428c88a0b638557"),
+    (IntegratorKind::Sppm, "9ea137e7d1c86da3"),
     (IntegratorKind::Whitted, "1fb03513b2104f1a"),
     (IntegratorKind::Normals, "7bc0a2763bfb615f"),
     (IntegratorKind::Albedo, "ad105da7432cb490"),

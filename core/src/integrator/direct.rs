@@ -10,8 +10,10 @@ use crate::sampling::warp::Frame;
 use crate::{RenderJob, Scene};
 use glam::{Vec2, Vec3A};
 
-/// Direct light from one light chosen by `u_select`, MIS-weighted. Returns the contribution
-/// (to be multiplied by the path throughput).
+/// Direct light from one light, chosen and sampled with `u` ([`LightSet::choose_in`]),
+/// MIS-weighted. Returns the contribution (to be multiplied by the path throughput).
+///
+/// [`LightSet::choose_in`]: crate::light::LightSet::choose_in
 #[inline]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn sample_one_light(
@@ -21,10 +23,9 @@ pub(crate) fn sample_one_light(
     bsdf: &Bsdf,
     frame: &Frame,
     wo: Vec3A,
-    u_select: f32,
     u: Vec2,
 ) -> Vec3A {
-    let Some((index, pmf)) = job.lights().choose(u_select) else {
+    let Some((index, pmf, u)) = job.lights().choose_in(u) else {
         return Vec3A::ZERO;
     };
     light_contribution(scene, job, it, bsdf, frame, wo, index, u, true) / pmf

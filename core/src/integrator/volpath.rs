@@ -138,14 +138,10 @@ pub fn li(
                 let phase = m.phase();
                 let wo = -ray.d;
                 sampler.align4();
-                let [u_light, _, _] = sampler.hashed_3();
-                let u_light2 = sampler.next_2d();
+                let u_light = sampler.next_2d();
                 let u_dir = sampler.next_2d();
                 let v = Vertex::Medium { p, phase, wo };
-                l += beta
-                    * sample_ld(
-                        scene, job, &v, medium, channel, &mut rng, r_u, u_light, u_light2,
-                    );
+                l += beta * sample_ld(scene, job, &v, medium, channel, &mut rng, r_u, u_light);
                 let ps = phase.sample(wo, u_dir);
                 if !(ps.pdf > 0.0) {
                     break;
@@ -216,8 +212,8 @@ pub fn li(
 
         // The layout of `path`: one 4D set per vertex, choices from its hash.
         sampler.align4();
-        let [u_light, u_lobe, u_rr] = sampler.hashed_3();
-        let u_light2 = sampler.next_2d();
+        let [_, u_lobe, u_rr] = sampler.hashed_3();
+        let u_light = sampler.next_2d();
         let u_dir = sampler.next_2d();
 
         if !bsdf.is_delta() {
@@ -227,10 +223,7 @@ pub fn li(
                 frame: &frame,
                 wo,
             };
-            l += beta
-                * sample_ld(
-                    scene, job, &v, medium, channel, &mut rng, r_u, u_light, u_light2,
-                );
+            l += beta * sample_ld(scene, job, &v, medium, channel, &mut rng, r_u, u_light);
         }
         let Some(bs) = bsdf.sample(wo, u_lobe, u_dir) else {
             break;
@@ -267,8 +260,8 @@ pub fn li(
 }
 
 /// Next-event estimation at `v` (in `medium` if it is a medium vertex; for a surface, the
-/// medium on the light's side follows from the surface): one light chosen with `u_select`, a
-/// point on it with `u`, the shadow ray's transmittance through interfaces and media by ratio
+/// medium on the light's side follows from the surface): one light chosen and a point on it
+/// sampled with `u` (see `LightSet::choose_in`), the shadow ray's transmittance through interfaces and media by ratio
 /// tracking, weighted against BSDF or phase sampling (balance heuristic, per channel through
 /// `r_p`, the path's `r_u`). To be multiplied by the path throughput.
 #[allow(clippy::too_many_arguments)]
@@ -280,10 +273,9 @@ fn sample_ld<R: RandomSource>(
     channel: usize,
     rng: &mut R,
     r_p: Vec3A,
-    u_select: f32,
     u: Vec2,
 ) -> Vec3A {
-    let Some((index, pmf)) = job.lights().choose(u_select) else {
+    let Some((index, pmf, u)) = job.lights().choose_in(u) else {
         return Vec3A::ZERO;
     };
     let p = match v {
