@@ -3,7 +3,8 @@
     python bench/compare.py --rows ROWS.jsonl --reference REF.exr --reference-label TEXT \
         --markdown OUT.md [--title TEXT] [--note TEXT]...
 
-ROWS.jsonl has one JSON object per renderer: name, exr, seconds, spp, threads, note.
+ROWS.jsonl has one JSON object per renderer and round: name, exr, seconds, spp, threads, note
+(rows of one name are rounds of a repeated run: their median seconds count).
 For each: render seconds, samples/s, mean of each channel, the mean's offset from the
 reference in standard errors (z), RMSE against the reference and the efficiency
 1/(MSE x seconds) relative to the baseline row (raytile's render time if present), and
@@ -60,6 +61,29 @@ def orientation_warning(name, img, ref):
         if np.sqrt(np.mean((flipped - ref) ** 2)) < 0.8 * rmse:
             print(f"WARNING: {name}: the image looks {label} against the reference",
                   file=sys.stderr)
+
+
+def collapse(rows):
+    """One row per renderer. A run with --repeat N gives N rows of each name (its rounds run
+    the renderers in turn, so that a machine's drift touches them alike): keep the first row's
+    fields with the median of their seconds, and every round's seconds in `times`."""
+    by_name = {}
+    for r in rows:
+        if r["name"] not in by_name:
+            by_name[r["name"]] = dict(r, times=[])
+        by_name[r["name"]]["times"].append(float(r["seconds"]))
+    for r in by_name.values():
+        r["seconds"] = float(np.median(r["times"]))
+    return list(by_name.values())
+
+
+def rounds_note(rows):
+    """The seconds of every round, where renderers ran more than once."""
+    if all(len(r["times"]) < 2 for r in rows):
+        return []
+    times = "; ".join(f"{r['name']} " + ", ".join(f"{t:.3f}" for t in r["times"]) for r in rows)
+    return [f"render seconds are the median of {max(len(r['times']) for r in rows)} rounds "
+            f"(the renderers in turn in each round): {times}."]
 
 
 def evaluate(rows, ref):
@@ -146,9 +170,10 @@ def main():
     if not rows:
         print("compare: no renders to compare", file=sys.stderr)
         return 1
+    rows = collapse(rows)
     ref = read_exr(args.reference)
     base = evaluate(rows, ref)
-    notes = args.note + [r["note"] for r in rows if r.get("note")]
+    notes = args.note + [r["note"] for r in rows if r.get("note")] + rounds_note(rows)
     text = markdown(rows, args.reference_label, ref.reshape(-1, 3).mean(axis=0), base, notes,
                     args.title)
     with open(args.markdown, "w") as f:

@@ -4,10 +4,14 @@
 # scripts/make-mesh-glb.py --cornell into target/bench-scenes).
 #
 #   bash bench/run.sh [--spp N] [--threads T] [--seed S] [--ref-spp N] [--scene cornell|sphere]
-#                     [--smoke] [--no-bvh] [--no-crosscheck]
+#                     [--repeat N] [--smoke] [--no-bvh] [--no-crosscheck]
 #
+# --repeat N renders each scene N times with every renderer, in turn (raytile, Mitsuba, Cycles,
+# then again), and times each by the median of its N rounds: on a shared machine whose speed
+# drifts from one minute to the next, ratios between renderers then hold within a few percent
+# where a single round's move by 10-20 %.
 # The same settings can come from the environment: SPP, THREADS, SEED, REF_SPP, REF_SPP_SPHERE
-# (the sphere's reference; default REF_SPP), SCENES (cornell, sphere or "cornell sphere"),
+# (the sphere's reference; default REF_SPP), REPEAT, SCENES (cornell, sphere or "cornell sphere"),
 # BVH=0, CROSSCHECK=0, MESH_TRIANGLES, SCENE (one other glTF scene instead of both),
 # RAYTILE_BIN (use this binary instead of building). See bench/README.md for what it installs,
 # the columns and timings.
@@ -21,6 +25,7 @@ cd "$ROOT"
 SPP=${SPP:-64}
 THREADS=${THREADS:-$(nproc)}
 SEED=${SEED:-0}
+REPEAT=${REPEAT:-1}
 REF_SPP=${REF_SPP:-4096}
 REF_SPP_SPHERE=${REF_SPP_SPHERE:-} # the sphere's reference, if not REF_SPP (it is 2x slower)
 REF_SEED=1000000 # far from SEED's passes: the reference's noise is independent
@@ -40,14 +45,18 @@ while [ $# -gt 0 ]; do
         --threads) THREADS=$2; shift 2 ;;
         --seed) SEED=$2; shift 2 ;;
         --ref-spp) REF_SPP=$2; shift 2 ;;
+        --repeat) REPEAT=$2; shift 2 ;;
         --scene) SCENES=$2; shift 2 ;;
         --smoke) SPP=4; REF_SPP=64; REF_SPP_SPHERE=64; CROSSCHECK=0; BVH=0; shift ;;
         --no-bvh) BVH=0; shift ;;
         --no-crosscheck) CROSSCHECK=0; shift ;;
-        -h|--help) sed -n '2,15p' "$0"; exit 0 ;;
+        -h|--help) sed -n '2,20p' "$0"; exit 0 ;;
         *) echo "run.sh: unknown argument '$1' (try --help)" >&2; exit 2 ;;
     esac
 done
+case "$REPEAT" in
+    ''|*[!0-9]*|0) echo "run.sh: --repeat needs a positive whole number, not '$REPEAT'" >&2; exit 2 ;;
+esac
 for key in $SCENES; do
     case "$key" in
         cornell|sphere) ;;
@@ -203,64 +212,69 @@ run_scene() {
     fi
     ref_label="Mitsuba $(sed -n 's/.*"variant": "\([a-z_]*\)".*/\1/p' "$ref.json" 2>/dev/null || echo "$variant"), $ref_spp spp, path max_depth -1 ($(basename "$ref"))"
 
-    # raytile: the render time from its summary, and the whole process.
-    if [ "$RAYTILE_OK" = 1 ]; then
-        say "raytile: $SPP spp, $THREADS threads, max depth $RAYTILE_MAX_DEPTH"
-        local start wall timer=()
-        # Peak resident memory of the whole process, where GNU time is installed.
-        [ -x /usr/bin/time ] && timer=(/usr/bin/time -f '%M' -o "$SOUT/raytile.maxrss")
-        start=$(date +%s%N)
-        if ! ${timer[@]+"${timer[@]}"} "$RAYTILE" render "$scene" -o "$SOUT/raytile.exr" \
-            --width $WIDTH --height $HEIGHT --spp "$SPP" --max-depth $RAYTILE_MAX_DEPTH \
-            --threads "$THREADS" --seed "$SEED" 2> "$SOUT/raytile.log"; then
-            cat "$SOUT/raytile.log" >&2
-            echo "run.sh: raytile render failed (stderr above)" >&2
-            exit 1
+    # The renderers, REPEAT rounds (each round runs them in turn).
+    local round
+    for ((round = 1; round <= REPEAT; round++)); do
+        [ "$REPEAT" -gt 1 ] && say "round $round of $REPEAT"
+        # raytile: the render time from its summary, and the whole process.
+        if [ "$RAYTILE_OK" = 1 ]; then
+            say "raytile: $SPP spp, $THREADS threads, max depth $RAYTILE_MAX_DEPTH"
+            local start wall timer=()
+            # Peak resident memory of the whole process, where GNU time is installed.
+            [ -x /usr/bin/time ] && timer=(/usr/bin/time -f '%M' -o "$SOUT/raytile.maxrss")
+            start=$(date +%s%N)
+            if ! ${timer[@]+"${timer[@]}"} "$RAYTILE" render "$scene" -o "$SOUT/raytile.exr" \
+                --width $WIDTH --height $HEIGHT --spp "$SPP" --max-depth $RAYTILE_MAX_DEPTH \
+                --threads "$THREADS" --seed "$SEED" 2> "$SOUT/raytile.log"; then
+                cat "$SOUT/raytile.log" >&2
+                echo "run.sh: raytile render failed (stderr above)" >&2
+                exit 1
+            fi
+            wall=$(awk -v ns=$(($(date +%s%N) - start)) 'BEGIN { printf "%.3f", ns / 1e9 }')
+            tail -3 "$SOUT/raytile.log" >&2
+            "$PY" bench/raytile_rows.py --stderr "$SOUT/raytile.log" --wall "$wall" \
+                --exr "$SOUT/raytile.exr" --spp "$SPP" --threads "$THREADS" >> "$ROWS"
+            if [ "$round" = "$REPEAT" ] && [ -s "$SOUT/raytile.maxrss" ]; then
+                local kb
+                kb=$(tail -1 "$SOUT/raytile.maxrss")
+                SCENE_NOTES+=("raytile peak resident memory (whole process, /usr/bin/time -f %M): $((kb / 1024)) MiB${triangles:+, $((kb * 1024 / triangles)) bytes per triangle of the sphere}.")
+            fi
         fi
-        wall=$(awk -v ns=$(($(date +%s%N) - start)) 'BEGIN { printf "%.3f", ns / 1e9 }')
-        tail -3 "$SOUT/raytile.log" >&2
-        "$PY" bench/raytile_rows.py --stderr "$SOUT/raytile.log" --wall "$wall" \
-            --exr "$SOUT/raytile.exr" --spp "$SPP" --threads "$THREADS" >> "$ROWS"
-        if [ -s "$SOUT/raytile.maxrss" ]; then
-            local kb
-            kb=$(tail -1 "$SOUT/raytile.maxrss")
-            SCENE_NOTES+=("raytile peak resident memory (whole process, /usr/bin/time -f %M): $((kb / 1024)) MiB${triangles:+, $((kb * 1024 / triangles)) bytes per triangle of the sphere}.")
-        fi
-    fi
 
-    # Mitsuba
-    say "Mitsuba scalar_rgb: $SPP spp"
-    mitsuba "$scene" scalar_rgb "$SPP" "$SEED" "$SOUT/mitsuba-scalar.exr" "mitsuba scalar_rgb"
-    row_from "$SOUT/mitsuba scalar_rgb.log"
-    if [ "$LLVM" = 1 ]; then
-        say "Mitsuba llvm_ad_rgb: $SPP spp (JIT warm-up excluded)"
-        mitsuba "$scene" llvm_ad_rgb "$SPP" "$SEED" "$SOUT/mitsuba-llvm.exr" "mitsuba llvm_ad_rgb"
-        row_from "$SOUT/mitsuba llvm_ad_rgb.log"
-    else
-        skip "Mitsuba llvm_ad_rgb: needs LLVM >= 16 (install libllvm19; DRJIT_LIBLLVM_PATH='$DRJIT_LIBLLVM_PATH')"
-    fi
+        # Mitsuba
+        say "Mitsuba scalar_rgb: $SPP spp"
+        mitsuba "$scene" scalar_rgb "$SPP" "$SEED" "$SOUT/mitsuba-scalar.exr" "mitsuba scalar_rgb"
+        row_from "$SOUT/mitsuba scalar_rgb.log"
+        if [ "$LLVM" = 1 ]; then
+            say "Mitsuba llvm_ad_rgb: $SPP spp (JIT warm-up excluded)"
+            mitsuba "$scene" llvm_ad_rgb "$SPP" "$SEED" "$SOUT/mitsuba-llvm.exr" "mitsuba llvm_ad_rgb"
+            row_from "$SOUT/mitsuba llvm_ad_rgb.log"
+        elif [ "$round" = 1 ]; then
+            skip "Mitsuba llvm_ad_rgb: needs LLVM >= 16 (install libllvm19; DRJIT_LIBLLVM_PATH='$DRJIT_LIBLLVM_PATH')"
+        fi
+        # Cycles
+        if command -v blender > /dev/null; then
+            say "Blender Cycles: $SPP spp"
+            if ! PYTHONPATH=/usr/lib/python3/dist-packages${PYTHONPATH:+:$PYTHONPATH} \
+                blender -b --factory-startup --python-exit-code 1 --python bench/cycles_render.py -- \
+                "$scene" --spp "$SPP" --threads "$THREADS" --seed "$SEED" --width $WIDTH \
+                --height $HEIGHT --out "$SOUT/cycles.exr" > "$SOUT/cycles.log" 2>&1; then
+                tail -30 "$SOUT/cycles.log" >&2
+                echo "run.sh: Cycles render failed (log tail above)" >&2
+                exit 1
+            fi
+            row_from "$SOUT/cycles.log"
+        elif [ "$round" = 1 ]; then
+            skip "Blender Cycles: no 'blender' on PATH (apt-get install blender)"
+        fi
+    done
+
     if [ "$CROSSCHECK" = 1 ] && [ "$key" = cornell ]; then
         say "cross-check: Mitsuba's own mitsuba.cornell_box(), $SPP spp"
         mitsuba "$scene" "$variant" "$SPP" "$SEED" "$SOUT/mitsuba-builtin.exr" \
             "mitsuba.cornell_box() $variant" --builtin-cornell
         row_from "$SOUT/mitsuba.cornell_box() $variant.log"
         SCENE_NOTES+=("mitsuba.cornell_box() is Mitsuba's own scene (not read from the glTF), light BSDF black, same settings: it checks the glTF conversion.")
-    fi
-
-    # Cycles
-    if command -v blender > /dev/null; then
-        say "Blender Cycles: $SPP spp"
-        if ! PYTHONPATH=/usr/lib/python3/dist-packages${PYTHONPATH:+:$PYTHONPATH} \
-            blender -b --factory-startup --python-exit-code 1 --python bench/cycles_render.py -- \
-            "$scene" --spp "$SPP" --threads "$THREADS" --seed "$SEED" --width $WIDTH \
-            --height $HEIGHT --out "$SOUT/cycles.exr" > "$SOUT/cycles.log" 2>&1; then
-            tail -30 "$SOUT/cycles.log" >&2
-            echo "run.sh: Cycles render failed (log tail above)" >&2
-            exit 1
-        fi
-        row_from "$SOUT/cycles.log"
-    else
-        skip "Blender Cycles: no 'blender' on PATH (apt-get install blender)"
     fi
 
     # Table
