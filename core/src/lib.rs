@@ -71,4 +71,6 @@ pub use settings::{
 /// 8: the light of next-event estimation is chosen by the first number of the light's 2D
 /// Sobol point, stretched back for the point on it, instead of by a hashed number (`path`,
 /// `volpath`, `sppm`; 2026-12-02).
-pub const RENDER_VERSION: u32 = 8;
+/// 9: that first number is refined below the Sobol grid by a hashed number before it picks
+/// and is stretched, so a light with a tiny share still gets a continuum of points (2026-12-03).
+pub const RENDER_VERSION: u32 = 9;

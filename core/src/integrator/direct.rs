@@ -24,8 +24,9 @@ pub(crate) fn sample_one_light(
     frame: &Frame,
     wo: Vec3A,
     u: Vec2,
+    jitter: f32,
 ) -> Vec3A {
-    let Some((index, pmf, u)) = job.lights().choose_in(u) else {
+    let Some((index, pmf, u)) = job.lights().choose_in(u, jitter) else {
         return Vec3A::ZERO;
     };
     light_contribution(scene, job, it, bsdf, frame, wo, index, u, true) / pmf

@@ -333,11 +333,11 @@ fn camera_pass(
         let frame = si.shading_frame();
         let wo = frame.to_local(wo_w);
         sampler.align4();
-        let [_, u_lobe, _] = sampler.hashed_3();
+        let [u_fine, u_lobe, _] = sampler.hashed_3();
         let u_ld = sampler.next_2d();
         let u_dir = sampler.next_2d();
         if !bsdf.is_delta() {
-            if let Some((index, pmf, u_ld)) = job.lights().choose_in(u_ld) {
+            if let Some((index, pmf, u_ld)) = job.lights().choose_in(u_ld, u_fine) {
                 let ld = light_contribution(scene, job, &si, &bsdf, &frame, wo, index, u_ld, false);
                 l += beta * ld / pmf;
             }

@@ -22,8 +22,9 @@
 //! shaded as in `path`; a dielectric that bounds no medium keeps its Beer–Lambert absorption.
 //!
 //! Random numbers: the hero channel is the sampler's first dimension after the camera's; each
-//! scattering vertex (surface or medium) takes one 4D set of the sampler (light point,
-//! direction) and a hash of it (light choice, lobe, roulette), as `path` does; the media's
+//! scattering vertex (surface or medium) takes one 4D set of the sampler (light choice and
+//! point, direction) and a hash of it (the light number's refinement, lobe, roulette), as
+//! `path` does; the media's
 //! decisions (distances, event types, ratio tracking) come from a [`HashRng`] seeded from a
 //! hash of the dimension after the hero channel's. All depend on (pixel, sample index,
 //! seed) only.
@@ -138,10 +139,12 @@ pub fn li(
                 let phase = m.phase();
                 let wo = -ray.d;
                 sampler.align4();
+                let [u_fine, _, _] = sampler.hashed_3();
                 let u_light = sampler.next_2d();
                 let u_dir = sampler.next_2d();
                 let v = Vertex::Medium { p, phase, wo };
-                l += beta * sample_ld(scene, job, &v, medium, channel, &mut rng, r_u, u_light);
+                let u_ld = (u_light, u_fine);
+                l += beta * sample_ld(scene, job, &v, medium, channel, &mut rng, r_u, u_ld);
                 let ps = phase.sample(wo, u_dir);
                 if !(ps.pdf > 0.0) {
                     break;
@@ -212,7 +215,7 @@ pub fn li(
 
         // The layout of `path`: one 4D set per vertex, choices from its hash.
         sampler.align4();
-        let [_, u_lobe, u_rr] = sampler.hashed_3();
+        let [u_fine, u_lobe, u_rr] = sampler.hashed_3();
         let u_light = sampler.next_2d();
         let u_dir = sampler.next_2d();
 
@@ -223,7 +226,8 @@ pub fn li(
                 frame: &frame,
                 wo,
             };
-            l += beta * sample_ld(scene, job, &v, medium, channel, &mut rng, r_u, u_light);
+            let u_ld = (u_light, u_fine);
+            l += beta * sample_ld(scene, job, &v, medium, channel, &mut rng, r_u, u_ld);
         }
         let Some(bs) = bsdf.sample(wo, u_lobe, u_dir) else {
             break;
@@ -261,8 +265,8 @@ pub fn li(
 
 /// Next-event estimation at `v` (in `medium` if it is a medium vertex; for a surface, the
 /// medium on the light's side follows from the surface): one light chosen and a point on it
-/// sampled with `u` (see `LightSet::choose_in`), the shadow ray's transmittance through interfaces and media by ratio
-/// tracking, weighted against BSDF or phase sampling (balance heuristic, per channel through
+/// sampled with `(u, jitter)` (see `LightSet::choose_in`), the shadow ray's transmittance
+/// through interfaces and media by ratio tracking, weighted against BSDF or phase sampling (balance heuristic, per channel through
 /// `r_p`, the path's `r_u`). To be multiplied by the path throughput.
 #[allow(clippy::too_many_arguments)]
 fn sample_ld<R: RandomSource>(
@@ -273,9 +277,9 @@ fn sample_ld<R: RandomSource>(
     channel: usize,
     rng: &mut R,
     r_p: Vec3A,
-    u: Vec2,
+    (u, jitter): (Vec2, f32),
 ) -> Vec3A {
-    let Some((index, pmf, u)) = job.lights().choose_in(u) else {
+    let Some((index, pmf, u)) = job.lights().choose_in(u, jitter) else {
         return Vec3A::ZERO;
     };
     let p = match v {

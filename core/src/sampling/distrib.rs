@@ -86,6 +86,36 @@ impl Distribution1D {
         (i, p, rem)
     }
 
+    /// [`Self::sample_discrete`] for a `u` on the 2^-24 grid of the samplers, refined below
+    /// the grid by `jitter` ∈ [0, 1): the bin is picked by u + jitter · 2^-24 (in f64) and
+    /// the remapped number keeps that precision. A bin of probability p otherwise sees only
+    /// about p · 2^24 distinct remapped numbers (a few for a light among a million), which
+    /// would confine its samples to a few lines; the refined number stays in u's grid cell,
+    /// so a stratified u stays stratified. Same bits on every CPU (f64 arithmetic is exact
+    /// rounding).
+    #[inline]
+    pub fn sample_discrete_fine(&self, u: f32, jitter: f32) -> (usize, f32, f32) {
+        let i = self.find(u);
+        let u = u as f64 + jitter as f64 * (1.0 / (1u64 << 24) as f64);
+        // The refined number can only move up, past bins that end within u's grid cell.
+        let i = if (self.cdf[i + 1] as f64) > u {
+            i
+        } else {
+            let n = self.func.len();
+            let step = self.cdf[i + 1..=n].partition_point(|&c| (c as f64) <= u);
+            (i + step).min(n - 1)
+        };
+        let (lo, hi) = (self.cdf[i], self.cdf[i + 1]);
+        let p = hi - lo;
+        let rem = if hi > lo {
+            ((u - lo as f64) / (hi as f64 - lo as f64)).clamp(0.0, 1.0 - f32::EPSILON as f64) as f32
+        } else {
+            0.0
+        };
+        // An f64 rounding to f32 can land on 1.0: keep it below.
+        (i, p, rem.min(1.0 - f32::EPSILON))
+    }
+
     /// Probability of bin `i` under [`Self::sample_discrete`].
     #[inline]
     pub fn discrete_pdf(&self, i: usize) -> f32 {
@@ -186,6 +216,62 @@ impl Distribution2D {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn refined_choice_gives_a_tiny_bin_a_continuum() {
+        // Bin 1 holds 1.6e-7 of the mass: on the samplers' 2^-24 grid alone it is picked by
+        // two or three numbers, so its remapped numbers would take two or three values.
+        let d = Distribution1D::new(&[1.0, 4.8e-7, 1.0, 0.0, 1.0]);
+        let (lo, hi) = (d.cdf[1], d.cdf[2]);
+        let grid = 1.0 / (1u32 << 24) as f32;
+        let (mut rems, mut coarse) = (Vec::new(), Vec::new());
+        let mut u = (lo / grid).floor() * grid;
+        while u < hi + grid {
+            for k in 0..64 {
+                let jitter = (k as f32 + 0.5) / 64.0;
+                let (i, p, rem) = d.sample_discrete_fine(u, jitter);
+                assert_eq!(p, d.discrete_pdf(i));
+                assert!((0.0..1.0).contains(&rem));
+                // The refined number stays in u's grid cell, so the bin is a neighbour of
+                // the unrefined one, and never the empty bin 3.
+                let (j, _, _) = d.sample_discrete(u);
+                assert!(i == j || i == j + 1, "u {u} jitter {jitter}: {i} vs {j}");
+                if i == 1 {
+                    rems.push(rem);
+                }
+            }
+            if let (1, _, rem) = d.sample_discrete(u) {
+                coarse.push(rem);
+            }
+            u += grid;
+        }
+        rems.sort_by(f32::total_cmp);
+        rems.dedup();
+        // Every refined number that falls in the bin lands somewhere new, spread over [0, 1).
+        assert!(coarse.len() <= 3, "{coarse:?}");
+        let expected = (hi - lo) / grid * 64.0;
+        assert!(
+            rems.len() as f32 > 0.95 * expected,
+            "{} of {expected}",
+            rems.len()
+        );
+        assert!(rems[0] < 0.01 && rems[rems.len() - 1] > 0.99, "{rems:?}");
+        // Where a bin is wide, the refinement moves the remapped number by less than a grid
+        // step of it, and never across bins.
+        for k in 0..1000 {
+            let u = (k as f32 * 16_777.0).floor() * grid;
+            let (i0, p0, r0) = d.sample_discrete(u);
+            let (i1, p1, r1) = d.sample_discrete_fine(u, 0.0);
+            if p0 > 0.1 {
+                assert_eq!((i0, p0), (i1, p1));
+                assert!((r0 - r1).abs() <= 4.0 * f32::EPSILON, "{r0} {r1}");
+            }
+        }
+        // The last bin's refined numbers stay below 1.
+        let (i, _, rem) = d.sample_discrete_fine(1.0 - grid, 1.0 - f32::EPSILON);
+        assert_eq!(i, 4);
+        assert!(rem < 1.0);
+    }
 
     #[test]
     fn discrete_probabilities_match_weights() {

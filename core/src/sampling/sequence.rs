@@ -127,8 +127,9 @@ impl Sampler {
     }
 
     /// Three numbers in [0, 1) from a hash of (pixel, sample index, current dimension), not from
-    /// the Sobol sequence: for choices that gain little from stratification (light selection,
-    /// BSDF lobe, Russian roulette). Does not advance the dimension.
+    /// the Sobol sequence: for choices that gain little from stratification (BSDF lobe, Russian
+    /// roulette, the refinement of a Sobol number below its grid). Does not advance the
+    /// dimension.
     #[inline]
     pub fn hashed_3(&self) -> [f32; 3] {
         let h1 = hash_words(&[self.pixel_seed, self.index, self.dimension | 0x8000_0000]);
