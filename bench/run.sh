@@ -50,12 +50,12 @@ while [ $# -gt 0 ]; do
         --smoke) SPP=4; REF_SPP=64; REF_SPP_SPHERE=64; CROSSCHECK=0; BVH=0; shift ;;
         --no-bvh) BVH=0; shift ;;
         --no-crosscheck) CROSSCHECK=0; shift ;;
-        -h|--help) sed -n '2,20p' "$0"; exit 0 ;;
+        -h|--help) sed -n '2,19p' "$0"; exit 0 ;;
         *) echo "run.sh: unknown argument '$1' (try --help)" >&2; exit 2 ;;
     esac
 done
 case "$REPEAT" in
-    ''|*[!0-9]*|0) echo "run.sh: --repeat needs a positive whole number, not '$REPEAT'" >&2; exit 2 ;;
+    ''|*[!0-9]*|0|0*) echo "run.sh: --repeat needs a positive whole number, not '$REPEAT'" >&2; exit 2 ;;
 esac
 for key in $SCENES; do
     case "$key" in
@@ -234,7 +234,7 @@ run_scene() {
             tail -3 "$SOUT/raytile.log" >&2
             "$PY" bench/raytile_rows.py --stderr "$SOUT/raytile.log" --wall "$wall" \
                 --exr "$SOUT/raytile.exr" --spp "$SPP" --threads "$THREADS" >> "$ROWS"
-            if [ "$round" = "$REPEAT" ] && [ -s "$SOUT/raytile.maxrss" ]; then
+            if [ "$round" -eq "$REPEAT" ] && [ -s "$SOUT/raytile.maxrss" ]; then
                 local kb
                 kb=$(tail -1 "$SOUT/raytile.maxrss")
                 SCENE_NOTES+=("raytile peak resident memory (whole process, /usr/bin/time -f %M): $((kb / 1024)) MiB${triangles:+, $((kb * 1024 / triangles)) bytes per triangle of the sphere}.")
