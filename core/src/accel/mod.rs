@@ -575,6 +575,7 @@ mod traverse8 {
     ) -> Option<(usize, f32)> {
         // SAFETY: the caller checked AVX2.
         let sr = unsafe { SlabRay8::new(ray) };
+        // SAFETY: the caller checked AVX2; the closure runs only inside this function.
         closest_in(nodes, tmax, leaf, |n, t| unsafe { sr.test(n, t) })
     }
 
@@ -589,6 +590,7 @@ mod traverse8 {
     ) -> bool {
         // SAFETY: the caller checked AVX2.
         let sr = unsafe { SlabRay8::new(ray) };
+        // SAFETY: the caller checked AVX2; the closure runs only inside this function.
         any_in(nodes, tmax, leaf, |n, t| unsafe { sr.test(n, t) })
     }
 }
