@@ -8,8 +8,7 @@
 #
 # --repeat N renders each scene N times with every renderer, in turn (raytile, Mitsuba, Cycles,
 # then again), and times each by the median of its N rounds: on a shared machine whose speed
-# drifts from one minute to the next, ratios between renderers then hold within a few percent
-# where a single round's move by 10-20 %.
+# drifts from one minute to the next, a single round can be 25 % off; see bench/README.md.
 # The same settings can come from the environment: SPP, THREADS, SEED, REF_SPP, REF_SPP_SPHERE
 # (the sphere's reference; default REF_SPP), REPEAT, SCENES (cornell, sphere or "cornell sphere"),
 # BVH=0, CROSSCHECK=0, MESH_TRIANGLES, SCENE (one other glTF scene instead of both),
