@@ -49,7 +49,7 @@ while [ $# -gt 0 ]; do
         --smoke) SPP=4; REF_SPP=64; REF_SPP_SPHERE=64; CROSSCHECK=0; BVH=0; shift ;;
         --no-bvh) BVH=0; shift ;;
         --no-crosscheck) CROSSCHECK=0; shift ;;
-        -h|--help) sed -n '2,19p' "$0"; exit 0 ;;
+        -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
         *) echo "run.sh: unknown argument '$1' (try --help)" >&2; exit 2 ;;
     esac
 done

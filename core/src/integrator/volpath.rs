@@ -24,10 +24,9 @@
 //! Random numbers: the hero channel is the sampler's first dimension after the camera's; each
 //! scattering vertex (surface or medium) takes one 4D set of the sampler (light choice and
 //! point, direction) and a hash of it (the light number's refinement, lobe, roulette), as
-//! `path` does; the media's
-//! decisions (distances, event types, ratio tracking) come from a [`HashRng`] seeded from a
-//! hash of the dimension after the hero channel's. All depend on (pixel, sample index,
-//! seed) only.
+//! `path` does; the media's decisions (distances, event types, ratio tracking) come from a
+//! [`HashRng`] seeded from a hash of the dimension after the hero channel's. All depend on
+//! (pixel, sample index, seed) only.
 
 use crate::geometry::{Interaction, Ray};
 use crate::material::Bsdf;
@@ -266,8 +265,9 @@ pub fn li(
 /// Next-event estimation at `v` (in `medium` if it is a medium vertex; for a surface, the
 /// medium on the light's side follows from the surface): one light chosen and a point on it
 /// sampled with `(u, jitter)` (see `LightSet::choose_in`), the shadow ray's transmittance
-/// through interfaces and media by ratio tracking, weighted against BSDF or phase sampling (balance heuristic, per channel through
-/// `r_p`, the path's `r_u`). To be multiplied by the path throughput.
+/// through interfaces and media by ratio tracking, weighted against BSDF or phase sampling
+/// (balance heuristic, per channel through `r_p`, the path's `r_u`). To be multiplied by the
+/// path throughput.
 #[allow(clippy::too_many_arguments)]
 fn sample_ld<R: RandomSource>(
     scene: &Scene,

@@ -277,10 +277,8 @@ impl LightSet {
     /// Cornell box and on the Cornell box with a million-triangle sphere (two lights, the
     /// emitting quad's triangles), 0.7–1 % less RMSE at equal samples than a separate hashed
     /// number for the choice, at no cost. `jitter` ∈ [0, 1) refines `u.x` below the samplers'
-    /// 2^-24 grid ([`Distribution1D::sample_discrete_fine`]), so that a light with a tiny share
-    /// (one of a million emitting triangles) still gets a continuum of points.
-    ///
-    /// [`Distribution1D::sample_discrete_fine`]: crate::sampling::distrib::Distribution1D::sample_discrete_fine
+    /// grid ([`Distribution1D::sample_discrete_fine`]), so that a light with a tiny share (one
+    /// of a million emitting triangles) still gets a continuum of points.
     #[inline]
     pub fn choose_in(&self, u: Vec2, jitter: f32) -> Option<(usize, f32, Vec2)> {
         if self.len == 0 {

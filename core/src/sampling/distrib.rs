@@ -86,34 +86,35 @@ impl Distribution1D {
         (i, p, rem)
     }
 
-    /// [`Self::sample_discrete`] for a `u` on the 2^-24 grid of the samplers, refined below
-    /// the grid by `jitter` ∈ [0, 1): the bin is picked by u + jitter · 2^-24 (in f64) and
-    /// the remapped number keeps that precision. A bin of probability p otherwise sees only
-    /// about p · 2^24 distinct remapped numbers (a few for a light among a million), which
-    /// would confine its samples to a few lines; the refined number stays in u's grid cell,
-    /// so a stratified u stays stratified. Same bits on every CPU (f64 arithmetic is exact
-    /// rounding).
+    /// [`Self::sample_discrete`] for a `u` from the samplers, refined below their grid by
+    /// `jitter` ∈ [0, 1): the bin is picked by u' = u + jitter · 2^-23 (in f64; Sobol numbers
+    /// lie on a 2^-23 grid, hashed ones on 2^-24, and a u' past 1 wraps to the start, which
+    /// keeps u' uniform on either grid) and the remapped number keeps that precision. A bin of
+    /// probability p otherwise sees only about p · 2^23 distinct remapped numbers (a few for a
+    /// light among a million), which would confine its samples to a few lines. A Sobol u' stays
+    /// in u's grid cell, so a stratified u stays stratified. Same bits on every CPU (f64
+    /// arithmetic is exactly rounded).
     #[inline]
     pub fn sample_discrete_fine(&self, u: f32, jitter: f32) -> (usize, f32, f32) {
-        let i = self.find(u);
-        let u = u as f64 + jitter as f64 * (1.0 / (1u64 << 24) as f64);
-        // The refined number can only move up, past bins that end within u's grid cell.
-        let i = if (self.cdf[i + 1] as f64) > u {
-            i
+        let mut u = u as f64 + jitter as f64 * (1.0 / (1u64 << 23) as f64);
+        if u >= 1.0 {
+            u -= 1.0;
+        }
+        if !(0.0..1.0).contains(&u) {
+            u = 0.0;
+        }
+        // The bin is the count of inner bounds <= u: then cdf[i] <= u < cdf[i + 1], so it is
+        // never a zero-probability bin. Counted without branches for short tables, as `find`.
+        let n = self.func.len();
+        let inner = &self.cdf[1..n];
+        let i = if inner.len() <= 16 {
+            inner.iter().map(|&c| usize::from(c as f64 <= u)).sum()
         } else {
-            let n = self.func.len();
-            let step = self.cdf[i + 1..=n].partition_point(|&c| (c as f64) <= u);
-            (i + step).min(n - 1)
+            inner.partition_point(|&c| c as f64 <= u)
         };
         let (lo, hi) = (self.cdf[i], self.cdf[i + 1]);
-        let p = hi - lo;
-        let rem = if hi > lo {
-            ((u - lo as f64) / (hi as f64 - lo as f64)).clamp(0.0, 1.0 - f32::EPSILON as f64) as f32
-        } else {
-            0.0
-        };
-        // An f64 rounding to f32 can land on 1.0: keep it below.
-        (i, p, rem.min(1.0 - f32::EPSILON))
+        let rem = (u - lo as f64) / (hi as f64 - lo as f64);
+        (i, hi - lo, (rem as f32).clamp(0.0, 1.0 - f32::EPSILON))
     }
 
     /// Probability of bin `i` under [`Self::sample_discrete`].
@@ -218,59 +219,76 @@ mod tests {
     use super::*;
 
     #[test]
-    fn refined_choice_gives_a_tiny_bin_a_continuum() {
-        // Bin 1 holds 1.6e-7 of the mass: on the samplers' 2^-24 grid alone it is picked by
-        // two or three numbers, so its remapped numbers would take two or three values.
-        let d = Distribution1D::new(&[1.0, 4.8e-7, 1.0, 0.0, 1.0]);
-        let (lo, hi) = (d.cdf[1], d.cdf[2]);
-        let grid = 1.0 / (1u32 << 24) as f32;
-        let (mut rems, mut coarse) = (Vec::new(), Vec::new());
-        let mut u = (lo / grid).floor() * grid;
-        while u < hi + grid {
-            for k in 0..64 {
-                let jitter = (k as f32 + 0.5) / 64.0;
-                let (i, p, rem) = d.sample_discrete_fine(u, jitter);
-                assert_eq!(p, d.discrete_pdf(i));
-                assert!((0.0..1.0).contains(&rem));
-                // The refined number stays in u's grid cell, so the bin is a neighbour of
-                // the unrefined one, and never the empty bin 3.
-                let (j, _, _) = d.sample_discrete(u);
-                assert!(i == j || i == j + 1, "u {u} jitter {jitter}: {i} vs {j}");
-                if i == 1 {
-                    rems.push(rem);
+    fn refined_choice_is_exact_and_gives_a_tiny_bin_a_continuum() {
+        // Bin 2 holds 1.6e-7 of the mass, between empty bins (one below 0.5, where the f32 cdf
+        // is finer than the samplers' grids): on the Sobol grid (2^-23) alone it is picked by
+        // one or two numbers (three on the hashed numbers' 2^-24), and its remapped numbers would
+        // take as many values.
+        let d = Distribution1D::new(&[1.0, 0.0, 4.8e-7, 0.0, 1.0, 1.0]);
+        let (lo, hi) = (d.cdf[2], d.cdf[3]);
+        assert!(lo > 0.0 && hi > lo && hi < 0.5);
+        let jitters = 256;
+        // Sobol numbers (2^-23) and hashed ones (2^-24).
+        for bits in [23, 24] {
+            let grid = 1.0 / (1u32 << bits) as f64;
+            let (mut picks, mut rems, mut coarse) = (0usize, Vec::new(), Vec::new());
+            let first = (lo as f64 / grid).floor() as u32 - 2;
+            for k in first..first + 8 {
+                let u = (k as f64 * grid) as f32;
+                if let (2, _, rem) = d.sample_discrete(u) {
+                    coarse.push(rem);
+                }
+                for j in 0..jitters {
+                    let jitter = (j as f32 + 0.5) / jitters as f32;
+                    let (i, p, rem) = d.sample_discrete_fine(u, jitter);
+                    assert_eq!(p, d.discrete_pdf(i));
+                    assert!(p > 0.0, "u {u} jitter {jitter}: empty bin {i}");
+                    assert!((0.0..1.0).contains(&rem));
+                    if i == 2 {
+                        picks += 1;
+                        rems.push(rem);
+                    }
                 }
             }
-            if let (1, _, rem) = d.sample_discrete(u) {
-                coarse.push(rem);
-            }
-            u += grid;
+            // The refined numbers sweep the grid steps around the bin evenly (each 2^-23 wide,
+            // so on the finer grid every point is swept twice), so the bin is picked in
+            // proportion to its probability, to within the numbers its ends cut.
+            let sweeps = (1.0 / (1u32 << 23) as f64) / grid;
+            let step = (1.0 / (1u32 << 23) as f64) / jitters as f64;
+            let expected = (hi - lo) as f64 / step * sweeps;
+            assert!(
+                (picks as f64 - expected).abs() <= 2.0 * sweeps,
+                "2^-{bits} grid: {picks} picks, {expected} expected"
+            );
+            assert!(coarse.len() <= 3, "{coarse:?}");
+            // The picks spread evenly over [0, 1) (on the finer grid, two sweeps land alike).
+            rems.sort_by(f32::total_cmp);
+            let gap = rems.windows(2).map(|w| w[1] - w[0]).fold(rems[0], f32::max);
+            let gap = gap.max(1.0 - rems[rems.len() - 1]);
+            assert!(
+                gap < 2.0 * sweeps as f32 / picks as f32,
+                "2^-{bits} grid: gap {gap}, {picks} picks"
+            );
         }
-        rems.sort_by(f32::total_cmp);
-        rems.dedup();
-        // Every refined number that falls in the bin lands somewhere new, spread over [0, 1).
-        assert!(coarse.len() <= 3, "{coarse:?}");
-        let expected = (hi - lo) / grid * 64.0;
-        assert!(
-            rems.len() as f32 > 0.95 * expected,
-            "{} of {expected}",
-            rems.len()
-        );
-        assert!(rems[0] < 0.01 && rems[rems.len() - 1] > 0.99, "{rems:?}");
-        // Where a bin is wide, the refinement moves the remapped number by less than a grid
-        // step of it, and never across bins.
+        // Where a bin is wide, the refinement moves the remapped number by a grid step of it at
+        // most, and never across bins.
         for k in 0..1000 {
-            let u = (k as f32 * 16_777.0).floor() * grid;
+            let u = (k as f32 * 8_388.0).floor() / (1u32 << 23) as f32;
             let (i0, p0, r0) = d.sample_discrete(u);
             let (i1, p1, r1) = d.sample_discrete_fine(u, 0.0);
-            if p0 > 0.1 {
-                assert_eq!((i0, p0), (i1, p1));
-                assert!((r0 - r1).abs() <= 4.0 * f32::EPSILON, "{r0} {r1}");
-            }
+            assert_eq!((i0, p0), (i1, p1), "u {u}");
+            assert!((r0 - r1).abs() <= 4.0 * f32::EPSILON, "{r0} {r1}");
         }
-        // The last bin's refined numbers stay below 1.
-        let (i, _, rem) = d.sample_discrete_fine(1.0 - grid, 1.0 - f32::EPSILON);
-        assert_eq!(i, 4);
+        // A hashed number's refinement past 1 wraps to the first bin; numbers stay below 1.
+        let last = 1.0 - 1.0 / (1u32 << 24) as f32;
+        assert_eq!(d.sample_discrete_fine(last, 0.75).0, 0);
+        let (i, _, rem) = d.sample_discrete_fine(last, 0.25);
+        assert_eq!(i, 5);
         assert!(rem < 1.0);
+        // Out of range or NaN input picks a bin with probability, never an empty one.
+        for u in [f32::NAN, -1.0, 2.0] {
+            assert!(d.sample_discrete_fine(u, 0.5).1 > 0.0);
+        }
     }
 
     #[test]
