@@ -11,7 +11,8 @@ use crate::{RenderJob, Scene};
 use glam::{Vec2, Vec3A};
 
 /// Direct light from one light, chosen and sampled with `u` refined by `jitter`
-/// ([`LightSet::choose_in`]), MIS-weighted. Returns the contribution (to be multiplied by the path throughput).
+/// ([`LightSet::choose_in`]), MIS-weighted. Returns the contribution (to be multiplied by the
+/// path throughput).
 ///
 /// [`LightSet::choose_in`]: crate::light::LightSet::choose_in
 #[inline]
