@@ -4,14 +4,16 @@
 # scripts/make-mesh-glb.py --cornell into target/bench-scenes).
 #
 #   bash bench/run.sh [--spp N] [--threads T] [--seed S] [--ref-spp N] [--scene cornell|sphere]
-#                     [--repeat N] [--smoke] [--no-bvh] [--no-crosscheck]
+#                     [--repeat N] [--pgo] [--smoke] [--no-bvh] [--no-crosscheck]
 #
+# --pgo builds raytile with profile-guided optimisation (scripts/build-pgo.sh: two release
+# builds and a training run; the same image bits, 11-15 % faster where measured).
 # --repeat N renders each scene N times with every renderer, in turn (raytile, Mitsuba, Cycles,
 # then again), and times each by the median of its N rounds: on a shared machine whose speed
 # drifts from one minute to the next, a single round can be 25 % off; see bench/README.md.
 # The same settings can come from the environment: SPP, THREADS, SEED, REF_SPP, REF_SPP_SPHERE
 # (the sphere's reference; default REF_SPP), REPEAT, SCENES (cornell, sphere or "cornell sphere"),
-# BVH=0, CROSSCHECK=0, MESH_TRIANGLES, SCENE (one other glTF scene instead of both),
+# BVH=0, CROSSCHECK=0, MESH_TRIANGLES, SCENE (one other glTF scene instead of both), PGO=1,
 # RAYTILE_BIN (use this binary instead of building). See bench/README.md for what it installs,
 # the columns and timings.
 # Exit status: 0 on success (a missing optional renderer is a skip with a message),
@@ -25,6 +27,7 @@ SPP=${SPP:-64}
 THREADS=${THREADS:-$(nproc)}
 SEED=${SEED:-0}
 REPEAT=${REPEAT:-1}
+PGO=${PGO:-0}
 REF_SPP=${REF_SPP:-4096}
 REF_SPP_SPHERE=${REF_SPP_SPHERE:-} # the sphere's reference, if not REF_SPP (it is 2x slower)
 REF_SEED=1000000 # far from SEED's passes: the reference's noise is independent
@@ -45,11 +48,12 @@ while [ $# -gt 0 ]; do
         --seed) SEED=$2; shift 2 ;;
         --ref-spp) REF_SPP=$2; shift 2 ;;
         --repeat) REPEAT=$2; shift 2 ;;
+        --pgo) PGO=1; shift ;;
         --scene) SCENES=$2; shift 2 ;;
         --smoke) SPP=4; REF_SPP=64; REF_SPP_SPHERE=64; CROSSCHECK=0; BVH=0; shift ;;
         --no-bvh) BVH=0; shift ;;
         --no-crosscheck) CROSSCHECK=0; shift ;;
-        -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
+        -h|--help) sed -n '2,20p' "$0"; exit 0 ;;
         *) echo "run.sh: unknown argument '$1' (try --help)" >&2; exit 2 ;;
     esac
 done
@@ -173,6 +177,11 @@ MACHINE="${CPU_MODEL:-unknown CPU}, $(nproc) cores, $(free -g 2> /dev/null | awk
 # ---------------------------------------------------------------- raytile binary
 if [ -n "${RAYTILE_BIN:-}" ]; then
     RAYTILE=$RAYTILE_BIN # a prebuilt binary (or a stand-in when testing this script)
+elif [ "$PGO" = 1 ]; then
+    say "raytile: scripts/build-pgo.sh (profile-guided optimisation)"
+    bash scripts/build-pgo.sh target/pgo/bin
+    RAYTILE=$ROOT/target/pgo/bin/raytile
+    NOTES+=("raytile built with profile-guided optimisation (scripts/build-pgo.sh)")
 else
     say "raytile: cargo build --release -p raytile"
     cargo build --release -p raytile

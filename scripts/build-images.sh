@@ -7,7 +7,9 @@
 # Environment: RAYTILE_TAG (image tag, default latest), RAYTILE_PROFILE (cargo profile,
 # default release), RAYTILE_TARGET (a *-linux-gnu target, default the host's),
 # CARGO_TARGET_DIR (default target/docker: a build directory of its own, as the static flags
-# differ from a normal build's).
+# differ from a normal build's), RAYTILE_PGO=1 (the worker built with profile-guided
+# optimisation by scripts/build-pgo.sh: faster, the same image bits; host target and release
+# profile only, two more release builds).
 #
 # The binaries link glibc statically (-C target-feature=+crt-static). Naming the --target
 # keeps build scripts and proc-macros dynamic. No image is pulled: FROM scratch needs none.
@@ -34,8 +36,24 @@ BIN=$CARGO_TARGET_DIR/$TARGET/$OUTDIR
 CTX=$CARGO_TARGET_DIR/image-context
 rm -rf "$CTX"
 mkdir -p "$CTX"
+WORKER_BIN=$BIN
+if [ "${RAYTILE_PGO:-0}" = 1 ]; then
+    HOST=$(rustc -vV | sed -n 's/^host: //p')
+    if [ "$TARGET" != "$HOST" ] || [ "$PROFILE" != release ]; then
+        echo "build-images.sh: RAYTILE_PGO=1 needs the host target and the release profile" >&2
+        exit 2
+    fi
+    echo "== scripts/build-pgo.sh (static): the worker with profile-guided optimisation" >&2
+    RUSTFLAGS="-C target-feature=+crt-static" PGO_DIR="$CARGO_TARGET_DIR/pgo" \
+        bash scripts/build-pgo.sh "$CARGO_TARGET_DIR/pgo/bin"
+    WORKER_BIN=$CARGO_TARGET_DIR/pgo/bin
+fi
 for b in raytile-coordinator raytile-worker; do
-    cp "$BIN/$b" "$CTX/$b"
+    if [ "$b" = raytile-worker ]; then
+        cp "$WORKER_BIN/$b" "$CTX/$b"
+    else
+        cp "$BIN/$b" "$CTX/$b"
+    fi
     # A dynamic binary would start in a FROM scratch image only to fail: refuse it here.
     if command -v readelf > /dev/null; then
         if readelf -l "$CTX/$b" | grep -q "Requesting program interpreter"; then
