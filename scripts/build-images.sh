@@ -48,12 +48,8 @@ if [ "${RAYTILE_PGO:-0}" = 1 ]; then
         bash scripts/build-pgo.sh "$CARGO_TARGET_DIR/pgo/bin"
     WORKER_BIN=$CARGO_TARGET_DIR/pgo/bin
 fi
+cp "$BIN/raytile-coordinator" "$WORKER_BIN/raytile-worker" "$CTX/"
 for b in raytile-coordinator raytile-worker; do
-    if [ "$b" = raytile-worker ]; then
-        cp "$WORKER_BIN/$b" "$CTX/$b"
-    else
-        cp "$BIN/$b" "$CTX/$b"
-    fi
     # A dynamic binary would start in a FROM scratch image only to fail: refuse it here.
     if command -v readelf > /dev/null; then
         if readelf -l "$CTX/$b" | grep -q "Requesting program interpreter"; then

@@ -1,10 +1,9 @@
 #!/usr/bin/env bash
 # Builds `raytile` and `raytile-worker` with profile-guided optimisation (PGO): an
-# instrumented `raytile` renders a
-# training set (the example scenes with the path, volpath, bdpt and sppm integrators, a glTF
-# scene, and `raytile bench`'s traversal and BVH builds on a quarter-million-triangle mesh),
-# then the release build is compiled again with the recorded profile (branch layout, inlining,
-# hot and cold code). The images are the same bits as a plain `cargo build --release`: PGO
+# instrumented `raytile` renders a training set (the example scenes with the path, volpath,
+# bdpt and sppm integrators, a glTF scene, and `raytile bench`'s traversal and BVH builds on a
+# quarter-million-triangle mesh), then the release build is compiled again with the recorded
+# profile (branch layout, inlining, hot and cold code). The images are the same bits as a plain `cargo build --release`: PGO
 # changes no floating-point operation (Rust never contracts or reorders them), only how the
 # code is laid out; check with `scripts/image-hashes.sh` on both binaries.
 #
