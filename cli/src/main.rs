@@ -7,6 +7,11 @@ mod submit;
 
 use clap::{Parser, Subcommand};
 
+/// Large blocks (a big scene's arrays) in mappings of their own: less memory held while a
+/// scene loads and builds (see `raytile_core::alloc`).
+#[global_allocator]
+static ALLOC: raytile_core::alloc::LargeBlocks = raytile_core::alloc::LargeBlocks;
+
 /// raytile: a distributed path tracer.
 #[derive(Parser)]
 #[command(name = "raytile", version, about)]

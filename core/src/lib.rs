@@ -29,6 +29,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod accel;
+pub mod alloc;
 pub mod camera;
 pub mod film;
 pub mod geometry;

@@ -3,6 +3,11 @@
 use clap::Parser;
 use std::path::PathBuf;
 
+/// Large blocks (a big scene's arrays) in mappings of their own: less memory held while a
+/// scene loads and builds (see `raytile_core::alloc`).
+#[global_allocator]
+static ALLOC: raytile_core::alloc::LargeBlocks = raytile_core::alloc::LargeBlocks;
+
 /// A raytile render worker.
 #[derive(Parser, Debug)]
 #[command(version)]

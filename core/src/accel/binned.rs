@@ -421,7 +421,7 @@ impl<const N: usize> Sub<N> {
     /// leaves (in no particular order).
     fn flatten(self) -> (Vec<Node<N>>, Vec<(u32, u32)>) {
         let (n, l) = self.sizes();
-        let (mut nodes, mut leaves) = (Vec::with_capacity(n), Vec::with_capacity(l));
+        let (mut nodes, mut leaves) = (crate::alloc::huge_vec(n), Vec::with_capacity(l));
         self.place(&mut nodes, &mut leaves);
         debug_assert_eq!((nodes.len(), leaves.len()), (n, l));
         (nodes, leaves)

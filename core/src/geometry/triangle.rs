@@ -289,6 +289,8 @@ impl LeafTris {
         }
         assert_eq!(next, slots, "leaves must cover the slots once each");
         let mut data = vec![0.0f32; FLOATS * slots + 3];
+        crate::alloc::advise_huge(&data); // not touched yet: rays read it at random
+
         // Runs of whole leaves, each with its part of `data`, packed in parallel.
         let mut tasks = Vec::new();
         let (mut rest, mut first) = (data.as_mut_slice(), 0usize);

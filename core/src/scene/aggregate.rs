@@ -11,6 +11,7 @@
 
 use super::{ObjectKind, Scene};
 use crate::accel::Bvh;
+use crate::alloc::huge_vec;
 use crate::geometry::interaction::NO_SLOT;
 use crate::geometry::triangle::{LeafTris, Mesh, TriangleGeom};
 use crate::geometry::{Aabb, Hit, Ray};
@@ -158,7 +159,9 @@ impl Aggregate {
                 Run::One(p) => p,
             }
         };
-        let mut prims: Vec<Prim> = order.par_iter().map(|&i| prim(i)).collect();
+        // Arrays every ray reads at random go on huge pages (crate::alloc).
+        let mut prims: Vec<Prim> = huge_vec(order.len());
+        prims.par_extend(order.par_iter().map(|&i| prim(i)));
         drop(order);
         for &(start, count) in bvh.leaves() {
             for lane in 0..count {
@@ -178,18 +181,16 @@ impl Aggregate {
             Prim::Tri { object, tri, .. } => Some(geom(object, tri)),
             _ => None,
         });
-        let tri_shading = prims
-            .par_iter()
-            .map(|p| match *p {
-                Prim::Tri { object, tri, .. } => tri_shading(object, tri),
-                _ => Vec4::ZERO,
-            })
-            .collect();
+        let mut shading = huge_vec(prims.len());
+        shading.par_extend(prims.par_iter().map(|p| match *p {
+            Prim::Tri { object, tri, .. } => tri_shading(object, tri),
+            _ => Vec4::ZERO,
+        }));
         let aggregate = Aggregate {
             bvh,
             prims,
             tris,
-            tri_shading,
+            tri_shading: shading,
             unbounded,
             blas,
         };

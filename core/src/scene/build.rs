@@ -16,6 +16,7 @@ use super::desc::{
 };
 use super::files::SceneFiles;
 use super::{Object, ObjectKind, RenderJob, Scene, SceneCamera, SceneError, SceneStats};
+use crate::alloc::huge_vec;
 use crate::geometry::triangle::{Mesh, TriangleGeom};
 use crate::geometry::{aabox, plane, polygon, quadric, sphere, Aabb, Analytic};
 use crate::light::area::{Emitter, PlacedShape, TriangleLight};
@@ -545,7 +546,9 @@ fn build_mesh(mi: usize, m: MeshDesc) -> Result<Mesh, SceneError> {
         )));
     }
     // Degenerate triangles cannot be hit and would give NaN normals: drop them.
-    let positions: Vec<Vec3A> = m.positions.par_iter().map(|&p| p.into()).collect();
+    // Vertex arrays are read at random by hits: on huge pages (crate::alloc).
+    let mut positions: Vec<Vec3A> = huge_vec(m.positions.len());
+    positions.par_extend(m.positions.par_iter().map(|&p| Vec3A::from(p)));
     let keep = |&[a, b, c]: &[u32; 3]| {
         let (a, b, c) = (
             positions[a as usize],
@@ -570,7 +573,11 @@ fn build_mesh(mi: usize, m: MeshDesc) -> Result<Mesh, SceneError> {
     Ok(Mesh {
         name: m.name,
         positions,
-        normals: m.normals.par_iter().map(clean_normal).collect(),
+        normals: {
+            let mut normals = huge_vec(m.normals.len());
+            normals.par_extend(m.normals.par_iter().map(clean_normal));
+            normals
+        },
         tangents: m.tangents,
         uvs: m.uvs,
         colors: m
