@@ -348,7 +348,8 @@ async fn js(c: &fantoccini::Client, js: &str) -> Value {
 }
 
 /// Waits until `js` returns something truthy (or panics after `secs`: a hang guard, not a
-/// speed requirement).
+/// speed requirement). A script polled across a navigation may run before the new page's own
+/// script has defined its globals: read them as `window.raytile?.job`, not `window.raytile.job`.
 async fn until(c: &fantoccini::Client, secs: u64, what: &str, script: &str) -> Value {
     let end = tokio::time::Instant::now() + Duration::from_secs(secs);
     loop {
@@ -464,7 +465,7 @@ async fn the_web_page_submits_watches_and_cancels() {
         ],
     )
     .await;
-    until(&c, 30, "the job page", "return location.pathname.startsWith('/jobs/') && window.raytile.job && document.getElementById('live').textContent === 'live'").await;
+    until(&c, 30, "the job page", "return location.pathname.startsWith('/jobs/') && window.raytile?.job && document.getElementById('live').textContent === 'live'").await;
     let job = js(&c, "return window.raytile.job.id").await;
     let job = job.as_str().unwrap().to_string();
     let workers = Workers::start(&base, 2, &dir.path().join("cache"));
@@ -534,7 +535,7 @@ async fn the_web_page_submits_watches_and_cancels() {
         ],
     )
     .await;
-    until(&c, 30, "the second job's page", &format!("return location.pathname.startsWith('/jobs/') && location.pathname !== '/jobs/{job}' && window.raytile.job")).await;
+    until(&c, 30, "the second job's page", &format!("return location.pathname.startsWith('/jobs/') && location.pathname !== '/jobs/{job}' && window.raytile?.job")).await;
     let second = js(&c, "return window.raytile.job.id").await;
     let second = second.as_str().unwrap().to_string();
     c.goto(&format!("{base}/")).await.unwrap();
@@ -704,7 +705,7 @@ async fn a_scene_folder_is_packed_in_the_browser() {
         &c,
         30,
         "the job page of the folder's scene",
-        "return location.pathname.startsWith('/jobs/') && window.raytile.job",
+        "return location.pathname.startsWith('/jobs/') && window.raytile?.job",
     )
     .await;
     let job = js(&c, "return window.raytile.job").await;
