@@ -84,7 +84,7 @@ mod imp {
 
     /// Whether `layout` is served by its own mapping.
     #[inline]
-    pub fn huge(layout: &Layout) -> bool {
+    pub fn own_mapping(layout: &Layout) -> bool {
         layout.size() >= LARGE && layout.align() <= PAGE
     }
 
@@ -135,7 +135,7 @@ unsafe impl GlobalAlloc for LargeBlocks {
     #[inline]
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
         #[cfg(target_os = "linux")]
-        if imp::huge(&layout) {
+        if imp::own_mapping(&layout) {
             return imp::map(layout.size());
         }
         // SAFETY: the caller's contract is passed on.
@@ -145,7 +145,7 @@ unsafe impl GlobalAlloc for LargeBlocks {
     #[inline]
     unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
         #[cfg(target_os = "linux")]
-        if imp::huge(&layout) {
+        if imp::own_mapping(&layout) {
             return imp::map(layout.size()); // fresh anonymous pages are zero
         }
         // SAFETY: the caller's contract is passed on.
@@ -155,7 +155,7 @@ unsafe impl GlobalAlloc for LargeBlocks {
     #[inline]
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
         #[cfg(target_os = "linux")]
-        if imp::huge(&layout) {
+        if imp::own_mapping(&layout) {
             return imp::unmap(ptr, layout.size());
         }
         // SAFETY: the caller's contract is passed on.
@@ -167,7 +167,7 @@ unsafe impl GlobalAlloc for LargeBlocks {
         {
             // SAFETY: the caller guarantees `new_size` with `layout.align()` is a valid layout.
             let new = unsafe { Layout::from_size_align_unchecked(new_size, layout.align()) };
-            match (imp::huge(&layout), imp::huge(&new)) {
+            match (imp::own_mapping(&layout), imp::own_mapping(&new)) {
                 (true, true) => return imp::remap(ptr, layout.size(), new_size),
                 (false, false) => {}
                 _ => {
