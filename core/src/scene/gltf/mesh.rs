@@ -11,7 +11,7 @@ use rayon::prelude::*;
 
 /// Converts a strip or fan (or a list) of indices to triangles, following glTF 2.0 §3.7.2.1.
 /// Degenerate triangles of strips and fans (often used to stitch strips) are dropped.
-pub(super) fn triangulate(mode: Mode, idx: &[u32]) -> Vec<[u32; 3]> {
+pub(super) fn triangulate(mode: Mode, idx: Vec<u32>) -> Vec<[u32; 3]> {
     match mode {
         Mode::TriangleStrip => (0..idx.len().saturating_sub(2))
             .map(|i| {
@@ -27,8 +27,27 @@ pub(super) fn triangulate(mode: Mode, idx: &[u32]) -> Vec<[u32; 3]> {
             .map(|i| [idx[i], idx[i + 1], idx[0]])
             .filter(|t| t[0] != t[1] && t[1] != t[2] && t[0] != t[2])
             .collect(),
-        _ => idx.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+        _ => triples(idx),
     }
+}
+
+/// A list of indices as triangles (the last `len % 3` dropped), in the same memory: a
+/// million-triangle mesh's indices are not copied.
+fn triples(mut idx: Vec<u32>) -> Vec<[u32; 3]> {
+    idx.truncate(idx.len() / 3 * 3);
+    if !idx.capacity().is_multiple_of(3) {
+        idx.shrink_to_fit();
+    }
+    if !idx.capacity().is_multiple_of(3) {
+        return idx.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    }
+    let mut idx = std::mem::ManuallyDrop::new(idx);
+    let (ptr, len, cap) = (idx.as_mut_ptr(), idx.len(), idx.capacity());
+    // SAFETY: `[u32; 3]` has `u32`'s alignment and three times its size, so the allocation of
+    // `cap` u32s (a multiple of 3) is exactly one of `cap / 3` triples, and its first `len`
+    // u32s (a multiple of 3, initialised) are `len / 3` initialised triples; the vector the
+    // pointer came from is not dropped.
+    unsafe { Vec::from_raw_parts(ptr.cast::<[u32; 3]>(), len / 3, cap / 3) }
 }
 
 /// Elements read as arrays to the type the description holds (in place: the same bytes).
@@ -145,8 +164,7 @@ impl Loader<'_> {
             ));
         }
         self.charge(raw_indices.len() * 4, &label)?;
-        let indices = triangulate(mode, &raw_indices);
-        drop(raw_indices);
+        let indices = triangulate(mode, raw_indices);
         if indices.is_empty() {
             self.warn(format!("{label}: no triangles; skipped"));
             return Ok(None);
@@ -250,18 +268,45 @@ mod tests {
     #[test]
     fn strips_and_fans_follow_the_spec() {
         assert_eq!(
-            triangulate(Mode::TriangleStrip, &[0, 1, 2, 3, 4]),
+            triangulate(Mode::TriangleStrip, vec![0, 1, 2, 3, 4]),
             vec![[0, 1, 2], [1, 3, 2], [2, 3, 4]]
         );
         assert_eq!(
-            triangulate(Mode::TriangleFan, &[0, 1, 2, 3]),
+            triangulate(Mode::TriangleFan, vec![0, 1, 2, 3]),
             vec![[1, 2, 0], [2, 3, 0]]
         );
         assert_eq!(
-            triangulate(Mode::Triangles, &[0, 1, 2, 3, 4]),
+            triangulate(Mode::Triangles, vec![0, 1, 2, 3, 4]),
             vec![[0, 1, 2]]
         );
-        assert!(triangulate(Mode::TriangleStrip, &[0, 1]).is_empty());
-        assert!(triangulate(Mode::TriangleFan, &[]).is_empty());
+        assert!(triangulate(Mode::TriangleStrip, vec![0, 1]).is_empty());
+        assert!(triangulate(Mode::TriangleFan, vec![]).is_empty());
+    }
+
+    /// Lists become triangles in the same memory, whatever the vector's spare room.
+    #[test]
+    fn lists_keep_their_memory() {
+        let idx: Vec<u32> = (0..3 * 100_000).collect();
+        let at = idx.as_ptr() as usize;
+        let tris = triangulate(Mode::Triangles, idx);
+        assert_eq!(
+            tris.as_ptr() as usize,
+            at,
+            "a list of whole triangles is not copied"
+        );
+        assert_eq!(tris.len(), 100_000);
+        assert!(tris.iter().enumerate().all(|(i, t)| {
+            let i = 3 * i as u32;
+            *t == [i, i + 1, i + 2]
+        }));
+        for room in [7, 8, 9, 10] {
+            let mut idx = Vec::with_capacity(room);
+            idx.extend([5, 6, 7, 8, 9, 10, 11]);
+            assert_eq!(
+                triangulate(Mode::Triangles, idx),
+                vec![[5, 6, 7], [8, 9, 10]],
+                "capacity {room}"
+            );
+        }
     }
 }
