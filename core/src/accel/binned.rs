@@ -418,33 +418,56 @@ impl<const N: usize> Sub<N> {
     }
 
     /// All the nodes in one array (each subtree contiguous, its nodes relocated), and the
-    /// leaves (in no particular order).
+    /// leaves (in no particular order). The subtrees built apart are placed in parallel, each
+    /// into its own part of the array (their sizes are known), so the array's pages fault in
+    /// and its nodes are copied on every thread.
     fn flatten(self) -> (Vec<Node<N>>, Vec<(u32, u32)>) {
         let (n, l) = self.sizes();
-        let (mut nodes, mut leaves) = (crate::alloc::huge_vec(n), Vec::with_capacity(l));
-        self.place(&mut nodes, &mut leaves);
-        debug_assert_eq!((nodes.len(), leaves.len()), (n, l));
+        let mut leaves = Vec::with_capacity(l);
+        self.gather_leaves(&mut leaves);
+        let mut nodes = crate::alloc::huge_vec(n);
+        nodes.par_extend((0..n).into_par_iter().map(|_| Node::EMPTY));
+        self.place(&mut nodes, 0);
+        debug_assert_eq!(leaves.len(), l);
         (nodes, leaves)
     }
 
-    /// Appends this subtree's nodes (relocated) to `nodes`, then the subtrees built apart;
-    /// returns the index of its root.
-    fn place(self, nodes: &mut Vec<Node<N>>, leaves: &mut Vec<(u32, u32)>) -> u32 {
-        let base = nodes.len();
-        nodes.extend(self.nodes.into_iter().map(|mut n| {
+    /// Appends the leaves of this subtree and of those built apart.
+    fn gather_leaves(&self, leaves: &mut Vec<(u32, u32)>) {
+        leaves.extend_from_slice(&self.leaves);
+        for (_, _, sub) in &self.apart {
+            sub.gather_leaves(leaves);
+        }
+    }
+
+    /// Writes this subtree's nodes (relocated to start at `base`) to the front of `out`,
+    /// then the subtrees built apart after them, in order; `out` holds exactly this
+    /// subtree's nodes and those built apart below it.
+    fn place(self, out: &mut [Node<N>], base: u32) {
+        let (mine, mut rest) = out.split_at_mut(self.nodes.len());
+        for (slot, mut n) in mine.iter_mut().zip(self.nodes) {
             let mut inner = n.inner_mask;
             while inner != 0 {
                 let lane = inner.trailing_zeros() as usize;
                 inner &= inner - 1;
-                n.child[lane] += base as u32;
+                n.child[lane] += base;
             }
-            n
-        }));
-        leaves.extend(self.leaves);
-        for (node, lane, sub) in self.apart {
-            nodes[base + node].child[lane] = sub.place(nodes, leaves);
+            *slot = n;
         }
-        base as u32
+        let mut at = base + mine.len() as u32;
+        let mut parts = Vec::with_capacity(self.apart.len());
+        for (node, lane, sub) in self.apart {
+            mine[node].child[lane] = at;
+            let (part, tail) = std::mem::take(&mut rest).split_at_mut(sub.sizes().0);
+            rest = tail;
+            let size = part.len() as u32;
+            parts.push((sub, part, at));
+            at += size;
+        }
+        debug_assert!(rest.is_empty());
+        parts
+            .into_par_iter()
+            .for_each(|(sub, part, base)| sub.place(part, base));
     }
 }
 

@@ -41,6 +41,7 @@ use obvhs::bvh2::{builder::build_bvh2, Bvh2};
 /// The build parameters (obvhs's), for [`Bvh::build_with`].
 pub use obvhs::ploc::{PlocSearchDistance, SortPrecision};
 pub use obvhs::BvhBuildParams;
+use rayon::prelude::*;
 use std::mem::MaybeUninit;
 use std::time::Duration;
 
@@ -817,9 +818,10 @@ impl Bvh {
     /// Marks the leaves for which `marked(first_slot, count)` holds (and unmarks the others):
     /// traversal passes each leaf's mark to the leaf callbacks of [`Bvh::closest_leaves`] and
     /// [`Bvh::any_leaves`], from the node that holds the leaf (no look-up per leaf).
-    pub fn mark_leaves(&mut self, marked: impl Fn(u32, u32) -> bool) {
-        fn mark<const N: usize>(nodes: &mut [Node<N>], marked: impl Fn(u32, u32) -> bool) {
-            for n in nodes {
+    /// The nodes are marked in parallel.
+    pub fn mark_leaves(&mut self, marked: impl Fn(u32, u32) -> bool + Sync) {
+        fn mark<const N: usize>(nodes: &mut [Node<N>], marked: impl Fn(u32, u32) -> bool + Sync) {
+            nodes.par_iter_mut().with_min_len(1 << 10).for_each(|n| {
                 n.mark_mask = 0;
                 for lane in 0..N {
                     if (n.leaf_mask >> lane) & 1 == 1
@@ -828,7 +830,7 @@ impl Bvh {
                         n.mark_mask |= 1 << lane;
                     }
                 }
-            }
+            });
         }
         mark(&mut self.nodes4, &marked);
         mark(&mut self.nodes8, &marked);

@@ -254,6 +254,33 @@ const FLOATS: usize = 9;
 /// Leaves with at least this many slots are packed by one parallel task each.
 const PACK_TASK_SLOTS: usize = 1 << 14;
 
+/// Leaves ((first slot, count)) and the part of a per-slot array that holds their slots.
+pub(crate) type LeafRun<'a, T> = (&'a [(u32, u32)], &'a mut [T]);
+
+/// Splits `data`, `per` elements per slot from slot 0, into runs of whole leaves of about
+/// [`PACK_TASK_SLOTS`] slots, each with its leaves: for filling per-slot arrays in parallel.
+/// `leaves` ((first slot, count)) must be in slot order and cover the slots from 0 once each,
+/// as [`crate::accel::Bvh::leaves`] does; elements past the last leaf's are left out.
+pub(crate) fn leaf_runs<'a, T>(
+    data: &'a mut [T],
+    leaves: &'a [(u32, u32)],
+    per: usize,
+) -> Vec<LeafRun<'a, T>> {
+    let mut runs = Vec::new();
+    let (mut rest, mut first, mut run_start) = (data, 0usize, 0usize);
+    for (i, &(start, count)) in leaves.iter().enumerate() {
+        let end = (start + count) as usize;
+        if end - run_start >= PACK_TASK_SLOTS || i + 1 == leaves.len() {
+            let (part, tail) = std::mem::take(&mut rest).split_at_mut(per * (end - run_start));
+            runs.push((&leaves[first..=i], part));
+            rest = tail;
+            first = i + 1;
+            run_start = end;
+        }
+    }
+    runs
+}
+
 /// The triangles of a BVH's leaves, stored for the SIMD test with nothing else and no padding
 /// lanes: 36 bytes per slot (a [`Tri4`] per leaf takes 144 bytes, however few triangles the
 /// leaf holds). Slots are BVH positions; a leaf of `count` slots from `start` keeps, for each
@@ -292,20 +319,7 @@ impl LeafTris {
         crate::alloc::advise_huge(&data); // not touched yet: rays read it at random
 
         // Runs of whole leaves, each with its part of `data`, packed in parallel.
-        let mut tasks = Vec::new();
-        let (mut rest, mut first) = (data.as_mut_slice(), 0usize);
-        let mut run_start = 0usize;
-        for (i, &(start, count)) in sorted.iter().enumerate() {
-            let end = (start + count) as usize;
-            if end - run_start >= PACK_TASK_SLOTS || i + 1 == sorted.len() {
-                let (part, tail) =
-                    std::mem::take(&mut rest).split_at_mut(FLOATS * (end - run_start));
-                tasks.push((&sorted[first..=i], part));
-                rest = tail;
-                first = i + 1;
-                run_start = end;
-            }
-        }
+        let tasks = leaf_runs(&mut data, &sorted, FLOATS);
         tasks.into_par_iter().for_each(|(run, part)| {
             let base = run.first().map_or(0, |l| l.0 as usize);
             for &(start, count) in run {

@@ -13,7 +13,7 @@ use super::{ObjectKind, Scene};
 use crate::accel::Bvh;
 use crate::alloc::huge_vec;
 use crate::geometry::interaction::NO_SLOT;
-use crate::geometry::triangle::{LeafTris, Mesh, TriangleGeom};
+use crate::geometry::triangle::{leaf_runs, LeafTris, Mesh, TriangleGeom};
 use crate::geometry::{Aabb, Hit, Ray};
 use crate::material::AlphaMode;
 use crate::sampling::hash_u32;
@@ -163,17 +163,23 @@ impl Aggregate {
         let mut prims: Vec<Prim> = huge_vec(order.len());
         prims.par_extend(order.par_iter().map(|&i| prim(i)));
         drop(order);
-        for &(start, count) in bvh.leaves() {
-            for lane in 0..count {
-                if let Prim::Tri {
-                    lane: l, count: c, ..
-                } = &mut prims[(start + lane) as usize]
-                {
-                    *l = u8::try_from(lane).expect("leaves hold at most 255 primitives");
-                    *c = u8::try_from(count).expect("leaves hold at most 255 primitives");
+        // Each triangle's lane in its leaf and the leaf's size, runs of leaves in parallel.
+        leaf_runs(&mut prims, bvh.leaves(), 1)
+            .into_par_iter()
+            .for_each(|(run, part)| {
+                let base = run.first().map_or(0, |l| l.0);
+                for &(start, count) in run {
+                    for lane in 0..count {
+                        if let Prim::Tri {
+                            lane: l, count: c, ..
+                        } = &mut part[(start - base + lane) as usize]
+                        {
+                            *l = u8::try_from(lane).expect("leaves hold at most 255 primitives");
+                            *c = u8::try_from(count).expect("leaves hold at most 255 primitives");
+                        }
+                    }
                 }
-            }
-        }
+            });
         // Marked: the leaf holds only opaque triangles, tested at once by
         // [`LeafTris::intersect`] (else its primitives are tested one by one).
         bvh.mark_leaves(|start, count| packable(&prims[start as usize..(start + count) as usize]));
