@@ -154,6 +154,12 @@ impl Range {
     #[inline(always)]
     fn add(&mut self, p: &Ref) {
         self.bounds.grow(p.lo(), p.hi);
+        self.add_centroid(p);
+    }
+
+    /// Grows the centroid bounds alone.
+    #[inline(always)]
+    fn add_centroid(&mut self, p: &Ref) {
         let c = p.centroid();
         self.cent.grow(c, c);
     }
@@ -332,21 +338,30 @@ fn split_in<const B: usize>(refs: &mut [Ref], r: &Range) -> (Range, Range) {
     // for x ≥ 0 truncation below k means x below k (NaN goes to bin 0).
     let (o, sc, kf) = (binner.origin[axis], binner.scale[axis], k as f32);
     let goes_left = |p: &Ref| !((centroid_on(p, axis) - o) * sc >= kf);
+    // Each side's bounds are its bins' (the partition puts a primitive on the side its bin
+    // is on: the same bins, so the same boxes to the bit); its centroids' bounds are
+    // gathered while partitioning.
+    let boxes = &bins.boxes[axis];
+    let union = |bins: &[Box3]| bins.iter().fold(Box3::EMPTY, |a, b| a.union(b));
     let mut left = Range {
-        bounds: Box3::EMPTY,
+        bounds: union(&boxes[..k]),
         cent: Box3::EMPTY,
         start: r.start,
         end: r.start,
     };
-    let mut right = Range { end: r.end, ..left };
+    let mut right = Range {
+        bounds: union(&boxes[k..]),
+        end: r.end,
+        ..left
+    };
     let (mut i, mut j) = (0, refs.len());
     loop {
         while i < j && goes_left(&refs[i]) {
-            left.add(&refs[i]);
+            left.add_centroid(&refs[i]);
             i += 1;
         }
         while i < j && !goes_left(&refs[j - 1]) {
-            right.add(&refs[j - 1]);
+            right.add_centroid(&refs[j - 1]);
             j -= 1;
         }
         if i >= j {

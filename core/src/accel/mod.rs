@@ -1281,6 +1281,10 @@ mod tests {
                 Width::Eight => check_tree(&one.nodes8, one.leaves(), &slot_bounds),
             };
             assert!(depth <= 40, "{width:?}: depth {depth}");
+            match width {
+                Width::Four => assert_tight(&one.nodes4, &slot_bounds),
+                Width::Eight => assert_tight(&one.nodes8, &slot_bounds),
+            }
         }
         // Points on a line (no split has any area): balanced, not peeled a bin at a time.
         let line: Vec<Aabb> = (0..20_000)
@@ -1300,6 +1304,50 @@ mod tests {
     /// Checks a tree's structure: every node but the root referenced once, masks disjoint,
     /// empty lanes empty, every lane's box containing its child's boxes or its primitives'
     /// (`bounds` by slot; NaN boxes skipped). Returns the depth.
+    /// Every lane's box is exactly its subtree's: the union of its primitives' boxes (a box
+    /// with a NaN counts as a point at the origin, as the binned builder takes it).
+    fn assert_tight<const N: usize>(nodes: &[Node<N>], slot_bounds: &[Aabb]) {
+        fn subtree<const N: usize>(nodes: &[Node<N>], i: usize, slots: &[Aabb]) -> Aabb {
+            let n = &nodes[i];
+            let mut all = Aabb::empty();
+            for lane in 0..N {
+                let c = n.child[lane] as usize;
+                let b = if (n.inner_mask >> lane) & 1 == 1 {
+                    subtree(nodes, c, slots)
+                } else if (n.leaf_mask >> lane) & 1 == 1 {
+                    slots[c..c + usize::from(n.count[lane])]
+                        .iter()
+                        .fold(Aabb::empty(), |a, b| {
+                            let nan = b.min.is_nan() || b.max.is_nan();
+                            a.union(&if nan {
+                                Aabb::new(Vec3A::ZERO, Vec3A::ZERO)
+                            } else {
+                                *b
+                            })
+                        })
+                } else {
+                    continue;
+                };
+                let (lo, hi) = (b.min.to_array(), b.max.to_array());
+                for a in 0..3 {
+                    assert_eq!(
+                        n.bounds[2 * a][lane],
+                        lo[a],
+                        "node {i} lane {lane} axis {a}"
+                    );
+                    assert_eq!(
+                        n.bounds[2 * a + 1][lane],
+                        hi[a],
+                        "node {i} lane {lane} axis {a}"
+                    );
+                }
+                all = all.union(&b);
+            }
+            all
+        }
+        subtree(nodes, 0, slot_bounds);
+    }
+
     fn check_tree<const N: usize>(
         nodes: &[Node<N>],
         leaves: &[(u32, u32)],
