@@ -154,12 +154,6 @@ impl Range {
     #[inline(always)]
     fn add(&mut self, p: &Ref) {
         self.bounds.grow(p.lo(), p.hi);
-        self.add_centroid(p);
-    }
-
-    /// Grows the centroid bounds alone.
-    #[inline(always)]
-    fn add_centroid(&mut self, p: &Ref) {
         let c = p.centroid();
         self.cent.grow(c, c);
     }
@@ -336,52 +330,119 @@ fn split_in<const B: usize>(refs: &mut [Ref], r: &Range) -> (Range, Range) {
     };
     // Bin < k, computed on the split axis alone: the same operations as `Binner::bins`, and
     // for x ≥ 0 truncation below k means x below k (NaN goes to bin 0).
-    let (o, sc, kf) = (binner.origin[axis], binner.scale[axis], k as f32);
-    let goes_left = |p: &Ref| !((centroid_on(p, axis) - o) * sc >= kf);
-    // Each side's bounds are its bins' (the partition puts a primitive on the side its bin
-    // is on: the same bins, so the same boxes to the bit); its centroids' bounds are
-    // gathered while partitioning.
-    let boxes = &bins.boxes[axis];
-    let union = |bins: &[Box3]| bins.iter().fold(Box3::EMPTY, |a, b| a.union(b));
-    let mut left = Range {
-        bounds: union(&boxes[..k]),
-        cent: Box3::EMPTY,
-        start: r.start,
-        end: r.start,
-    };
-    let mut right = Range {
-        bounds: union(&boxes[k..]),
-        end: r.end,
-        ..left
-    };
-    let (mut i, mut j) = (0, refs.len());
-    loop {
-        while i < j && goes_left(&refs[i]) {
-            left.add_centroid(&refs[i]);
-            i += 1;
-        }
-        while i < j && !goes_left(&refs[j - 1]) {
-            right.add_centroid(&refs[j - 1]);
-            j -= 1;
-        }
-        if i >= j {
-            break;
-        }
-        refs.swap(i, j - 1);
-    }
-    debug_assert_eq!(
-        i as u32,
-        bins.counts[axis][..k].iter().sum::<u32>(),
-        "the partition disagrees with the bins"
+    let (origin, scale, kf, bit) = (
+        binner.origin,
+        binner.scale,
+        Vec4::splat(k as f32),
+        1 << axis,
     );
-    if i == 0 || i == refs.len() {
-        // Cannot happen while the partition agrees with the bins; if it ever did, an empty
-        // side would be split again forever.
+    let goes_left = |c: Vec4| ((c - origin) * scale).cmpge(kf).bitmask() & bit == 0;
+    let left_n = bins.counts[axis][..k].iter().sum::<u32>() as usize;
+    if left_n == 0 || left_n == refs.len() {
+        // Cannot happen: `best` splits where both sides have primitives.
         return median(refs, r);
     }
-    left.end = r.start + i;
-    right.start = left.end;
+    let Some((left_cent, right_cent)) = partition(refs, left_n, goes_left) else {
+        // Cannot happen while the partition agrees with the bins.
+        debug_assert!(false, "the partition disagrees with the bins");
+        return median(refs, r);
+    };
+    // Each side's bounds are its bins' (the partition puts a primitive on the side its bin
+    // is on: the same bins, so the same boxes to the bit).
+    let boxes = &bins.boxes[axis];
+    let union = |bins: &[Box3]| bins.iter().fold(Box3::EMPTY, |a, b| a.union(b));
+    let left = Range {
+        bounds: union(&boxes[..k]),
+        cent: left_cent,
+        start: r.start,
+        end: r.start + left_n,
+    };
+    let right = Range {
+        bounds: union(&boxes[k..]),
+        cent: right_cent,
+        start: left.end,
+        end: r.end,
+    };
     (left, right)
+}
+
+/// Primitives per block of [`partition`].
+const BLOCK: usize = 64;
+
+/// Moves the primitives whose centroid `goes_left` to the front, given how many do
+/// (`left`), and returns the bounds of the centroids that go left and of those that do not;
+/// `None` if the count was wrong (`refs` is then some permutation of itself).
+///
+/// The permutation is Hoare's: the k-th primitive from the front that goes right trades
+/// places with the k-th from the back that goes left. It is found a block at a time without
+/// a branch per primitive (Edelkamp and Weiß's BlockQuicksort, 2016): a block of the front
+/// part (`..left`) records where its primitives that go right are, a block of the back part
+/// where its primitives that go left are, and the two lists are swapped pairwise in order.
+fn partition(
+    refs: &mut [Ref],
+    left: usize,
+    goes_left: impl Fn(Vec4) -> bool,
+) -> Option<(Box3, Box3)> {
+    let n = refs.len();
+    let (mut lc, mut rc) = (Box3::EMPTY, Box3::EMPTY);
+    // Grows one side's centroid bounds without a branch (the other side's sees ±∞).
+    let mut grow = |c: Vec4, l: bool| {
+        let m = BVec4A::splat(l);
+        lc.lo = lc.lo.min(Vec4::select(m, c, Vec4::INFINITY));
+        lc.hi = lc.hi.max(Vec4::select(m, c, Vec4::NEG_INFINITY));
+        rc.lo = rc.lo.min(Vec4::select(m, Vec4::INFINITY, c));
+        rc.hi = rc.hi.max(Vec4::select(m, Vec4::NEG_INFINITY, c));
+    };
+    // Not yet scanned: [i, left) and [left, j). The front block starts at `fb`, its
+    // misplaced primitives not yet swapped are at offsets `fo[fs..fe]`; the back block ends at
+    // `bb`, with offsets (counted down from its end) `bo[bs..be]`.
+    let (mut i, mut j, mut goers) = (0, n, 0);
+    let (mut fo, mut fb, mut fs, mut fe) = ([0u8; BLOCK], 0, 0, 0);
+    let (mut bo, mut bb, mut bs, mut be) = ([0u8; BLOCK], n, 0, 0);
+    loop {
+        if fs == fe && i < left {
+            let len = BLOCK.min(left - i);
+            (fb, fs, fe) = (i, 0, 0);
+            for (t, p) in refs[i..i + len].iter().enumerate() {
+                let c = p.centroid();
+                let g = goes_left(c);
+                grow(c, g);
+                fo[fe] = t as u8;
+                fe += usize::from(!g);
+            }
+            goers += len - fe;
+            i += len;
+        }
+        if bs == be && j > left {
+            let len = BLOCK.min(j - left);
+            (bb, bs, be) = (j, 0, 0);
+            for (t, p) in refs[j - len..j].iter().rev().enumerate() {
+                let c = p.centroid();
+                let g = goes_left(c);
+                grow(c, g);
+                bo[be] = t as u8;
+                be += usize::from(g);
+            }
+            goers += be;
+            j -= len;
+        }
+        let k = (fe - fs).min(be - bs);
+        for q in 0..k {
+            refs.swap(
+                fb + usize::from(fo[fs + q]),
+                bb - 1 - usize::from(bo[bs + q]),
+            );
+        }
+        (fs, bs) = (fs + k, bs + k);
+        let (front, back) = (fe - fs, be - bs);
+        if front == 0 && back == 0 && i >= left && j <= left {
+            break;
+        }
+        if (front > 0 && back == 0 && j <= left) || (back > 0 && front == 0 && i >= left) {
+            return None; // misplaced primitives left on one side only: `left` was wrong
+        }
+    }
+    (goers == left).then_some((lc, rc))
 }
 
 /// Splits `refs` (the range `r`) at its median centroid on the axis of largest centroid
@@ -632,4 +693,82 @@ pub(super) fn build<const N: usize>(
     let (nodes, mut leaves) = out.flatten();
     leaves.par_sort_unstable();
     (nodes, leaves, order)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Hoare's partition, one primitive at a time, with a branch on each primitive's side:
+    /// (how many go left, their centroids' bounds, the others').
+    fn hoare(refs: &mut [Ref], goes_left: impl Fn(Vec4) -> bool) -> (usize, Box3, Box3) {
+        let (mut l, mut r) = (Box3::EMPTY, Box3::EMPTY);
+        let (mut i, mut j) = (0, refs.len());
+        loop {
+            while i < j && goes_left(refs[i].centroid()) {
+                let c = refs[i].centroid();
+                l.grow(c, c);
+                i += 1;
+            }
+            while i < j && !goes_left(refs[j - 1].centroid()) {
+                let c = refs[j - 1].centroid();
+                r.grow(c, c);
+                j -= 1;
+            }
+            if i >= j {
+                break;
+            }
+            refs.swap(i, j - 1);
+        }
+        (i, l, r)
+    }
+
+    /// The block partition makes Hoare's permutation and centroid bounds, on both sides of
+    /// every block size, and reports a wrong count instead of looping on it.
+    #[test]
+    fn block_partition_is_hoares() {
+        let mut seed = 1u32;
+        let mut rnd = move || {
+            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (seed >> 8) as f32 / (1 << 24) as f32
+        };
+        let sizes = [
+            0,
+            1,
+            2,
+            5,
+            BLOCK - 1,
+            BLOCK,
+            BLOCK + 1,
+            2 * BLOCK + 1,
+            1000,
+            4097,
+        ];
+        for n in sizes {
+            let refs: Vec<Ref> = (0..n as u32)
+                .map(|i| {
+                    let lo = Vec4::new(rnd(), rnd(), rnd(), 0.0);
+                    Ref {
+                        lo: lo.with_w(f32::from_bits(i)),
+                        hi: lo + Vec4::new(0.01, 0.02, 0.03, 0.0),
+                    }
+                })
+                .collect();
+            for cut in [0.0, 0.1, 0.5, 0.9, 2.0] {
+                let goes_left = |c: Vec4| c.y < cut;
+                let (mut a, mut b) = (refs.clone(), refs.clone());
+                let (left, lc, rc) = hoare(&mut a, goes_left);
+                let got = partition(&mut b, left, goes_left);
+                let ids = |v: &[Ref]| v.iter().map(Ref::id).collect::<Vec<_>>();
+                assert_eq!(ids(&a), ids(&b), "{n} primitives, cut {cut}");
+                assert_eq!(got, Some((lc, rc)), "{n} primitives, cut {cut}");
+                for wrong in [left.wrapping_sub(1), left + 1] {
+                    if wrong <= n {
+                        let got = partition(&mut refs.clone(), wrong, goes_left);
+                        assert_eq!(got, None, "{n} primitives, cut {cut}, told {wrong}");
+                    }
+                }
+            }
+        }
+    }
 }
