@@ -11,7 +11,9 @@
 //! same allocation), and the nodes; no binary tree. Time: a node's subtrees are built in
 //! parallel (rayon) when they hold more than [`PAR_PRIMS`] primitives together, and large
 //! ranges are binned in parallel chunks; a subtree built apart keeps its own nodes until the
-//! end, when every node is copied once into the final array.
+//! end, when every node is copied once into the final array (the subtrees in parallel). A
+//! range is partitioned a block at a time, with no branch on each primitive's side
+//! ([`partition`]), into Hoare's permutation.
 //!
 //! Deterministic: every decision depends on the primitives' bounds and input order alone
 //! (bins merge by min, max and integer counts, which do not depend on how chunks are split
