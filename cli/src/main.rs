@@ -33,6 +33,7 @@ enum Command {
 }
 
 fn main() {
+    raytile_core::cpu::require_compiled_features("raytile");
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Render(args) => render::run(args),

@@ -83,8 +83,14 @@ fn secs(v: f64, flag: &str) -> anyhow::Result<Duration> {
         .map_err(|_| anyhow::anyhow!("--{flag}: not a valid duration: {v}"))
 }
 
+fn main() {
+    // Before the async runtime starts: a build for newer CPUs stops here with a message.
+    raytile_core::cpu::require_compiled_features("raytile-coordinator");
+    serve();
+}
+
 #[tokio::main]
-async fn main() {
+async fn serve() {
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),

@@ -31,6 +31,7 @@
 pub mod accel;
 pub mod alloc;
 pub mod camera;
+pub mod cpu;
 pub mod film;
 pub mod geometry;
 pub mod integrator;

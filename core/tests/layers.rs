@@ -2,7 +2,7 @@
 //! layers below its own, and nothing the renderer runs on reads a scene description.
 //!
 //! Layers, bottom up (ARCHITECTURE.md states the same):
-//! 0. `sampling`, `texture`, `settings`, `alloc`
+//! 0. `sampling`, `texture`, `settings`, `alloc`, `cpu`
 //! 1. `geometry`
 //! 2. `accel`, `camera`, `film`, `material`, `medium`
 //! 3. `light`
@@ -22,7 +22,7 @@ use std::path::{Path, PathBuf};
 fn layer_of_file(rel: &str) -> Option<u32> {
     let first = rel.split('/').next().unwrap().trim_end_matches(".rs");
     Some(match first {
-        "sampling" | "texture" | "settings" | "alloc" => 0,
+        "sampling" | "texture" | "settings" | "alloc" | "cpu" => 0,
         "geometry" => 1,
         "accel" | "camera" | "film" | "material" | "medium" => 2,
         "light" => 3,

@@ -38,8 +38,14 @@ struct Args {
     scene_memory_mb: u64,
 }
 
+fn main() {
+    // Before the async runtime starts: a build for newer CPUs stops here with a message.
+    raytile_core::cpu::require_compiled_features("raytile-worker");
+    serve();
+}
+
 #[tokio::main]
-async fn main() {
+async fn serve() {
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
