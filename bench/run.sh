@@ -14,6 +14,7 @@
 # The same settings can come from the environment: SPP, THREADS, SEED, REF_SPP, REF_SPP_SPHERE
 # (the sphere's reference; default REF_SPP), REPEAT, SCENES (cornell, sphere or "cornell sphere"),
 # BVH=0, CROSSCHECK=0, MESH_TRIANGLES, SCENE (one other glTF scene instead of both), PGO=1,
+# RAYTILE_CPU=avx2 (raytile built for AVX2 CPUs, scripts/cpu-flags.sh; with or without --pgo),
 # RAYTILE_BIN (use this binary instead of building). See bench/README.md for what it installs,
 # the columns and timings.
 # Exit status: 0 on success (a missing optional renderer is a skip with a message),
@@ -182,10 +183,21 @@ elif [ "$PGO" = 1 ]; then
     bash scripts/build-pgo.sh target/pgo/bin
     RAYTILE=$ROOT/target/pgo/bin/raytile
     NOTES+=("raytile built with profile-guided optimisation (scripts/build-pgo.sh)")
-else
+elif [ "${RAYTILE_CPU:-baseline}" = baseline ]; then
     say "raytile: cargo build --release -p raytile"
     cargo build --release -p raytile
     RAYTILE=$ROOT/target/release/raytile
+else
+    # A build for newer CPUs (scripts/cpu-flags.sh): its own target directory, as the flags
+    # differ; --target keeps them off build scripts and proc macros.
+    host=$(rustc -vV | sed -n 's/^host: //p')
+    say "raytile: cargo build --release -p raytile, RAYTILE_CPU=$RAYTILE_CPU"
+    RUSTFLAGS="$(bash scripts/cpu-flags.sh "$RAYTILE_CPU")" cargo build --release -p raytile \
+        --target "$host" --target-dir "target/cpu-$RAYTILE_CPU"
+    RAYTILE=$ROOT/target/cpu-$RAYTILE_CPU/$host/release/raytile
+fi
+if [ -z "${RAYTILE_BIN:-}" ] && [ "${RAYTILE_CPU:-baseline}" != baseline ]; then
+    NOTES+=("raytile built for RAYTILE_CPU=$RAYTILE_CPU ($(bash scripts/cpu-flags.sh "$RAYTILE_CPU"))")
 fi
 RAYTILE_OK=1
 if ! "$RAYTILE" render --help > /dev/null 2>&1; then

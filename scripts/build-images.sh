@@ -9,7 +9,8 @@
 # CARGO_TARGET_DIR (default target/docker: a build directory of its own, as the static flags
 # differ from a normal build's), RAYTILE_PGO=1 (the worker built with profile-guided
 # optimisation by scripts/build-pgo.sh: faster, the same image bits; host target and release
-# profile only, two more release builds).
+# profile only, two more release builds), RAYTILE_CPU=avx2 (binaries for AVX2 CPUs:
+# scripts/cpu-flags.sh; faster, the same image bits, refuse to start on older CPUs).
 #
 # The binaries link glibc statically (-C target-feature=+crt-static). Naming the --target
 # keeps build scripts and proc-macros dynamic. No image is pulled: FROM scratch needs none.
@@ -23,8 +24,9 @@ PROFILE=${RAYTILE_PROFILE:-release}
 TARGET=${RAYTILE_TARGET:-$(rustc -vV | sed -n 's/^host: //p')}
 export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$ROOT/target/docker}
 
-echo "== cargo build --profile $PROFILE --target $TARGET (static)" >&2
-RUSTFLAGS="-C target-feature=+crt-static" cargo build --locked --profile "$PROFILE" \
+CPU_FLAGS=$(bash scripts/cpu-flags.sh "${RAYTILE_CPU:-baseline}")
+echo "== cargo build --profile $PROFILE --target $TARGET (static${RAYTILE_CPU:+, RAYTILE_CPU=$RAYTILE_CPU})" >&2
+RUSTFLAGS="-C target-feature=+crt-static $CPU_FLAGS" cargo build --locked --profile "$PROFILE" \
     --target "$TARGET" -p raytile-coordinator -p raytile-worker
 
 # Cargo puts the dev and test profiles' output in debug/, any other profile in its own name.

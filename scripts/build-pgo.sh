@@ -12,7 +12,8 @@
 #
 # The worker binary is built with the profile `raytile` recorded: the renderer is the same
 # code (raytile-core) in both. RUSTFLAGS are passed on (scripts/build-images.sh adds static
-# linking); PGO_DIR (default target/pgo) holds the builds and profiles. Needs `llvm-profdata`
+# linking), RAYTILE_CPU=avx2 adds scripts/cpu-flags.sh's flags for AVX2 CPUs (the same
+# bits); PGO_DIR (default target/pgo) holds the builds and profiles. Needs `llvm-profdata`
 # of the compiler's LLVM: rustup's `llvm-tools` component, installed by this script when
 # missing. Two release builds (about twice `cargo build --release`'s time) and a minute of
 # training.
@@ -26,6 +27,9 @@ if [ ! -x "$profdata" ]; then
   echo "build-pgo: installing rustup's llvm-tools (for llvm-profdata)" >&2
   rustup component add llvm-tools
 fi
+# RAYTILE_CPU=avx2: a build for AVX2 CPUs (scripts/cpu-flags.sh), the same bits.
+RUSTFLAGS="${RUSTFLAGS:-} $(bash scripts/cpu-flags.sh "${RAYTILE_CPU:-baseline}")"
+export RUSTFLAGS
 mkdir -p "$dir"
 dir=$(cd "$dir" && pwd)
 profiles="$dir/profiles"
