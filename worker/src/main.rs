@@ -53,6 +53,17 @@ async fn serve() {
         .with_writer(std::io::stderr)
         .init();
     let a = Args::parse();
+    // Which build serves this host: the default one, or one for newer CPUs (the same bits).
+    let features = raytile_core::cpu::compiled_features();
+    tracing::info!(
+        "raytile-worker {}, built for {}",
+        env!("CARGO_PKG_VERSION"),
+        if features.is_empty() {
+            format!("baseline {}", std::env::consts::ARCH)
+        } else {
+            format!("CPUs with {}", features.join(", "))
+        }
+    );
     let mut cfg = raytile_worker::Config::new(a.coordinator);
     cfg.token = a.token.filter(|t| !t.is_empty());
     cfg.threads = a.threads;
