@@ -7,6 +7,9 @@ mod submit;
 
 use clap::{Parser, Subcommand};
 
+// A build for newer CPUs stops before `main` on a CPU without them, with a message.
+raytile_core::cpu_gate!();
+
 /// Large blocks (a big scene's arrays) in mappings of their own: less memory held while a
 /// scene loads and builds (see `raytile_core::alloc`).
 #[global_allocator]
@@ -33,7 +36,6 @@ enum Command {
 }
 
 fn main() {
-    raytile_core::cpu::require_compiled_features("raytile");
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Render(args) => render::run(args),

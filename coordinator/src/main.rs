@@ -5,6 +5,9 @@ use raytile_coordinator::{core_scene_loader, run, Config, Limits, SceneLimits};
 use std::path::PathBuf;
 use std::time::Duration;
 
+// A build for newer CPUs stops before `main` on a CPU without them, with a message.
+raytile_core::cpu_gate!();
+
 /// The raytile coordinator: scene store, job queue, tile leases.
 #[derive(Parser, Debug)]
 #[command(version)]
@@ -83,14 +86,8 @@ fn secs(v: f64, flag: &str) -> anyhow::Result<Duration> {
         .map_err(|_| anyhow::anyhow!("--{flag}: not a valid duration: {v}"))
 }
 
-fn main() {
-    // Before the async runtime starts: a build for newer CPUs stops here with a message.
-    raytile_core::cpu::require_compiled_features("raytile-coordinator");
-    serve();
-}
-
 #[tokio::main]
-async fn serve() {
+async fn main() {
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),

@@ -3,6 +3,9 @@
 use clap::Parser;
 use std::path::PathBuf;
 
+// A build for newer CPUs stops before `main` on a CPU without them, with a message.
+raytile_core::cpu_gate!();
+
 /// Large blocks (a big scene's arrays) in mappings of their own: less memory held while a
 /// scene loads and builds (see `raytile_core::alloc`).
 #[global_allocator]
@@ -38,14 +41,8 @@ struct Args {
     scene_memory_mb: u64,
 }
 
-fn main() {
-    // Before the async runtime starts: a build for newer CPUs stops here with a message.
-    raytile_core::cpu::require_compiled_features("raytile-worker");
-    serve();
-}
-
 #[tokio::main]
-async fn serve() {
+async fn main() {
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
