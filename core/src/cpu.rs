@@ -172,7 +172,8 @@ mod gate_data {
 // compiled for; otherwise writes `argv[0]` and the message to standard error and exits with
 // status 1 (`exit_group`), before anything else of the program runs.
 //
-// Numeric labels avoid 0 and 1 only, which Intel syntax could read as binary numbers.
+// No numeric label is made of the digits 0 and 1 alone (such as 10): Intel syntax could read
+// `10b` as a binary number.
 #[cfg(target_arch = "x86_64")]
 std::arch::global_asm!(
     ".pushsection .text.raytile_cpu_have,\"ax\",@progbits",
