@@ -56,7 +56,7 @@ pub struct BenchArgs {
     /// (keys: search 1/2/6/14/24/32, threshold, reinsert, post, sort 64/128, leaf, cost).
     #[arg(long = "build")]
     pub builds: Vec<String>,
-    /// Node widths to measure the BVH builds with (repeatable: 4, 8; default both).
+    /// Node widths to measure the BVH builds with (repeatable: 4, 8, 16; default all three).
     #[arg(long = "width")]
     pub widths: Vec<u32>,
 }
@@ -299,7 +299,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         args.builds.clone()
     };
     let widths = if args.widths.is_empty() {
-        vec![4, 8]
+        vec![4, 8, 16]
     } else {
         args.widths.clone()
     };
@@ -313,7 +313,8 @@ pub fn run(args: BenchArgs) -> Result<()> {
             let width = match w {
                 4 => Width::Four,
                 8 => Width::Eight,
-                _ => anyhow::bail!("--width {w}: 4 or 8"),
+                16 => Width::Sixteen,
+                _ => anyhow::bail!("--width {w}: 4, 8 or 16"),
             };
             // The binned builder consumes its bounds: a copy, made before the clock starts.
             let owned = params.is_none().then(|| bounds.clone());

@@ -2,7 +2,8 @@
 //! wide build of Embree's `BVHBuilderBinnedSAH`): a node takes its primitive range, splits it
 //! at the surface-area heuristic's best bin boundary (32, 16 or 8 bins per axis by the range's
 //! size), and keeps splitting the child with the largest surface area until it has `N`
-//! children (the same rule [`super::collapse`] applies to a binary tree). A leaf holds at most
+//! children (the same rule [`super::collapse`] applies to a binary tree; 16-wide nodes keep
+//! small children whole, see [`keep_whole`]). A leaf holds at most
 //! [`MAX_LEAF`] primitives, and the heuristic counts a leaf's cost by 4-wide packets
 //! (`⌈n / 4⌉`, Embree's block size), so full leaves cost what a single triangle does. Ranges
 //! no bin boundary separates are split at their median.
@@ -549,16 +550,36 @@ impl<const N: usize> Sub<N> {
     }
 }
 
+/// Children of at most this many primitives that a node of `n` primitives does not open (0:
+/// it opens any child too big for a leaf). 16-wide nodes keep a child of at most
+/// `N · MAX_LEAF` primitives whole, to become one node of its own leaves, unless the node
+/// itself is that small: opening the largest child until there are sixteen made most nodes
+/// near the bottom hold a few leaves in sixteen lanes (on a 1 M-triangle mesh 72 021 nodes of
+/// 512 bytes, 39.1 MB, against 29 556 and 17.4 MB so, with the same expected node tests per
+/// ray by the SAH and rays as fast). The leaves do not change: every range is split by the
+/// same rule whichever node splits it, so neither do the slot order and the images. 4- and
+/// 8-wide nodes open as before (measured with that rule).
+fn keep_whole<const N: usize>(n: usize) -> usize {
+    let whole = N * MAX_LEAF as usize;
+    if N >= 16 && n > whole {
+        whole
+    } else {
+        0
+    }
+}
+
 /// Builds the node of range `r` (whose references are `refs`) into `out`; returns its index.
 fn build_node<const N: usize>(refs: &mut [Ref], r: Range, out: &mut Sub<N>) -> u32 {
     let offset = r.start;
-    // The children: split the one of largest surface area that is too big for a leaf until
-    // there are N (ties: the first).
+    // The children: split the one of largest surface area that is too big for a leaf (and
+    // not kept whole, see `keep_whole`; the node's own range is always split) until there are
+    // N (ties: the first).
     let mut kids = [r; N];
     let mut len = 1;
+    let keep = keep_whole::<N>(r.len());
     while len < N {
         let open = (0..len)
-            .filter(|&i| kids[i].len() > MAX_LEAF as usize)
+            .filter(|&i| kids[i].len() > MAX_LEAF as usize && (len == 1 || kids[i].len() > keep))
             .fold(None, |best: Option<usize>, i| match best {
                 Some(b) if kids[b].bounds.half_area() >= kids[i].bounds.half_area() => Some(b),
                 _ => Some(i),

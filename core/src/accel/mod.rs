@@ -1,7 +1,7 @@
-//! The bounding-volume hierarchy: a 4- or 8-wide BVH with uncompressed single-precision child
-//! bounds, traversed with one SIMD slab test per node (all children at once: SSE through glam's
-//! `Vec4` for four; eight with AVX2 when the CPU has it, detected at run time, two 4-lane tests
-//! otherwise):
+//! The bounding-volume hierarchy: a 4-, 8- or 16-wide BVH with uncompressed single-precision
+//! child bounds, traversed with one SIMD slab test per node (all children at once: SSE through
+//! glam's `Vec4` for four; eight with AVX2 when the CPU has it, detected at run time, two 4-lane
+//! tests otherwise; sixteen as two 8-lane AVX2 tests, on CPUs with AVX-512, see [`Width`]):
 //! the leaves a ray enters are intersected at once, and traversal descends into the
 //! nearest inner child, pushing the others farthest first (an insertion sort of the entered
 //! children only when there are several; the common single child costs none). Leaf lanes hold
@@ -77,7 +77,7 @@ const FAR_SCALE: f32 = 1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32
 /// the result does not depend on the order leaves are visited in). Costs a few leaves more.
 const CULL: f32 = 1.0 + 1.0 / 4096.0;
 
-/// `N` children (4 or 8): their bounds as SIMD lanes, and what each lane is.
+/// `N` children (4, 8 or 16): their bounds as SIMD lanes, and what each lane is.
 #[derive(Clone, Copy, Debug)]
 #[repr(C, align(64))]
 struct Node<const N: usize> {
@@ -99,9 +99,10 @@ struct Node<const N: usize> {
     mark_mask: u32,
 }
 
-// Two and four cache lines: the per-leaf fields fit in what alignment pads anyway.
+// Two, four and eight cache lines: the per-leaf fields fit in what alignment pads anyway.
 const _: () = assert!(std::mem::size_of::<Node<4>>() == 128);
 const _: () = assert!(std::mem::size_of::<Node<8>>() == 256);
+const _: () = assert!(std::mem::size_of::<Node<16>>() == 512);
 
 impl<const N: usize> Node<N> {
     const EMPTY: Self = Self {
@@ -145,6 +146,10 @@ pub enum Width {
     /// Eight children per node, one AVX2 slab test when the CPU has AVX2 (two 4-lane tests
     /// otherwise).
     Eight,
+    /// Sixteen children per node, two 8-lane AVX2 slab tests when the CPU has AVX2 (four
+    /// 4-lane tests otherwise). Half the levels of a 4-wide tree: fewer dependent node
+    /// fetches per ray, and the two halves' tests run side by side.
+    Sixteen,
 }
 
 impl Width {
@@ -154,26 +159,44 @@ impl Width {
     /// spp, 2 threads, the binaries run alternately): the Cornell box with a 1 M-triangle
     /// sphere 0.577 → 0.616 M samples/s (+7 %), the 36-triangle Cornell box 1.557 → 1.602
     /// (+3 %); `raytile bench`'s 1 M-triangle mesh, incoherent rays 1.28 → 1.57 M/s.
+    ///
+    /// Sixteen on CPUs with AVX-512 (the CPUs it was measured on; the test itself is two AVX2
+    /// halves). Measured on a 2-core Intel Xeon with AVX-512 (2026-12-05, `raytile render` at
+    /// 256×256, 2 threads, the binaries run alternately, build for AVX2 CPUs): the Cornell box
+    /// with a 1 M-triangle sphere 1.277 → 1.374 M samples/s (+7.6 %), the Cornell box 2.168 →
+    /// 2.180 (+0.5 %, noise). One 16-lane AVX-512 test instead of the two halves measured
+    /// slower there (1.354 → 1.330). AVX2 CPUs without AVX-512 keep eight until sixteen is
+    /// measured on one.
     pub fn native() -> Self {
-        if avx2() {
-            Width::Eight
-        } else {
-            Width::Four
+        match simd_levels() {
+            (true, true) => Width::Sixteen,
+            (true, false) => Width::Eight,
+            (false, _) => Width::Four,
         }
     }
 }
 
-/// Whether this CPU has AVX2 (detected once; the standard library caches it).
+/// Whether this CPU has AVX2 and whether it has AVX-512F (detected once; the standard
+/// library caches it).
 #[inline]
-fn avx2() -> bool {
+fn simd_levels() -> (bool, bool) {
     #[cfg(target_arch = "x86_64")]
     {
-        std::arch::is_x86_feature_detected!("avx2")
+        (
+            std::arch::is_x86_feature_detected!("avx2"),
+            std::arch::is_x86_feature_detected!("avx512f"),
+        )
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
-        false
+        (false, false)
     }
+}
+
+/// Whether this CPU has AVX2.
+#[inline]
+fn avx2() -> bool {
+    simd_levels().0
 }
 
 /// The next float above a positive finite `t` (`f32::next_up`, which needs Rust 1.86); other
@@ -251,6 +274,20 @@ impl SlabRay {
             ml | (mh << 4),
         )
     }
+
+    /// A 16-wide node as four 4-wide tests (the lanes compute exactly what the AVX2 halves
+    /// compute).
+    #[inline(always)]
+    fn test16(&self, n: &Node<16>, tmax: f32) -> ([f32; 16], u32) {
+        let mut tn = [0.0f32; 16];
+        let mut mask = 0;
+        for q in 0..4 {
+            let (t, m) = self.test(&n.bounds, 4 * q, tmax);
+            tn[4 * q..4 * q + 4].copy_from_slice(&t.to_array());
+            mask |= m << (4 * q);
+        }
+        (tn, mask)
+    }
 }
 
 /// The 8-wide slab test with AVX2.
@@ -315,15 +352,49 @@ mod avx2 {
         /// The CPU must have AVX2.
         #[inline(always)]
         pub(super) unsafe fn test(&self, n: &Node<8>, tmax: f32) -> ([f32; 8], u32) {
-            let b = &n.bounds;
+            let mut tn = [0.0f32; 8];
+            // SAFETY: the caller's CPU has AVX2; `tn` holds the eight lanes from 0.
+            let mask = unsafe { self.test_at(&n.bounds, 0, tmax, &mut tn) };
+            (tn, mask)
+        }
+
+        /// [`SlabRay8::test`] of a 16-wide node: two 8-lane tests.
+        ///
+        /// # Safety
+        /// The CPU must have AVX2.
+        #[inline(always)]
+        pub(super) unsafe fn test16(&self, n: &Node<16>, tmax: f32) -> ([f32; 16], u32) {
+            let mut tn = [0.0f32; 16];
+            // SAFETY: as for `test`; `tn` holds lanes 0..16.
+            let lo = unsafe { self.test_at(&n.bounds, 0, tmax, &mut tn) };
+            let hi = unsafe { self.test_at(&n.bounds, 8, tmax, &mut tn) };
+            (tn, lo | (hi << 8))
+        }
+
+        /// The test of lanes `at..at + 8` of `b`: their entry distances into the same lanes of
+        /// `tn`, and the mask of those the ray enters (bit 0: lane `at`).
+        ///
+        /// # Safety
+        /// The CPU must have AVX2.
+        #[inline(always)]
+        unsafe fn test_at<const N: usize>(
+            &self,
+            b: &[[f32; N]; 6],
+            at: usize,
+            tmax: f32,
+            tn: &mut [f32; N],
+        ) -> u32 {
             let [nx, ny, nz] = self.neg.map(usize::from);
             let [fx, fy, fz] = self.neg.map(|n| usize::from(!n));
-            let tn_x = slab(&b[nx], self.o[0], self.inv[0]);
-            let tf_x = slab(&b[fx], self.o[0], self.inv[0]);
-            let tn_y = slab(&b[2 + ny], self.o[1], self.inv[1]);
-            let tf_y = slab(&b[2 + fy], self.o[1], self.inv[1]);
-            let tn_z = slab(&b[4 + nz], self.o[2], self.inv[2]);
-            let tf_z = slab(&b[4 + fz], self.o[2], self.inv[2]);
+            let row = |k: usize| -> &[f32; 8] {
+                b[k][at..at + 8].try_into().expect("eight lanes from `at`")
+            };
+            let tn_x = slab(row(nx), self.o[0], self.inv[0]);
+            let tf_x = slab(row(fx), self.o[0], self.inv[0]);
+            let tn_y = slab(row(2 + ny), self.o[1], self.inv[1]);
+            let tf_y = slab(row(2 + fy), self.o[1], self.inv[1]);
+            let tn_z = slab(row(4 + nz), self.o[2], self.inv[2]);
+            let tf_z = slab(row(4 + fz), self.o[2], self.inv[2]);
             let tnear = _mm256_max_ps(
                 tn_x,
                 _mm256_max_ps(tn_y, _mm256_max_ps(tn_z, _mm256_setzero_ps())),
@@ -336,10 +407,12 @@ mod avx2 {
                 _mm256_set1_ps(FAR_SCALE),
             );
             let mask = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(tnear, tfar)) as u32;
-            let mut tn = [0.0f32; 8];
-            // SAFETY: `tn` holds eight floats.
-            unsafe { _mm256_storeu_ps(tn.as_mut_ptr(), tnear) };
-            (tn, mask)
+            let out: &mut [f32; 8] = (&mut tn[at..at + 8])
+                .try_into()
+                .expect("eight lanes from `at`");
+            // SAFETY: `out` holds eight floats.
+            unsafe { _mm256_storeu_ps(out.as_mut_ptr(), tnear) };
+            mask
         }
     }
 }
@@ -388,8 +461,8 @@ impl<const N: usize> Stack<N> {
     }
 }
 
-/// Entries on the stack that live on the call stack.
-const STACK: usize = 64;
+/// Entries on the stack that live on the call stack: a 16-wide node pushes up to fifteen.
+const STACK: usize = 128;
 
 /// Asks the CPU to bring the cache lines of `*p` in (no effect on results; a prefetch never
 /// faults, whatever the address).
@@ -559,40 +632,71 @@ fn any_in<const N: usize>(
 }
 
 /// 8-wide traversals compiled for AVX2.
+/// The traversals with AVX2: [`closest_in`] and [`any_in`] with the AVX2 slab test of 8-wide
+/// nodes (one 8-lane test) or 16-wide nodes (two).
 #[cfg(target_arch = "x86_64")]
-mod traverse8 {
+mod traverse_avx2 {
     use super::avx2::SlabRay8;
     use super::{any_in, closest_in, Node};
     use crate::geometry::Ray;
 
-    /// # Safety
-    /// The CPU must have AVX2.
-    #[target_feature(enable = "avx2")]
-    pub(super) unsafe fn closest(
-        nodes: &[Node<8>],
-        ray: &Ray,
-        tmax: f32,
-        leaf: &mut impl FnMut(bool, u32, u32, f32) -> Option<(usize, f32)>,
-    ) -> Option<(usize, f32)> {
-        // SAFETY: the caller checked AVX2.
-        let sr = unsafe { SlabRay8::new(ray) };
-        // SAFETY: the caller checked AVX2; the closure runs only inside this function.
-        closest_in(nodes, tmax, leaf, |n, t| unsafe { sr.test(n, t) })
+    /// The AVX2 slab test of an `N`-wide node.
+    pub(super) trait NodeTest<const N: usize> {
+        /// # Safety
+        /// The CPU must have AVX2.
+        unsafe fn node(&self, n: &Node<N>, tmax: f32) -> ([f32; N], u32);
+    }
+
+    impl NodeTest<8> for SlabRay8 {
+        #[inline(always)]
+        unsafe fn node(&self, n: &Node<8>, tmax: f32) -> ([f32; 8], u32) {
+            // SAFETY: the caller's CPU has AVX2.
+            unsafe { self.test(n, tmax) }
+        }
+    }
+
+    impl NodeTest<16> for SlabRay8 {
+        #[inline(always)]
+        unsafe fn node(&self, n: &Node<16>, tmax: f32) -> ([f32; 16], u32) {
+            // SAFETY: the caller's CPU has AVX2.
+            unsafe { self.test16(n, tmax) }
+        }
     }
 
     /// # Safety
     /// The CPU must have AVX2.
     #[target_feature(enable = "avx2")]
-    pub(super) unsafe fn any(
-        nodes: &[Node<8>],
+    pub(super) unsafe fn closest<const N: usize>(
+        nodes: &[Node<N>],
         ray: &Ray,
         tmax: f32,
-        leaf: &mut impl FnMut(bool, u32, u32) -> bool,
-    ) -> bool {
+        leaf: &mut impl FnMut(bool, u32, u32, f32) -> Option<(usize, f32)>,
+    ) -> Option<(usize, f32)>
+    where
+        SlabRay8: NodeTest<N>,
+    {
         // SAFETY: the caller checked AVX2.
         let sr = unsafe { SlabRay8::new(ray) };
         // SAFETY: the caller checked AVX2; the closure runs only inside this function.
-        any_in(nodes, tmax, leaf, |n, t| unsafe { sr.test(n, t) })
+        closest_in(nodes, tmax, leaf, |n, t| unsafe { sr.node(n, t) })
+    }
+
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn any<const N: usize>(
+        nodes: &[Node<N>],
+        ray: &Ray,
+        tmax: f32,
+        leaf: &mut impl FnMut(bool, u32, u32) -> bool,
+    ) -> bool
+    where
+        SlabRay8: NodeTest<N>,
+    {
+        // SAFETY: the caller checked AVX2.
+        let sr = unsafe { SlabRay8::new(ray) };
+        // SAFETY: the caller checked AVX2; the closure runs only inside this function.
+        any_in(nodes, tmax, leaf, |n, t| unsafe { sr.node(n, t) })
     }
 }
 
@@ -603,9 +707,11 @@ pub struct Bvh {
     nodes4: Vec<Node<4>>,
     /// The nodes when 8 wide (else empty).
     nodes8: Vec<Node<8>>,
+    /// The nodes when 16 wide (else empty).
+    nodes16: Vec<Node<16>>,
     /// Each leaf's first slot and primitive count, in slot order.
     leaves: Vec<(u32, u32)>,
-    /// Whether 8-wide nodes are tested with AVX2 (the CPU has it).
+    /// Whether 8- and 16-wide nodes are tested with AVX2 (the CPU has it).
     avx2: bool,
 }
 
@@ -656,6 +762,11 @@ impl Bvh {
                 (bvh.nodes8, bvh.leaves) = (nodes, leaves);
                 order
             }
+            Width::Sixteen => {
+                let (nodes, leaves, order) = binned::build::<16>(bounds);
+                (bvh.nodes16, bvh.leaves) = (nodes, leaves);
+                order
+            }
         };
         (bvh, order)
     }
@@ -695,16 +806,22 @@ impl Bvh {
                 bvh.nodes8 = collapse(&bvh2, &leaf_of);
                 inline_leaves(&mut bvh.nodes8, &bvh.leaves);
             }
+            Width::Sixteen => {
+                bvh.nodes16 = collapse(&bvh2, &leaf_of);
+                inline_leaves(&mut bvh.nodes16, &bvh.leaves);
+            }
         }
         (bvh, std::mem::take(&mut bvh2.primitive_indices))
     }
 
     /// The node width.
     pub fn width(&self) -> Width {
-        if self.nodes8.is_empty() {
-            Width::Four
-        } else {
+        if !self.nodes16.is_empty() {
+            Width::Sixteen
+        } else if !self.nodes8.is_empty() {
             Width::Eight
+        } else {
+            Width::Four
         }
     }
 
@@ -749,7 +866,8 @@ impl Bvh {
         self.closest_leaves_on(ray, tmax, leaf, self.avx2)
     }
 
-    /// [`Bvh::closest_leaves`], with AVX2 for 8-wide nodes only if `simd` (and the CPU has it).
+    /// [`Bvh::closest_leaves`], with AVX2 for 8- and 16-wide nodes only if `simd` (and the CPU
+    /// has it).
     #[inline(always)]
     fn closest_leaves_on(
         &self,
@@ -758,6 +876,15 @@ impl Bvh {
         mut leaf: impl FnMut(bool, u32, u32, f32) -> Option<(usize, f32)>,
         simd: bool,
     ) -> Option<(usize, f32)> {
+        if !self.nodes16.is_empty() {
+            #[cfg(target_arch = "x86_64")]
+            if simd && self.avx2 {
+                // SAFETY: `self.avx2` says the CPU has AVX2.
+                return unsafe { traverse_avx2::closest(&self.nodes16, ray, tmax, &mut leaf) };
+            }
+            let sr = SlabRay::new(ray);
+            return closest_in(&self.nodes16, tmax, &mut leaf, |n, t| sr.test16(n, t));
+        }
         if self.nodes8.is_empty() {
             let sr = SlabRay::new(ray);
             return closest_in(&self.nodes4, tmax, &mut leaf, |n, t| sr.test4(n, t));
@@ -765,7 +892,7 @@ impl Bvh {
         #[cfg(target_arch = "x86_64")]
         if simd && self.avx2 {
             // SAFETY: `self.avx2` says the CPU has AVX2.
-            return unsafe { traverse8::closest(&self.nodes8, ray, tmax, &mut leaf) };
+            return unsafe { traverse_avx2::closest(&self.nodes8, ray, tmax, &mut leaf) };
         }
         let _ = simd;
         let sr = SlabRay::new(ray);
@@ -792,7 +919,8 @@ impl Bvh {
         self.any_leaves_on(ray, tmax, leaf, self.avx2)
     }
 
-    /// [`Bvh::any_leaves`], with AVX2 for 8-wide nodes only if `simd` (and the CPU has it).
+    /// [`Bvh::any_leaves`], with AVX2 for 8- and 16-wide nodes only if `simd` (and the CPU has
+    /// it).
     #[inline(always)]
     fn any_leaves_on(
         &self,
@@ -801,6 +929,15 @@ impl Bvh {
         mut leaf: impl FnMut(bool, u32, u32) -> bool,
         simd: bool,
     ) -> bool {
+        if !self.nodes16.is_empty() {
+            #[cfg(target_arch = "x86_64")]
+            if simd && self.avx2 {
+                // SAFETY: `self.avx2` says the CPU has AVX2.
+                return unsafe { traverse_avx2::any(&self.nodes16, ray, tmax, &mut leaf) };
+            }
+            let sr = SlabRay::new(ray);
+            return any_in(&self.nodes16, tmax, &mut leaf, |n, t| sr.test16(n, t));
+        }
         if self.nodes8.is_empty() {
             let sr = SlabRay::new(ray);
             return any_in(&self.nodes4, tmax, &mut leaf, |n, t| sr.test4(n, t));
@@ -808,7 +945,7 @@ impl Bvh {
         #[cfg(target_arch = "x86_64")]
         if simd && self.avx2 {
             // SAFETY: `self.avx2` says the CPU has AVX2.
-            return unsafe { traverse8::any(&self.nodes8, ray, tmax, &mut leaf) };
+            return unsafe { traverse_avx2::any(&self.nodes8, ray, tmax, &mut leaf) };
         }
         let _ = simd;
         let sr = SlabRay::new(ray);
@@ -834,6 +971,7 @@ impl Bvh {
         }
         mark(&mut self.nodes4, &marked);
         mark(&mut self.nodes8, &marked);
+        mark(&mut self.nodes16, &marked);
     }
 
     /// The leaves: (first slot, primitive count), in slot order. Every slot is in exactly
@@ -844,16 +982,16 @@ impl Bvh {
 
     /// Inner nodes.
     pub fn node_count(&self) -> usize {
-        self.nodes4.len() + self.nodes8.len()
+        self.nodes4.len() + self.nodes8.len() + self.nodes16.len()
     }
 
     /// The surface-area heuristic's expected cost of a ray through the tree (one that enters
     /// the root's bounds, uniformly distributed): (inner nodes tested, leaves tested).
     pub fn sah_cost(&self) -> (f64, f64) {
-        if self.nodes8.is_empty() {
-            sah_of(&self.nodes4)
-        } else {
-            sah_of(&self.nodes8)
+        match self.width() {
+            Width::Four => sah_of(&self.nodes4),
+            Width::Eight => sah_of(&self.nodes8),
+            Width::Sixteen => sah_of(&self.nodes16),
         }
     }
 
@@ -861,6 +999,7 @@ impl Bvh {
     pub fn memory_bytes(&self) -> usize {
         self.nodes4.capacity() * std::mem::size_of::<Node<4>>()
             + self.nodes8.capacity() * std::mem::size_of::<Node<8>>()
+            + self.nodes16.capacity() * std::mem::size_of::<Node<16>>()
             + self.leaves.capacity() * std::mem::size_of::<(u32, u32)>()
     }
 }
@@ -1014,6 +1153,7 @@ mod tests {
                     Bvh::build_with(&bounds, params),
                     Bvh::build_sah(bounds.clone(), Width::Four),
                     Bvh::build_sah(bounds.clone(), Width::Eight),
+                    Bvh::build_sah(bounds.clone(), Width::Sixteen),
                 ];
                 for (b, (bvh, order)) in builds.iter().enumerate() {
                     for k in 0..300u32 {
@@ -1047,7 +1187,7 @@ mod tests {
         }
     }
 
-    /// Every path (4-wide; 8-wide with AVX2 when the CPU has it, and without) returns the
+    /// Every path (4-wide; 8- and 16-wide with AVX2 when the CPU has it, and without) returns the
     /// nearest hit of the lowest slot, to the bit, and the same any-hit answer, on soups with
     /// shared edges, duplicated and degenerate triangles, for random, axis-parallel,
     /// plane-grazing and non-finite rays.
@@ -1087,20 +1227,24 @@ mod tests {
             .collect();
         let params = BvhBuildParams::fast_build();
         for sah in [false, true] {
-            let ((narrow, order), (wide, order8)) = if sah {
-                (
-                    Bvh::build_sah(bounds.clone(), Width::Four),
-                    Bvh::build_sah(bounds.clone(), Width::Eight),
-                )
-            } else {
-                (
-                    Bvh::build_wide(&bounds, params, Width::Four),
-                    Bvh::build_wide(&bounds, params, Width::Eight),
-                )
+            let build = |width| {
+                if sah {
+                    Bvh::build_sah(bounds.clone(), width)
+                } else {
+                    Bvh::build_wide(&bounds, params, width)
+                }
             };
-            assert_eq!(order, order8, "the slot order must not depend on the width");
-            assert_eq!(narrow.leaves(), wide.leaves());
-            paths_hit_identically(&tris, &narrow, &wide, &order, g, p);
+            let (narrow, order) = build(Width::Four);
+            for width in [Width::Eight, Width::Sixteen] {
+                let (wide, order_wide) = build(width);
+                assert_eq!(wide.width(), width);
+                assert_eq!(
+                    order, order_wide,
+                    "the slot order must not depend on the width"
+                );
+                assert_eq!(narrow.leaves(), wide.leaves());
+                paths_hit_identically(&tris, &narrow, &wide, &order, g, p);
+            }
         }
     }
 
@@ -1237,7 +1381,7 @@ mod tests {
                 .unwrap()
                 .install(|| Bvh::build_sah(bounds.clone(), width))
         };
-        for width in [Width::Four, Width::Eight] {
+        for width in [Width::Four, Width::Eight, Width::Sixteen] {
             let (one, order1) = build(1, width);
             let (many, order4) = build(4, width);
             assert_eq!(order1, order4, "{width:?}: slot order");
@@ -1262,6 +1406,14 @@ mod tests {
                             .chain(n.count.map(u32::from))
                             .chain([n.leaf_mask, n.inner_mask, n.mark_mask])
                     }))
+                    .chain(b.nodes16.iter().flat_map(|n| {
+                        n.bounds
+                            .iter()
+                            .flat_map(|r| words(r))
+                            .chain(n.child)
+                            .chain(n.count.map(u32::from))
+                            .chain([n.leaf_mask, n.inner_mask, n.mark_mask])
+                    }))
                     .collect()
             };
             assert_eq!(bits(&one), bits(&many), "{width:?}: nodes");
@@ -1279,11 +1431,13 @@ mod tests {
             let depth = match width {
                 Width::Four => check_tree(&one.nodes4, one.leaves(), &slot_bounds),
                 Width::Eight => check_tree(&one.nodes8, one.leaves(), &slot_bounds),
+                Width::Sixteen => check_tree(&one.nodes16, one.leaves(), &slot_bounds),
             };
             assert!(depth <= 40, "{width:?}: depth {depth}");
             match width {
                 Width::Four => assert_tight(&one.nodes4, &slot_bounds),
                 Width::Eight => assert_tight(&one.nodes8, &slot_bounds),
+                Width::Sixteen => assert_tight(&one.nodes16, &slot_bounds),
             }
         }
         // Points on a line (no split has any area): balanced, not peeled a bin at a time.
@@ -1425,6 +1579,8 @@ mod tests {
         for (mut bvh, order) in [
             Bvh::build_wide(&bounds, BvhBuildParams::fast_build(), Width::Four),
             Bvh::build_sah(bounds.clone(), Width::Eight),
+            Bvh::build_wide(&bounds, BvhBuildParams::fast_build(), Width::Sixteen),
+            Bvh::build_sah(bounds.clone(), Width::Sixteen),
         ] {
             let slots: Vec<TriangleGeom> = order.iter().map(|&i| tris[i as usize]).collect();
             let marked = |start: u32, count: u32| (start + count).is_multiple_of(3);
