@@ -162,11 +162,11 @@ impl Width {
     ///
     /// Sixteen on CPUs with AVX-512 (the CPUs it was measured on; the test itself is two AVX2
     /// halves). Measured on a 2-core Intel Xeon with AVX-512 (2026-12-05, `raytile render` at
-    /// 256×256, 2 threads, the binaries run alternately, build for AVX2 CPUs): the Cornell box
-    /// with a 1 M-triangle sphere 1.277 → 1.374 M samples/s (+7.6 %), the Cornell box 2.168 →
-    /// 2.180 (+0.5 %, noise). One 16-lane AVX-512 test instead of the two halves measured
-    /// slower there (1.354 → 1.330). AVX2 CPUs without AVX-512 keep eight until sixteen is
-    /// measured on one.
+    /// 256×256, 2 threads, profile-guided builds for AVX2 CPUs run alternately, eight wide →
+    /// sixteen): the Cornell box with a 1 M-triangle sphere 1.384 → 1.492 M samples/s
+    /// (+7.8 %), the Cornell box 2.450 → 2.475 (+1.0 %, noise). One 16-lane AVX-512 test
+    /// instead of the two halves measured slower there (1.354 → 1.330). AVX2 CPUs without
+    /// AVX-512 keep eight until sixteen is measured on one.
     pub fn native() -> Self {
         match simd_levels() {
             (true, true) => Width::Sixteen,
