@@ -1,7 +1,8 @@
 //! The bounding-volume hierarchy: a 4-, 8- or 16-wide BVH with uncompressed single-precision
 //! child bounds, traversed with one SIMD slab test per node (all children at once: SSE through
 //! glam's `Vec4` for four; eight with AVX2 when the CPU has it, detected at run time, two 4-lane
-//! tests otherwise; sixteen as two 8-lane AVX2 tests, on CPUs with AVX-512, see [`Width`]):
+//! tests otherwise; sixteen as two 8-lane AVX2 tests, the width chosen on CPUs with AVX2, see
+//! [`Width::native`]):
 //! the leaves a ray enters are intersected at once, and traversal descends into the
 //! nearest inner child, pushing the others farthest first (an insertion sort of the entered
 //! children only when there are several; the common single child costs none). Leaf lanes hold
@@ -153,50 +154,47 @@ pub enum Width {
 }
 
 impl Width {
-    /// The width traversal is fastest with on this CPU: eight with AVX2, four otherwise. Both
-    /// find the same hits to the bit (see [`Bvh::closest_leaves`]), so the choice is speed only.
-    /// Measured on a 2-core AMD EPYC with AVX2 (2026-12-02, `raytile render` at 256×256, 64
-    /// spp, 2 threads, the binaries run alternately): the Cornell box with a 1 M-triangle
-    /// sphere 0.577 → 0.616 M samples/s (+7 %), the 36-triangle Cornell box 1.557 → 1.602
-    /// (+3 %); `raytile bench`'s 1 M-triangle mesh, incoherent rays 1.28 → 1.57 M/s.
+    /// The width traversal is fastest with on this CPU: sixteen with AVX2, four otherwise. All
+    /// widths find the same hits to the bit (see [`Bvh::closest_leaves`]), so the choice is
+    /// speed only; the figures below are `raytile render` at 256×256, 2 threads, the binaries
+    /// run alternately.
     ///
-    /// Sixteen on CPUs with AVX-512 (the CPUs it was measured on; the test itself is two AVX2
-    /// halves). Measured on a 2-core Intel Xeon with AVX-512 (2026-12-05, `raytile render` at
-    /// 256×256, 2 threads, profile-guided builds for AVX2 CPUs run alternately, eight wide →
-    /// sixteen): the Cornell box with a 1 M-triangle sphere 1.384 → 1.492 M samples/s
-    /// (+7.8 %), the Cornell box 2.450 → 2.475 (+1.0 %, noise). One 16-lane AVX-512 test
-    /// instead of the two halves measured slower there (1.354 → 1.330). AVX2 CPUs without
-    /// AVX-512 keep eight until sixteen is measured on one.
+    /// Eight against four, on a 2-core AMD EPYC Zen 3 (2026-12-02, 64 spp): the Cornell box
+    /// with a 1 M-triangle sphere 0.577 → 0.616 M samples/s (+7 %), the 36-triangle Cornell
+    /// box 1.557 → 1.602 (+3 %); `raytile bench`'s 1 M-triangle mesh, incoherent rays 1.28 →
+    /// 1.57 M/s.
+    ///
+    /// Sixteen against eight (the test is two AVX2 halves):
+    /// - a 2-core Intel Xeon with AVX-512 (2026-12-05, profile-guided builds for AVX2 CPUs):
+    ///   the sphere scene at 32 spp 1.384 → 1.492 M samples/s (+7.8 %), the Cornell box
+    ///   2.450 → 2.475 (+1.0 %, noise). One 16-lane AVX-512 test instead of the two halves
+    ///   measured slower there (1.354 → 1.330);
+    /// - a 2-core AMD EPYC Zen 1 with AVX2 and no AVX-512, whose 256-bit operations are two
+    ///   128-bit halves (2026-12-05, builds for AVX2 CPUs): the sphere scene at 32 spp
+    ///   0.833 → 0.863 and 0.887 → 0.930 M samples/s in two series (+4–5 %, sixteen faster in
+    ///   11 of 13 pairs), the Cornell box 1.400 → 1.392 (noise); incoherent rays on `raytile
+    ///   bench`'s 1 M-triangle mesh 2.05 M/s four wide, 2.54 eight and 2.54 sixteen. The
+    ///   16-wide tree is also the smallest there (17.4 MB against 23.1 eight wide).
     pub fn native() -> Self {
-        match simd_levels() {
-            (true, true) => Width::Sixteen,
-            (true, false) => Width::Eight,
-            (false, _) => Width::Four,
+        if avx2() {
+            Width::Sixteen
+        } else {
+            Width::Four
         }
     }
 }
 
-/// Whether this CPU has AVX2 and whether it has AVX-512F (detected once; the standard
-/// library caches it).
+/// Whether this CPU has AVX2 (detected once; the standard library caches it).
 #[inline]
-fn simd_levels() -> (bool, bool) {
+fn avx2() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
-        (
-            std::arch::is_x86_feature_detected!("avx2"),
-            std::arch::is_x86_feature_detected!("avx512f"),
-        )
+        std::arch::is_x86_feature_detected!("avx2")
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
-        (false, false)
+        false
     }
-}
-
-/// Whether this CPU has AVX2.
-#[inline]
-fn avx2() -> bool {
-    simd_levels().0
 }
 
 /// The next float above a positive finite `t` (`f32::next_up`, which needs Rust 1.86); other
@@ -773,7 +771,7 @@ impl Bvh {
 
     /// Builds with explicit obvhs parameters (leaves hold at most 4 primitives: the triangle
     /// packets are four wide), nodes of the CPU's [`Width::native`]: both widths find the same
-    /// hits, and 8-wide nodes with AVX2 measured faster (see [`Width::native`]).
+    /// hits, and 16-wide nodes with AVX2 measured faster (see [`Width::native`]).
     pub fn build_with(bounds: &[Aabb], params: BvhBuildParams) -> (Self, Vec<u32>) {
         Self::build_wide(bounds, params, Width::native())
     }
