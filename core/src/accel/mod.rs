@@ -186,7 +186,7 @@ impl Width {
 
 /// Whether this CPU has AVX2 (detected once; the standard library caches it).
 #[inline]
-fn avx2() -> bool {
+pub(crate) fn avx2() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         std::arch::is_x86_feature_detected!("avx2")
@@ -583,12 +583,60 @@ fn closest_in<const N: usize>(
     }
 }
 
+/// Leaves of at most this many slots may be tested in pairs ([`AnyLeaves::pair`]).
+pub const PAIR_LEAF: u32 = 4;
+
+/// What any-hit traversal asks of the leaves it enters. A closure
+/// `FnMut(marked, first_slot, count) -> bool` is one (see [`Bvh::any_leaves`]); a type that
+/// can also test two marked leaves at once says so with [`AnyLeaves::pairs`].
+pub trait AnyLeaves {
+    /// Whether anything in the leaf of `count` slots from `start` blocks the ray (`marked`:
+    /// see [`Bvh::mark_leaves`]).
+    fn leaf(&mut self, marked: bool, start: u32, count: u32) -> bool;
+
+    /// Whether traversal may test two marked leaves of at most [`PAIR_LEAF`] slots that one
+    /// node enters with [`AnyLeaves::pair`].
+    #[inline(always)]
+    fn pairs(&self) -> bool {
+        false
+    }
+
+    /// Whether anything in the marked leaves `a` or `b` ((first slot, count), at most
+    /// [`PAIR_LEAF`] slots each) blocks the ray.
+    fn pair(&mut self, a: (u32, u32), b: (u32, u32)) -> bool;
+}
+
+impl<F: FnMut(bool, u32, u32) -> bool> AnyLeaves for F {
+    #[inline(always)]
+    fn leaf(&mut self, marked: bool, start: u32, count: u32) -> bool {
+        self(marked, start, count)
+    }
+
+    fn pair(&mut self, a: (u32, u32), b: (u32, u32)) -> bool {
+        self(true, a.0, a.1) || self(true, b.0, b.1)
+    }
+}
+
+/// The lowest lane in `lanes` that holds a marked leaf of at most [`PAIR_LEAF`] slots.
+#[inline(always)]
+fn pairable<const N: usize>(n: &Node<N>, lanes: u32) -> Option<usize> {
+    let mut rest = lanes & n.mark_mask;
+    while rest != 0 {
+        let lane = rest.trailing_zeros() as usize;
+        rest &= rest - 1;
+        if u32::from(n.count[lane]) <= PAIR_LEAF {
+            return Some(lane);
+        }
+    }
+    None
+}
+
 /// Any-hit traversal of `N`-wide nodes. See [`Bvh::any_leaves`].
 #[inline(always)]
 fn any_in<const N: usize>(
     nodes: &[Node<N>],
     tmax: f32,
-    leaf: &mut impl FnMut(bool, u32, u32) -> bool,
+    leaf: &mut impl AnyLeaves,
     test: impl Fn(&Node<N>, f32) -> ([f32; N], u32),
 ) -> bool {
     if nodes.is_empty() {
@@ -605,8 +653,20 @@ fn any_in<const N: usize>(
         while lanes != 0 {
             let lane = lanes.trailing_zeros() as usize;
             lanes &= lanes - 1;
+            let (start, count) = (n.child[lane], u32::from(n.count[lane]));
             let marked = (n.mark_mask >> lane) & 1 == 1;
-            if leaf(marked, n.child[lane], u32::from(n.count[lane])) {
+            // Two small marked leaves entered together are tested at once (the answer is
+            // whether any leaf blocks the ray, whatever the order or grouping).
+            if leaf.pairs() && marked && count <= PAIR_LEAF {
+                if let Some(other) = pairable(n, lanes) {
+                    lanes &= !(1 << other);
+                    if leaf.pair((start, count), (n.child[other], u32::from(n.count[other]))) {
+                        return true;
+                    }
+                    continue;
+                }
+            }
+            if leaf.leaf(marked, start, count) {
                 return true;
             }
         }
@@ -686,7 +746,7 @@ mod traverse_avx2 {
         nodes: &[Node<N>],
         ray: &Ray,
         tmax: f32,
-        leaf: &mut impl FnMut(bool, u32, u32) -> bool,
+        leaf: &mut impl super::AnyLeaves,
     ) -> bool
     where
         SlabRay8: NodeTest<N>,
@@ -912,42 +972,42 @@ impl Bvh {
         &self,
         ray: &Ray,
         tmax: f32,
-        leaf: impl FnMut(bool, u32, u32) -> bool,
+        mut leaf: impl FnMut(bool, u32, u32) -> bool,
     ) -> bool {
-        self.any_leaves_on(ray, tmax, leaf, self.avx2)
+        self.any_leaves_on(ray, tmax, &mut leaf, self.avx2)
+    }
+
+    /// [`Bvh::any_leaves`] with leaves that may be tested in pairs ([`AnyLeaves::pairs`]).
+    #[inline]
+    pub fn any_with(&self, ray: &Ray, tmax: f32, leaves: &mut impl AnyLeaves) -> bool {
+        self.any_leaves_on(ray, tmax, leaves, self.avx2)
     }
 
     /// [`Bvh::any_leaves`], with AVX2 for 8- and 16-wide nodes only if `simd` (and the CPU has
     /// it).
     #[inline(always)]
-    fn any_leaves_on(
-        &self,
-        ray: &Ray,
-        tmax: f32,
-        mut leaf: impl FnMut(bool, u32, u32) -> bool,
-        simd: bool,
-    ) -> bool {
+    fn any_leaves_on(&self, ray: &Ray, tmax: f32, leaf: &mut impl AnyLeaves, simd: bool) -> bool {
         if !self.nodes16.is_empty() {
             #[cfg(target_arch = "x86_64")]
             if simd && self.avx2 {
                 // SAFETY: `self.avx2` says the CPU has AVX2.
-                return unsafe { traverse_avx2::any(&self.nodes16, ray, tmax, &mut leaf) };
+                return unsafe { traverse_avx2::any(&self.nodes16, ray, tmax, leaf) };
             }
             let sr = SlabRay::new(ray);
-            return any_in(&self.nodes16, tmax, &mut leaf, |n, t| sr.test16(n, t));
+            return any_in(&self.nodes16, tmax, leaf, |n, t| sr.test16(n, t));
         }
         if self.nodes8.is_empty() {
             let sr = SlabRay::new(ray);
-            return any_in(&self.nodes4, tmax, &mut leaf, |n, t| sr.test4(n, t));
+            return any_in(&self.nodes4, tmax, leaf, |n, t| sr.test4(n, t));
         }
         #[cfg(target_arch = "x86_64")]
         if simd && self.avx2 {
             // SAFETY: `self.avx2` says the CPU has AVX2.
-            return unsafe { traverse_avx2::any(&self.nodes8, ray, tmax, &mut leaf) };
+            return unsafe { traverse_avx2::any(&self.nodes8, ray, tmax, leaf) };
         }
         let _ = simd;
         let sr = SlabRay::new(ray);
-        any_in(&self.nodes8, tmax, &mut leaf, |n, t| sr.test8(n, t))
+        any_in(&self.nodes8, tmax, leaf, |n, t| sr.test8(n, t))
     }
 
     /// Marks the leaves for which `marked(first_slot, count)` holds (and unmarks the others):
@@ -1120,7 +1180,7 @@ fn collapse<const N: usize>(bvh2: &Bvh2, leaf_of: &[u32]) -> Vec<Node<N>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::triangle::{Tri4, TriangleGeom};
+    use crate::geometry::triangle::{LeafTris, Tri4, TriangleGeom};
     use crate::sampling::hash_u32;
     use glam::Vec3A;
 
@@ -1269,6 +1329,46 @@ mod tests {
             assert_eq!(narrow.leaves()[leaf].0, start, "a leaf starts at {start}");
             &packets[leaf]
         };
+        // Shadow rays through marked leaves, two at a time where a node enters two.
+        let packed = LeafTris::new(slots.len(), narrow.leaves(), |s| Some(slots[s]));
+        let marked = |bvh: &Bvh| {
+            let mut bvh = bvh.clone();
+            bvh.mark_leaves(|_, _| true);
+            bvh
+        };
+        let (narrow_marked, wide_marked) = (marked(narrow), marked(wide));
+        struct Pairs<'a> {
+            tris: &'a LeafTris,
+            o: Vec3A,
+            d: Vec3A,
+            tmax: f32,
+            avx2: bool,
+            pairs: usize,
+        }
+        impl AnyLeaves for Pairs<'_> {
+            fn leaf(&mut self, marked: bool, start: u32, count: u32) -> bool {
+                assert!(marked, "every leaf is marked");
+                self.tris.any(start, count, self.o, self.d, 0.0, self.tmax)
+            }
+            fn pairs(&self) -> bool {
+                true
+            }
+            fn pair(&mut self, a: (u32, u32), b: (u32, u32)) -> bool {
+                self.pairs += 1;
+                let (o, d) = (self.o, self.d);
+                let hits = self.tris.hits_pair(a, b, o, d, (0.0, self.tmax), self.avx2);
+                assert_eq!(
+                    hits & 0xf != 0,
+                    self.tris.any(a.0, a.1, o, d, 0.0, self.tmax)
+                );
+                assert_eq!(
+                    hits >> 4 != 0,
+                    self.tris.any(b.0, b.1, o, d, 0.0, self.tmax)
+                );
+                hits != 0
+            }
+        }
+        let mut pairs = 0;
         let mut hits = 0;
         let mut ties = 0;
         for k in 0..6000u32 {
@@ -1332,10 +1432,33 @@ mod tests {
                 let any = bvh.any_leaves_on(
                     &ray,
                     tmax,
-                    |_, start, _| packet_at(start).any(o, d, 0.0, tmax),
+                    &mut |_: bool, start: u32, _: u32| packet_at(start).any(o, d, 0.0, tmax),
                     simd,
                 );
                 assert_eq!(any, want.is_some(), "{width:?}, simd {simd}, ray {k}");
+            }
+            for (bvh, simd) in [
+                (&narrow_marked, false),
+                (&wide_marked, false),
+                (&wide_marked, true),
+            ] {
+                for avx2 in [false, avx2()] {
+                    let mut leaves = Pairs {
+                        tris: &packed,
+                        o,
+                        d,
+                        tmax,
+                        avx2,
+                        pairs: 0,
+                    };
+                    let any = bvh.any_leaves_on(&ray, tmax, &mut leaves, simd);
+                    assert_eq!(
+                        any,
+                        want.is_some(),
+                        "pairs, simd {simd}, avx2 {avx2}, ray {k}"
+                    );
+                    pairs += leaves.pairs;
+                }
             }
             let scalar = wide
                 .closest(&ray, tmax, |slot, tmax| {
@@ -1347,8 +1470,8 @@ mod tests {
             assert_eq!(scalar, want, "scalar closure, ray {k}");
         }
         assert!(
-            hits > 2000 && ties > 20,
-            "too few hits or ties to mean anything: {hits}, {ties}"
+            hits > 2000 && ties > 20 && pairs > 2000,
+            "too few hits, ties or leaf pairs to mean anything: {hits}, {ties}, {pairs}"
         );
     }
 

@@ -248,6 +248,85 @@ fn test4(
     (ok.bitmask(), t, b1, b2)
 }
 
+/// [`test4`] on eight lanes with AVX, for [`LeafTris::hits_pair`]: the same operations in
+/// the same order, each exactly rounded, so every lane decides what [`test4`] decides.
+#[cfg(target_arch = "x86_64")]
+mod pair_avx2 {
+    use glam::Vec3A;
+    use std::arch::x86_64::*;
+
+    /// The lanes hit: bits 0..4 from `a`'s first four slots, 4..8 from `b`'s (lanes past a
+    /// leaf's count hold other values and must be masked off).
+    ///
+    /// # Safety
+    /// The CPU must have AVX2; `a` and `b` hold at least `9 na + 3` and `9 nb + 3` floats.
+    #[target_feature(enable = "avx2")]
+    #[allow(clippy::too_many_arguments)]
+    pub(super) unsafe fn hits8(
+        a: &[f32],
+        na: usize,
+        b: &[f32],
+        nb: usize,
+        o: Vec3A,
+        d: Vec3A,
+        tmin: f32,
+        tmax: f32,
+    ) -> u32 {
+        debug_assert!(a.len() >= 9 * na + 3 && b.len() >= 9 * nb + 3);
+        // SAFETY: component c of a leaf of n slots starts at c n, and c n + 4 <= 9 n + 3.
+        let load = |c: usize| unsafe {
+            _mm256_set_m128(
+                _mm_loadu_ps(b.as_ptr().add(c * nb)),
+                _mm_loadu_ps(a.as_ptr().add(c * na)),
+            )
+        };
+        let (v0x, v0y, v0z) = (load(0), load(1), load(2));
+        let (e1x, e1y, e1z) = (load(3), load(4), load(5));
+        let (e2x, e2y, e2z) = (load(6), load(7), load(8));
+        let (mul, add, sub, and) = (_mm256_mul_ps, _mm256_add_ps, _mm256_sub_ps, _mm256_and_ps);
+        let splat = _mm256_set1_ps;
+        let (dx, dy, dz) = (splat(d.x), splat(d.y), splat(d.z));
+        let px = sub(mul(dy, e2z), mul(dz, e2y));
+        let py = sub(mul(dz, e2x), mul(dx, e2z));
+        let pz = sub(mul(dx, e2y), mul(dy, e2x));
+        let det = add(add(mul(e1x, px), mul(e1y, py)), mul(e1z, pz));
+        let inv = _mm256_div_ps(splat(1.0), det);
+        let sx = sub(splat(o.x), v0x);
+        let sy = sub(splat(o.y), v0y);
+        let sz = sub(splat(o.z), v0z);
+        let b1 = mul(add(add(mul(sx, px), mul(sy, py)), mul(sz, pz)), inv);
+        let qx = sub(mul(sy, e1z), mul(sz, e1y));
+        let qy = sub(mul(sz, e1x), mul(sx, e1z));
+        let qz = sub(mul(sx, e1y), mul(sy, e1x));
+        let b2 = mul(add(add(mul(dx, qx), mul(dy, qy)), mul(dz, qz)), inv);
+        let t = mul(add(add(mul(e2x, qx), mul(e2y, qy)), mul(e2z, qz)), inv);
+        let (zero, one) = (_mm256_setzero_ps(), splat(1.0));
+        let abs = and(det, _mm256_castsi256_ps(_mm256_set1_epi32(0x7fff_ffff)));
+        // glam's SSE comparisons: != is unordered (true for NaN), the others ordered.
+        let geometric = and(
+            and(
+                _mm256_cmp_ps::<_CMP_NEQ_UQ>(det, zero),
+                _mm256_cmp_ps::<_CMP_LT_OQ>(abs, splat(f32::INFINITY)),
+            ),
+            and(
+                and(
+                    _mm256_cmp_ps::<_CMP_GE_OQ>(b1, zero),
+                    _mm256_cmp_ps::<_CMP_LE_OQ>(b1, one),
+                ),
+                and(
+                    _mm256_cmp_ps::<_CMP_GE_OQ>(b2, zero),
+                    _mm256_cmp_ps::<_CMP_LE_OQ>(add(b1, b2), one),
+                ),
+            ),
+        );
+        let within = and(
+            _mm256_cmp_ps::<_CMP_GT_OQ>(t, splat(tmin)),
+            _mm256_cmp_ps::<_CMP_LT_OQ>(t, splat(tmax)),
+        );
+        _mm256_movemask_ps(and(geometric, within)) as u32
+    }
+}
+
 /// Floats per triangle in a [`LeafTris`]: v0, e1 and e2, three components each.
 const FLOATS: usize = 9;
 
@@ -401,6 +480,37 @@ impl LeafTris {
         })
     }
 
+    /// The lanes of two leaves of at most four slots each, `a` and `b` ((first slot,
+    /// count)), hit within (tmin, tmax): bits 0..4 `a`'s, 4..8 `b`'s, what
+    /// [`LeafTris::any`] tests in each, lane by lane to the bit. With AVX2 (`avx2`, which the
+    /// caller has checked) one 8-lane test, else two 4-lane ones.
+    #[inline(always)]
+    pub fn hits_pair(
+        &self,
+        a: (u32, u32),
+        b: (u32, u32),
+        o: Vec3A,
+        d: Vec3A,
+        (tmin, tmax): (f32, f32),
+        avx2: bool,
+    ) -> u32 {
+        assert!(a.1 <= 4 && b.1 <= 4, "leaves of at most four slots");
+        let (la, lb) = (self.leaf(a.0, a.1), self.leaf(b.0, b.1));
+        let (na, nb) = (a.1 as usize, b.1 as usize);
+        let lanes = ((1u32 << na) - 1) | (((1u32 << nb) - 1) << 4);
+        #[cfg(target_arch = "x86_64")]
+        if avx2 && na > 0 && nb > 0 {
+            // SAFETY: the caller says the CPU has AVX2; each leaf holds 9n + 3 floats.
+            return unsafe { pair_avx2::hits8(la, na, lb, nb, o, d, tmin, tmax) } & lanes;
+        }
+        let _ = avx2;
+        let hits = |leaf: &[f32], n: usize| match n {
+            0 => 0,
+            _ => Self::test(leaf, n, 0, o, d, tmin, tmax).0,
+        };
+        (hits(la, na) | hits(lb, nb) << 4) & lanes
+    }
+
     /// The floats of the leaf of `count` slots from `start`, with the three that may be read
     /// past its last component.
     #[inline(always)]
@@ -541,6 +651,68 @@ mod tests {
     /// Leaves of one to eight triangles packed without padding lanes (and a slot that is not a
     /// triangle) give what testing their triangles one by one gives, to the bit: the lane, t,
     /// b1, b2 of the nearest (the lowest lane among equals), any-hit, and the corners back.
+    #[test]
+    fn leaf_pairs_hit_what_each_leaf_hits() {
+        use crate::sampling::hash_u32;
+        let r = |i: u32| (hash_u32(i) >> 8) as f32 / (1 << 24) as f32 * 2.0 - 1.0;
+        let v = |i: u32| Vec3A::new(r(3 * i), r(3 * i + 1), r(3 * i + 2));
+        // Leaves of 1..=4 slots; every 7th triangle degenerate (a line), every 5th repeats the
+        // one before (a ray through one hits both).
+        let mut leaves = Vec::new();
+        let mut slots = 0u32;
+        for k in 0..400u32 {
+            let count = 1 + hash_u32(k + 5) % 4;
+            leaves.push((slots, count));
+            slots += count;
+        }
+        let tri = |slot: u32| {
+            let s = if slot.is_multiple_of(5) && slot > 0 {
+                slot - 1
+            } else {
+                slot
+            };
+            let (a, b) = (v(3 * s), v(3 * s + 1));
+            let c = if s % 7 == 3 {
+                a * 0.5 + b * 0.5
+            } else {
+                v(3 * s + 2)
+            };
+            TriangleGeom::new([a, b, c])
+        };
+        let pack = LeafTris::new(slots as usize, &leaves, |s| Some(tri(s as u32)));
+        let avx2 = crate::accel::avx2();
+        let mut hit_lanes = 0;
+        for (n, pair) in leaves.windows(2).enumerate() {
+            let (a, b) = (pair[0], pair[1]);
+            for k in 0..12u32 {
+                let o = v(700_000 + 12 * n as u32 + k) * 2.0;
+                let aim = tri(if k % 2 == 0 { a.0 } else { b.0 + b.1 - 1 });
+                let mut d = aim.point(0.25, 0.25) + v(600_000 + 12 * n as u32 + k) * 0.3 - o;
+                if k == 11 {
+                    d = aim.v0 - o; // through a vertex
+                }
+                let tmax = [f32::INFINITY, 1.0, 0.5][(k % 3) as usize];
+                let four = |(start, count): (u32, u32)| {
+                    LeafTris::test(pack.leaf(start, count), count as usize, 0, o, d, 0.0, tmax).0
+                        & ((1 << count) - 1)
+                };
+                let want = four(a) | four(b) << 4;
+                for simd in [false, avx2] {
+                    let got = pack.hits_pair(a, b, o, d, (0.0, tmax), simd);
+                    assert_eq!(got, want, "leaves {a:?} {b:?}, ray {k}, avx2 {simd}");
+                }
+                // The same leaf twice: both halves agree.
+                let twice = pack.hits_pair(a, a, o, d, (0.0, tmax), avx2);
+                assert_eq!(twice, four(a) | four(a) << 4);
+                hit_lanes += want.count_ones();
+            }
+        }
+        assert!(
+            hit_lanes > 1000,
+            "too few hits to mean anything: {hit_lanes}"
+        );
+    }
+
     #[test]
     fn leaf_tris_match_scalar_bit_for_bit() {
         use crate::sampling::hash_u32;
