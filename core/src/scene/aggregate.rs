@@ -584,6 +584,11 @@ mod tests {
 
     /// 64 random triangles in the slab 1 < x < 1.5, away from the other objects.
     fn soup() -> MeshDesc {
+        soup_from("soup", 100_000)
+    }
+
+    /// 64 random triangles in the slab 1 < x < 1.5 from the random numbers at `seed`.
+    fn soup_from(name: &str, seed: u32) -> MeshDesc {
         let p = |i: u32| {
             Vec3::new(
                 1.0 + 0.5 * rnd(i),
@@ -592,8 +597,8 @@ mod tests {
             )
         };
         MeshDesc {
-            name: "soup".into(),
-            positions: (0..192).map(|v| p(100_000 + 3 * v)).collect(),
+            name: name.into(),
+            positions: (0..192).map(|v| p(seed + 3 * v)).collect(),
             indices: (0..64).map(|t| [3 * t, 3 * t + 1, 3 * t + 2]).collect(),
             ..Default::default()
         }
@@ -644,7 +649,13 @@ mod tests {
                 ),
                 cutout,
             ],
-            meshes: vec![quad("once"), quad("shared"), quad("once-cutout"), soup()],
+            meshes: vec![
+                quad("once"),
+                quad("shared"),
+                quad("once-cutout"),
+                soup(),
+                soup_from("herd", 200_000),
+            ],
             objects: vec![
                 object("flat", ShapeDesc::Mesh { mesh: 0 }, 0, at(0.0, 0.0, -1.0)),
                 object("inst-a", ShapeDesc::Mesh { mesh: 1 }, 0, at(0.7, 0.2, 0.0)),
@@ -675,6 +686,14 @@ mod tests {
                 ),
                 // Opaque triangles enough to fill leaves of their own (tested as packets).
                 object("soup", ShapeDesc::Mesh { mesh: 3 }, 0, Mat4::IDENTITY),
+                // As many instanced twice, opaque and with the alpha test, on the far side.
+                object("herd-a", ShapeDesc::Mesh { mesh: 4 }, 0, at(-2.6, 0.0, 0.0)),
+                object(
+                    "herd-b",
+                    ShapeDesc::Mesh { mesh: 4 },
+                    1,
+                    at(-2.4, 0.2, 0.1) * Mat4::from_rotation_x(0.3),
+                ),
                 object(
                     "floor",
                     ShapeDesc::Plane {
@@ -693,8 +712,8 @@ mod tests {
     #[test]
     fn closest_and_any_hit_agree_with_each_other_and_with_brute_force() {
         let scene = scene();
-        assert!(scene.stats.flattened_triangles == 68 && scene.stats.instanced_triangles == 2);
-        let (mut hits, mut packed_hits) = (0, 0);
+        assert!(scene.stats.flattened_triangles == 68 && scene.stats.instanced_triangles == 66);
+        let (mut hits, mut packed_hits, mut herd_hits) = (0, 0, 0);
         // Whether the slot's leaf holds opaque triangles only (is tested as one packet).
         let agg = &scene.aggregate;
         let in_packed_leaf = |slot: u32| {
@@ -730,10 +749,12 @@ mod tests {
                 assert_eq!((a.object, a.prim), (b.object, b.prim), "ray {i}");
                 hits += 1;
                 packed_hits += usize::from(a.slot != NO_SLOT && in_packed_leaf(a.slot));
+                herd_hits += usize::from(scene.objects[a.object as usize].name.starts_with("herd"));
             }
         }
         assert!(hits > 5000, "{hits}");
         assert!(packed_hits > 200, "hits in packed leaves: {packed_hits}");
+        assert!(herd_hits > 200, "hits on the instanced soup: {herd_hits}");
     }
 
     /// A flattened triangle costs its top-level primitive (12 bytes), its corners (36), its
