@@ -12,7 +12,9 @@ use anyhow::{Context, Result};
 use clap::Args;
 use glam::{Vec2, Vec3A};
 use rayon::prelude::*;
-use raytile_core::accel::{Bvh, BvhBuildParams, PlocSearchDistance, SortPrecision, Width, PRESETS};
+use raytile_core::accel::{
+    AnyLeaves, Bvh, BvhBuildParams, PlocSearchDistance, SortPrecision, Width, PRESETS,
+};
 use raytile_core::geometry::triangle::{LeafTris, TriangleGeom};
 use raytile_core::geometry::{Aabb, Ray};
 use raytile_core::sampling::hash_u32;
@@ -290,6 +292,18 @@ pub fn run(args: BenchArgs) -> Result<()> {
             Ray::new(o, d)
         })
         .collect();
+    // Shadow rays: from points just outside the surface toward a small square light above
+    // it, as next-event estimation casts them (the lower half are blocked by the sphere).
+    let shadow: Vec<Ray> = (0..n as u32)
+        .map(|i| {
+            let t = &tris[hash_u32(i ^ 0x5bd1_e995) as usize % tris.len()];
+            let p = t.point(0.25, 0.25);
+            let nrm = t.e1.cross(t.e2).normalize_or(Vec3A::Y);
+            let o = p + nrm * 1e-3 * nrm.dot(p).signum();
+            let light = Vec3A::new(rnd(2 * i + 900_000) - 0.5, 3.0, rnd(2 * i + 900_001) - 0.5);
+            Ray::new(o, light - o)
+        })
+        .collect();
     let builds: Vec<String> = if args.builds.is_empty() {
         std::iter::once(BINNED_SAH)
             .chain(PRESETS.iter().map(|(n, _)| *n))
@@ -319,7 +333,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             // The binned builder consumes its bounds: a copy, made before the clock starts.
             let owned = params.is_none().then(|| bounds.clone());
             let t = Instant::now();
-            let (bvh, order) = match (params, owned) {
+            let (mut bvh, order) = match (params, owned) {
                 (Some(params), _) => Bvh::build_wide(&bounds, params, width),
                 (None, owned) => Bvh::build_sah(owned.unwrap_or_default(), width),
             };
@@ -348,13 +362,79 @@ pub fn run(args: BenchArgs) -> Result<()> {
                     .sum();
                 figures.push((mrays(rays.len(), t.elapsed().as_secs_f64()), hits));
             }
+            // Shadow rays (to the light, t < 1) one leaf at a time, then, as the renderer
+            // casts them with AVX2, two leaves a node enters at once.
+            bvh.mark_leaves(|_, _| true);
+            let mut shadows = Vec::new();
+            for pairs in [false, avx2()] {
+                let t = Instant::now();
+                let blocked: usize = shadow
+                    .par_chunks(4096)
+                    .map(|c| {
+                        c.iter()
+                            .filter(|r| {
+                                let mut leaves = ShadowLeaves {
+                                    tris: &packed,
+                                    ray: r,
+                                    pairs,
+                                };
+                                bvh.any_with(r, 1.0, &mut leaves)
+                            })
+                            .count()
+                    })
+                    .sum();
+                shadows.push((mrays(shadow.len(), t.elapsed().as_secs_f64()), blocked));
+            }
+            anyhow::ensure!(
+                shadows[0].1 == shadows[1].1,
+                "shadow rays blocked one leaf at a time ({}) and with leaf pairs ({}) differ",
+                shadows[0].1,
+                shadows[1].1
+            );
             let (sah_nodes, sah_leaves) = bvh.sah_cost();
             println!(
-                "| BVH {name}, {w}-wide, {} triangles | build {:.3} s; {:.2} Mrays/s coherent, {:.2} Mrays/s incoherent; {} nodes, {} leaves, {:.1} MB; SAH {:.2} nodes + {:.2} leaves |",
-                tris.len(), build, figures[0].0, figures[1].0, bvh.node_count(), bvh.leaves().len(),
-                bvh.memory_bytes() as f64 / 1e6, sah_nodes, sah_leaves
+                "| BVH {name}, {w}-wide, {} triangles | build {:.3} s; {:.2} Mrays/s coherent, {:.2} Mrays/s incoherent, {:.2} Mrays/s shadow ({:.2} with leaf pairs); {} nodes, {} leaves, {:.1} MB; SAH {:.2} nodes + {:.2} leaves |",
+                tris.len(), build, figures[0].0, figures[1].0, shadows[0].0, shadows[1].0,
+                bvh.node_count(), bvh.leaves().len(), bvh.memory_bytes() as f64 / 1e6, sah_nodes,
+                sah_leaves
             );
         }
     }
     Ok(())
+}
+
+/// Whether this CPU has AVX2 (leaf pairs are tested in one 8-lane test).
+fn avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// The leaves of `raytile bench`'s mesh for shadow rays (t < 1): four triangles at a time,
+/// or two leaves at once if `pairs` (which needs AVX2), as the renderer tests them.
+struct ShadowLeaves<'a> {
+    tris: &'a LeafTris,
+    ray: &'a Ray,
+    pairs: bool,
+}
+
+impl AnyLeaves for ShadowLeaves<'_> {
+    fn leaf(&mut self, _: bool, start: u32, count: u32) -> bool {
+        self.tris
+            .any(start, count, self.ray.o, self.ray.d, 0.0, 1.0)
+    }
+
+    fn pairs(&self) -> bool {
+        self.pairs
+    }
+
+    fn pair(&mut self, a: (u32, u32), b: (u32, u32)) -> bool {
+        let (o, d) = (self.ray.o, self.ray.d);
+        self.tris.hits_pair(a, b, o, d, (0.0, 1.0), true) != 0
+    }
 }

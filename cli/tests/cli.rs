@@ -424,3 +424,35 @@ fn cluster_with_an_environment_matches_render() {
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `raytile bench` on small sizes: every figure printed, the BVH rows with the shadow-ray
+/// throughput both ways (the command fails if leaf pairs block other rays than single leaves).
+#[test]
+fn bench_prints_its_figures_at_small_sizes() {
+    let o = raytile()
+        .args(["bench", "--scene", &scene("cornell-box.json")])
+        .args(["--caustic-scene", &scene("caustic.json")])
+        .args(["--size", "16", "--spp", "2", "--caustic-spp", "1"])
+        .args(["--triangles", "20000", "--rays", "20000"])
+        .args(["--build", "binned_sah", "--width", "16", "--width", "4"])
+        .env("RAYON_NUM_THREADS", "2")
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{out}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let rows: Vec<&str> = out
+        .lines()
+        .filter(|l| l.contains("BVH binned_sah"))
+        .collect();
+    assert_eq!(rows.len(), 2, "{out}");
+    for row in rows {
+        assert!(
+            row.contains("Mrays/s shadow (") && row.contains("with leaf pairs)"),
+            "{row}"
+        );
+    }
+}
