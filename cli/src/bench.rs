@@ -366,7 +366,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             // casts them with AVX2, two leaves a node enters at once.
             bvh.mark_leaves(|_, _| true);
             let mut shadows = Vec::new();
-            for pairs in [false, avx2()] {
+            for pairs in [false, raytile_core::accel::avx2()] {
                 let t = Instant::now();
                 let blocked: usize = shadow
                     .par_chunks(4096)
@@ -401,18 +401,6 @@ pub fn run(args: BenchArgs) -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// Whether this CPU has AVX2 (leaf pairs are tested in one 8-lane test).
-fn avx2() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx2")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
 }
 
 /// The leaves of `raytile bench`'s mesh for shadow rays (t < 1): four triangles at a time,

@@ -186,7 +186,7 @@ impl Width {
 
 /// Whether this CPU has AVX2 (detected once; the standard library caches it).
 #[inline]
-pub(crate) fn avx2() -> bool {
+pub fn avx2() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         std::arch::is_x86_feature_detected!("avx2")
