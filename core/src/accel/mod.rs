@@ -491,13 +491,68 @@ fn prefetch_inner<const N: usize>(nodes: &[Node<N>], n: &Node<N>, mask: u32) {
     }
 }
 
+/// The bound a leaf's hits must stay below to beat the best hit so far (at `tmax`, in slot
+/// `best`): among hits at the same distance the lowest slot wins, whatever order the leaves
+/// come in (which depends on the node width), so a leaf of lower slots than the best hit's may
+/// also return a hit at exactly `tmax`.
+#[inline(always)]
+pub fn limit(start: u32, best: Option<usize>, tmax: f32) -> f32 {
+    match best {
+        Some(b) if (start as usize) < b => next_above(tmax),
+        _ => tmax,
+    }
+}
+
+/// What closest-hit traversal asks of the leaves it enters. A closure
+/// `FnMut(marked, first_slot, count, ray_tmax) -> Option<(slot, t)>` is one (see
+/// [`Bvh::closest_leaves`]); a type that can also test two marked leaves at once says so with
+/// [`ClosestLeaves::pairs`].
+pub trait ClosestLeaves {
+    /// The nearest hit in the leaf of `count` slots from `start` (`marked`: see
+    /// [`Bvh::mark_leaves`]) before `ray_tmax`, as (slot, t), the lowest slot among hits at
+    /// the same distance.
+    fn leaf(&mut self, marked: bool, start: u32, count: u32, ray_tmax: f32)
+        -> Option<(usize, f32)>;
+
+    /// Whether traversal may test two marked leaves of at most [`PAIR_LEAF`] slots that one
+    /// node enters with [`ClosestLeaves::pair`].
+    #[inline(always)]
+    fn pairs(&self) -> bool {
+        false
+    }
+
+    /// The nearest hit in the marked leaves `a` and `b` ((first slot, count), at most
+    /// [`PAIR_LEAF`] slots each) that beats the best so far (`tmax`, in slot `best`; see
+    /// [`limit`]), as (slot, t): the lowest slot among hits at the same distance. What
+    /// [`ClosestLeaves::leaf`] on `a` and then on `b` gives.
+    #[inline(always)]
+    fn pair(
+        &mut self,
+        a: (u32, u32),
+        b: (u32, u32),
+        tmax: f32,
+        best: Option<usize>,
+    ) -> Option<(usize, f32)> {
+        let first = self.leaf(true, a.0, a.1, limit(a.0, best, tmax));
+        let (tmax, best) = first.map_or((tmax, best), |(slot, t)| (t, Some(slot)));
+        self.leaf(true, b.0, b.1, limit(b.0, best, tmax)).or(first)
+    }
+}
+
+impl<F: FnMut(bool, u32, u32, f32) -> Option<(usize, f32)>> ClosestLeaves for F {
+    #[inline(always)]
+    fn leaf(&mut self, marked: bool, start: u32, count: u32, tmax: f32) -> Option<(usize, f32)> {
+        self(marked, start, count, tmax)
+    }
+}
+
 /// Closest-hit traversal of `N`-wide nodes; `test` is the node's slab test. See
 /// [`Bvh::closest_leaves`].
 #[inline(always)]
 fn closest_in<const N: usize>(
     nodes: &[Node<N>],
     tmax: f32,
-    leaf: &mut impl FnMut(bool, u32, u32, f32) -> Option<(usize, f32)>,
+    leaf: &mut impl ClosestLeaves,
     test: impl Fn(&Node<N>, f32) -> ([f32; N], u32),
 ) -> Option<(usize, f32)> {
     if nodes.is_empty() {
@@ -519,16 +574,23 @@ fn closest_in<const N: usize>(
             let lane = lanes.trailing_zeros() as usize;
             lanes &= lanes - 1;
             if tn[lane] <= cull {
-                let start = n.child[lane];
-                // Among hits at the same distance the lowest slot wins, whatever order the
-                // leaves come in (which depends on the node width): a leaf of lower slots than
-                // the best hit may also return a hit at exactly `tmax`.
-                let limit = match best {
-                    Some(b) if (start as usize) < b => next_above(tmax),
-                    _ => tmax,
-                };
+                let (start, count) = (n.child[lane], u32::from(n.count[lane]));
                 let marked = (n.mark_mask >> lane) & 1 == 1;
-                if let Some((slot, th)) = leaf(marked, start, u32::from(n.count[lane]), limit) {
+                // Two small marked leaves entered before the nearest hit so far are tested
+                // at once (which hit wins does not depend on the order or grouping).
+                let partner = match leaf.pairs() && marked && count <= PAIR_LEAF {
+                    true => pairable(n, lanes, |l| tn[l] <= cull),
+                    false => None,
+                };
+                let found = match partner {
+                    Some(other) => {
+                        lanes &= !(1 << other);
+                        let b = (n.child[other], u32::from(n.count[other]));
+                        leaf.pair((start, count), b, tmax, best)
+                    }
+                    None => leaf.leaf(marked, start, count, limit(start, best, tmax)),
+                };
+                if let Some((slot, th)) = found {
                     tmax = th;
                     cull = th * CULL;
                     best = Some(slot);
@@ -617,14 +679,19 @@ impl<F: FnMut(bool, u32, u32) -> bool> AnyLeaves for F {
     }
 }
 
-/// The lowest lane in `lanes` that holds a marked leaf of at most [`PAIR_LEAF`] slots.
+/// The lowest lane in `lanes` that holds a marked leaf of at most [`PAIR_LEAF`] slots and is
+/// `entered`.
 #[inline(always)]
-fn pairable<const N: usize>(n: &Node<N>, lanes: u32) -> Option<usize> {
+fn pairable<const N: usize>(
+    n: &Node<N>,
+    lanes: u32,
+    entered: impl Fn(usize) -> bool,
+) -> Option<usize> {
     let mut rest = lanes & n.mark_mask;
     while rest != 0 {
         let lane = rest.trailing_zeros() as usize;
         rest &= rest - 1;
-        if u32::from(n.count[lane]) <= PAIR_LEAF {
+        if u32::from(n.count[lane]) <= PAIR_LEAF && entered(lane) {
             return Some(lane);
         }
     }
@@ -658,7 +725,7 @@ fn any_in<const N: usize>(
             // Two small marked leaves entered together are tested at once (the answer is
             // whether any leaf blocks the ray, whatever the order or grouping).
             if leaf.pairs() && marked && count <= PAIR_LEAF {
-                if let Some(other) = pairable(n, lanes) {
+                if let Some(other) = pairable(n, lanes, |_| true) {
                     lanes &= !(1 << other);
                     if leaf.pair((start, count), (n.child[other], u32::from(n.count[other]))) {
                         return true;
@@ -728,7 +795,7 @@ mod traverse_avx2 {
         nodes: &[Node<N>],
         ray: &Ray,
         tmax: f32,
-        leaf: &mut impl FnMut(bool, u32, u32, f32) -> Option<(usize, f32)>,
+        leaf: &mut impl super::ClosestLeaves,
     ) -> Option<(usize, f32)>
     where
         SlabRay8: NodeTest<N>,
@@ -919,9 +986,21 @@ impl Bvh {
         &self,
         ray: &Ray,
         tmax: f32,
-        leaf: impl FnMut(bool, u32, u32, f32) -> Option<(usize, f32)>,
+        mut leaf: impl FnMut(bool, u32, u32, f32) -> Option<(usize, f32)>,
     ) -> Option<(usize, f32)> {
-        self.closest_leaves_on(ray, tmax, leaf, self.avx2)
+        self.closest_leaves_on(ray, tmax, &mut leaf, self.avx2)
+    }
+
+    /// [`Bvh::closest_leaves`] with leaves that may be tested in pairs
+    /// ([`ClosestLeaves::pairs`]).
+    #[inline]
+    pub fn closest_with(
+        &self,
+        ray: &Ray,
+        tmax: f32,
+        leaves: &mut impl ClosestLeaves,
+    ) -> Option<(usize, f32)> {
+        self.closest_leaves_on(ray, tmax, leaves, self.avx2)
     }
 
     /// [`Bvh::closest_leaves`], with AVX2 for 8- and 16-wide nodes only if `simd` (and the CPU
@@ -931,30 +1010,30 @@ impl Bvh {
         &self,
         ray: &Ray,
         tmax: f32,
-        mut leaf: impl FnMut(bool, u32, u32, f32) -> Option<(usize, f32)>,
+        leaf: &mut impl ClosestLeaves,
         simd: bool,
     ) -> Option<(usize, f32)> {
         if !self.nodes16.is_empty() {
             #[cfg(target_arch = "x86_64")]
             if simd && self.avx2 {
                 // SAFETY: `self.avx2` says the CPU has AVX2.
-                return unsafe { traverse_avx2::closest(&self.nodes16, ray, tmax, &mut leaf) };
+                return unsafe { traverse_avx2::closest(&self.nodes16, ray, tmax, leaf) };
             }
             let sr = SlabRay::new(ray);
-            return closest_in(&self.nodes16, tmax, &mut leaf, |n, t| sr.test16(n, t));
+            return closest_in(&self.nodes16, tmax, leaf, |n, t| sr.test16(n, t));
         }
         if self.nodes8.is_empty() {
             let sr = SlabRay::new(ray);
-            return closest_in(&self.nodes4, tmax, &mut leaf, |n, t| sr.test4(n, t));
+            return closest_in(&self.nodes4, tmax, leaf, |n, t| sr.test4(n, t));
         }
         #[cfg(target_arch = "x86_64")]
         if simd && self.avx2 {
             // SAFETY: `self.avx2` says the CPU has AVX2.
-            return unsafe { traverse_avx2::closest(&self.nodes8, ray, tmax, &mut leaf) };
+            return unsafe { traverse_avx2::closest(&self.nodes8, ray, tmax, leaf) };
         }
         let _ = simd;
         let sr = SlabRay::new(ray);
-        closest_in(&self.nodes8, tmax, &mut leaf, |n, t| sr.test8(n, t))
+        closest_in(&self.nodes8, tmax, leaf, |n, t| sr.test8(n, t))
     }
 
     /// Any hit before `tmax`: `hit(slot)` says whether that primitive blocks the ray.
@@ -1368,7 +1447,38 @@ mod tests {
                 hits != 0
             }
         }
+        impl ClosestLeaves for Pairs<'_> {
+            fn leaf(
+                &mut self,
+                marked: bool,
+                start: u32,
+                count: u32,
+                tmax: f32,
+            ) -> Option<(usize, f32)> {
+                assert!(marked, "every leaf is marked");
+                let hit = self.tris.intersect(start, count, self.o, self.d, 0.0, tmax);
+                hit.map(|(lane, t, _, _)| (start as usize + lane, t))
+            }
+            fn pairs(&self) -> bool {
+                true
+            }
+            fn pair(
+                &mut self,
+                a: (u32, u32),
+                b: (u32, u32),
+                tmax: f32,
+                best: Option<usize>,
+            ) -> Option<(usize, f32)> {
+                self.pairs += 1;
+                let (o, d) = (self.o, self.d);
+                let hit = self
+                    .tris
+                    .nearest_pair(a, b, o, d, (0.0, tmax), best, self.avx2);
+                hit.map(|(slot, t, _, _)| (slot, t))
+            }
+        }
         let mut pairs = 0;
+        let mut closest_pairs = 0;
         let mut hits = 0;
         let mut ties = 0;
         for k in 0..6000u32 {
@@ -1419,7 +1529,7 @@ mod tests {
                     .closest_leaves_on(
                         &ray,
                         tmax,
-                        |_, start, _, tmax| {
+                        &mut |_: bool, start: u32, _: u32, tmax: f32| {
                             packet_at(start)
                                 .intersect(o, d, 0.0, tmax)
                                 .map(|(lane, t, _, _)| (start as usize + lane, t))
@@ -1458,6 +1568,15 @@ mod tests {
                         "pairs, simd {simd}, avx2 {avx2}, ray {k}"
                     );
                     pairs += leaves.pairs;
+                    leaves.pairs = 0;
+                    let nearest = bvh
+                        .closest_leaves_on(&ray, tmax, &mut leaves, simd)
+                        .map(|(s, t)| (s, t.to_bits()));
+                    assert_eq!(
+                        nearest, want,
+                        "closest pairs, simd {simd}, avx2 {avx2}, ray {k}"
+                    );
+                    closest_pairs += leaves.pairs;
                 }
             }
             let scalar = wide
@@ -1470,8 +1589,9 @@ mod tests {
             assert_eq!(scalar, want, "scalar closure, ray {k}");
         }
         assert!(
-            hits > 2000 && ties > 20 && pairs > 2000,
-            "too few hits, ties or leaf pairs to mean anything: {hits}, {ties}, {pairs}"
+            hits > 2000 && ties > 20 && pairs > 2000 && closest_pairs > 2000,
+            "too few hits, ties or leaf pairs to mean anything: {hits}, {ties}, {pairs}, \
+             {closest_pairs}"
         );
     }
 

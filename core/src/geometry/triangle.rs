@@ -272,6 +272,54 @@ mod pair_avx2 {
         tmin: f32,
         tmax: f32,
     ) -> u32 {
+        // SAFETY: the caller's promises are `test8`'s.
+        let (ok, _, _, _) = unsafe { test8(a, na, b, nb, o, d, tmin, tmax) };
+        _mm256_movemask_ps(ok) as u32
+    }
+
+    /// [`hits8`] with every lane's t, b1 and b2.
+    ///
+    /// # Safety
+    /// As [`hits8`].
+    #[target_feature(enable = "avx2")]
+    #[allow(clippy::too_many_arguments)]
+    pub(super) unsafe fn hits8_at(
+        a: &[f32],
+        na: usize,
+        b: &[f32],
+        nb: usize,
+        o: Vec3A,
+        d: Vec3A,
+        tmin: f32,
+        tmax: f32,
+    ) -> (u32, [[f32; 8]; 3]) {
+        // SAFETY: the caller's promises are `test8`'s.
+        let (ok, t, b1, b2) = unsafe { test8(a, na, b, nb, o, d, tmin, tmax) };
+        let mut out = [[0.0f32; 8]; 3];
+        for (row, v) in out.iter_mut().zip([t, b1, b2]) {
+            // SAFETY: a row holds eight floats.
+            unsafe { _mm256_storeu_ps(row.as_mut_ptr(), v) };
+        }
+        (_mm256_movemask_ps(ok) as u32, out)
+    }
+
+    /// The eight-lane Möller–Trumbore: the lanes' hit mask, t, b1 and b2.
+    ///
+    /// # Safety
+    /// As [`hits8`].
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    #[allow(clippy::too_many_arguments)]
+    unsafe fn test8(
+        a: &[f32],
+        na: usize,
+        b: &[f32],
+        nb: usize,
+        o: Vec3A,
+        d: Vec3A,
+        tmin: f32,
+        tmax: f32,
+    ) -> (__m256, __m256, __m256, __m256) {
         debug_assert!(a.len() >= 9 * na + 3 && b.len() >= 9 * nb + 3);
         // SAFETY: component c of a leaf of n slots starts at c n, and c n + 4 <= 9 n + 3.
         let load = |c: usize| unsafe {
@@ -323,7 +371,7 @@ mod pair_avx2 {
             _mm256_cmp_ps::<_CMP_GT_OQ>(t, splat(tmin)),
             _mm256_cmp_ps::<_CMP_LT_OQ>(t, splat(tmax)),
         );
-        _mm256_movemask_ps(and(geometric, within)) as u32
+        (and(geometric, within), t, b1, b2)
     }
 }
 
@@ -511,6 +559,74 @@ impl LeafTris {
         (hits(la, na) | hits(lb, nb) << 4) & lanes
     }
 
+    /// The nearest hit in two leaves of at most four slots each, `a` and `b` ((first slot,
+    /// count)), that beats the best so far: nearer than `tmax`, or at `tmax` in a slot below
+    /// `best` (see [`crate::accel::limit`]), as (slot, t, b1, b2), the lowest slot among
+    /// equal distances: what [`LeafTris::intersect`] on each, one after the other, gives,
+    /// lane by lane to the bit. With AVX2 (`avx2`, which the caller has checked) one 8-lane
+    /// test, else two 4-lane ones.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    pub fn nearest_pair(
+        &self,
+        a: (u32, u32),
+        b: (u32, u32),
+        o: Vec3A,
+        d: Vec3A,
+        (tmin, tmax): (f32, f32),
+        best: Option<usize>,
+        avx2: bool,
+    ) -> Option<(usize, f32, f32, f32)> {
+        assert!(a.1 <= 4 && b.1 <= 4, "leaves of at most four slots");
+        let (la, lb) = (self.leaf(a.0, a.1), self.leaf(b.0, b.1));
+        let (na, nb) = (a.1 as usize, b.1 as usize);
+        // Hits up to the larger of the two leaves' bounds, each lane checked against its own
+        // leaf's bound below.
+        let bound = crate::accel::limit(a.0.min(b.0), best, tmax);
+        let (hits, [t, b1, b2]) = 'test: {
+            #[cfg(target_arch = "x86_64")]
+            if avx2 && na > 0 && nb > 0 {
+                // SAFETY: the caller says the CPU has AVX2; each leaf holds 9n + 3 floats.
+                break 'test unsafe { pair_avx2::hits8_at(la, na, lb, nb, o, d, tmin, bound) };
+            }
+            let _ = avx2;
+            let mut out = [[0.0f32; 8]; 3];
+            let mut hits = 0;
+            for (k, (leaf, n)) in [(la, na), (lb, nb)].into_iter().enumerate() {
+                if n > 0 {
+                    let (h, t, b1, b2) = Self::test(leaf, n, 0, o, d, tmin, bound);
+                    hits |= h << (4 * k);
+                    for (row, v) in out.iter_mut().zip([t, b1, b2]) {
+                        row[4 * k..4 * k + 4].copy_from_slice(&v.to_array());
+                    }
+                }
+            }
+            (hits, out)
+        };
+        let lanes = ((1u32 << na) - 1) | (((1u32 << nb) - 1) << 4);
+        let mut rest = hits & lanes;
+        let mut won: Option<(usize, usize)> = None;
+        while rest != 0 {
+            let lane = rest.trailing_zeros() as usize;
+            rest &= rest - 1;
+            let slot = if lane < 4 {
+                a.0 as usize + lane
+            } else {
+                b.0 as usize + lane - 4
+            };
+            let th = t[lane];
+            let beats = th < tmax || (th == tmax && best.is_some_and(|b| slot < b));
+            let nearer = match won {
+                None => true,
+                Some((s, l)) => th < t[l] || (th == t[l] && slot < s),
+            };
+            if beats && nearer {
+                won = Some((slot, lane));
+            }
+        }
+        won.map(|(slot, lane)| (slot, t[lane], b1[lane], b2[lane]))
+    }
+
     /// The floats of the leaf of `count` slots from `start`, with the three that may be read
     /// past its last component.
     #[inline(always)]
@@ -681,7 +797,7 @@ mod tests {
         };
         let pack = LeafTris::new(slots as usize, &leaves, |s| Some(tri(s as u32)));
         let avx2 = crate::accel::avx2();
-        let mut hit_lanes = 0;
+        let (mut hit_lanes, mut nearest_hits) = (0, 0);
         for (n, pair) in leaves.windows(2).enumerate() {
             let (a, b) = (pair[0], pair[1]);
             for k in 0..12u32 {
@@ -705,11 +821,43 @@ mod tests {
                 let twice = pack.hits_pair(a, a, o, d, (0.0, tmax), avx2);
                 assert_eq!(twice, four(a) | four(a) << 4);
                 hit_lanes += want.count_ones();
+                // The nearest hit of the pair is what each leaf gives, one after the other, to
+                // the bit: with no hit so far, and with one at exactly the pair's nearest
+                // distance in a slot above every leaf's (a tie the pair wins) or below (one
+                // it loses).
+                let one = |(start, count): (u32, u32), tmax: f32, best: Option<usize>| {
+                    let bound = crate::accel::limit(start, best, tmax);
+                    pack.intersect(start, count, o, d, 0.0, bound)
+                        .map(|(lane, t, b1, b2)| (start as usize + lane, t, b1, b2))
+                };
+                let one_by_one = |x, y, tmax, best| {
+                    let first = one(x, tmax, best);
+                    let (tmax, best) = first.map_or((tmax, best), |h| (h.1, Some(h.0)));
+                    one(y, tmax, best).or(first)
+                };
+                let bits = |h: Option<(usize, f32, f32, f32)>| {
+                    h.map(|(s, t, b1, b2)| (s, t.to_bits(), b1.to_bits(), b2.to_bits()))
+                };
+                let nearest = one_by_one(a, b, tmax, None);
+                let mut states = vec![(tmax, None)];
+                if let Some((_, t, _, _)) = nearest {
+                    states.extend([(t, Some(usize::MAX)), (t, Some(0))]);
+                }
+                for (tmax, best) in states {
+                    for (x, y) in [(a, b), (b, a)] {
+                        let want = bits(one_by_one(x, y, tmax, best));
+                        for simd in [false, avx2] {
+                            let got = pack.nearest_pair(x, y, o, d, (0.0, tmax), best, simd);
+                            assert_eq!(bits(got), want, "nearest, {x:?} {y:?}, ray {k}, {simd}");
+                        }
+                    }
+                }
+                nearest_hits += usize::from(nearest.is_some());
             }
         }
         assert!(
-            hit_lanes > 1000,
-            "too few hits to mean anything: {hit_lanes}"
+            hit_lanes > 1000 && nearest_hits > 1000,
+            "too few hits to mean anything: {hit_lanes}, {nearest_hits}"
         );
     }
 

@@ -10,7 +10,7 @@
 //! outside the BVH. Triangles of materials that are not opaque pass the alpha test.
 
 use super::{ObjectKind, Scene};
-use crate::accel::{AnyLeaves, Bvh};
+use crate::accel::{AnyLeaves, Bvh, ClosestLeaves};
 use crate::alloc::huge_vec;
 use crate::geometry::interaction::NO_SLOT;
 use crate::geometry::triangle::{leaf_runs, LeafTris, Mesh, TriangleGeom};
@@ -280,6 +280,73 @@ impl AnyLeaves for TopAny<'_> {
     }
 }
 
+/// The top level's leaves for closest-hit traversal: packed triangles four at a time, or
+/// eight (two leaves) with AVX2, else primitive by primitive. `cand` is the latest accepted
+/// hit, which is the nearest (each accepted hit shrinks tmax); from a packed leaf its object
+/// is [`UNRESOLVED`] (looked up once at the end).
+struct TopClosest<'a> {
+    scene: &'a Scene,
+    ray: &'a Ray,
+    cand: Option<Hit>,
+}
+
+impl TopClosest<'_> {
+    #[inline(always)]
+    fn packed_hit(&mut self, slot: usize, t: f32, b1: f32, b2: f32) -> Option<(usize, f32)> {
+        self.cand = Some(Hit {
+            t,
+            object: UNRESOLVED,
+            prim: 0,
+            b1,
+            b2,
+            slot: slot as u32,
+        });
+        Some((slot, t))
+    }
+}
+
+impl ClosestLeaves for TopClosest<'_> {
+    #[inline(always)]
+    fn leaf(&mut self, packed: bool, start: u32, count: u32, tmax: f32) -> Option<(usize, f32)> {
+        let (scene, ray) = (self.scene, self.ray);
+        if packed {
+            let (lane, t, b1, b2) = scene
+                .aggregate
+                .tris
+                .intersect(start, count, ray.o, ray.d, 0.0, tmax)?;
+            return self.packed_hit(start as usize + lane, t, b1, b2);
+        }
+        let mut tmax = tmax;
+        let mut best = None;
+        for slot in start as usize..(start + count) as usize {
+            if let Some(h) = scene.intersect_prim(slot, ray, tmax) {
+                tmax = h.t;
+                self.cand = Some(h);
+                best = Some((slot, h.t));
+            }
+        }
+        best
+    }
+
+    #[inline(always)]
+    fn pairs(&self) -> bool {
+        self.scene.aggregate.pairs
+    }
+
+    #[inline(always)]
+    fn pair(
+        &mut self,
+        a: (u32, u32),
+        b: (u32, u32),
+        tmax: f32,
+        best: Option<usize>,
+    ) -> Option<(usize, f32)> {
+        let (ray, tris) = (self.ray, &self.scene.aggregate.tris);
+        let (slot, t, b1, b2) = tris.nearest_pair(a, b, ray.o, ray.d, (0.0, tmax), best, true)?;
+        self.packed_hit(slot, t, b1, b2)
+    }
+}
+
 impl Scene {
     /// Nearest hit along `ray` with parameter in (0, tmax).
     #[inline]
@@ -300,37 +367,13 @@ impl Scene {
                 });
             }
         }
-        // The latest accepted hit; from a packed leaf, its object and triangle are looked up
-        // once at the end (`object` is UNRESOLVED until then), not for every hit on the way.
-        let mut cand: Option<Hit> = None;
-        let found = agg
-            .bvh
-            .closest_leaves(ray, tmax, |packed, start, count, tmax| {
-                if packed {
-                    let (lane, t, b1, b2) =
-                        agg.tris.intersect(start, count, ray.o, ray.d, 0.0, tmax)?;
-                    let slot = start as usize + lane;
-                    cand = Some(Hit {
-                        t,
-                        object: UNRESOLVED,
-                        prim: 0,
-                        b1,
-                        b2,
-                        slot: slot as u32,
-                    });
-                    return Some((slot, t));
-                }
-                let mut tmax = tmax;
-                let mut best = None;
-                for slot in start as usize..(start + count) as usize {
-                    if let Some(h) = self.intersect_prim(slot, ray, tmax) {
-                        tmax = h.t;
-                        cand = Some(h);
-                        best = Some((slot, h.t));
-                    }
-                }
-                best
-            });
+        let mut top = TopClosest {
+            scene: self,
+            ray,
+            cand: None,
+        };
+        let found = agg.bvh.closest_with(ray, tmax, &mut top);
+        let cand = top.cand;
         // `cand` holds the latest accepted hit, which is the nearest: each accepted hit
         // shrinks tmax, so later candidates are always closer.
         if found.is_some() {
