@@ -503,6 +503,20 @@ pub fn limit(start: u32, best: Option<usize>, tmax: f32) -> f32 {
     }
 }
 
+/// For two leaves from slots `a` and `b` tested at once ([`ClosestLeaves::pair`]): the bound
+/// for both (the larger of their [`limit`]s) and whether a hit (slot, t) beats the best so far
+/// (at `tmax`, in slot `best`), by the bound of its own leaf.
+#[inline(always)]
+pub fn pair_limits(
+    a: u32,
+    b: u32,
+    best: Option<usize>,
+    tmax: f32,
+) -> (f32, impl Fn(usize, f32) -> bool) {
+    let beats = move |slot: usize, t: f32| t < limit(slot as u32, best, tmax);
+    (limit(a.min(b), best, tmax), beats)
+}
+
 /// What closest-hit traversal asks of the leaves it enters. A closure
 /// `FnMut(marked, first_slot, count, ray_tmax) -> Option<(slot, t)>` is one (see
 /// [`Bvh::closest_leaves`]); a type that can also test two marked leaves at once says so with
@@ -1471,9 +1485,10 @@ mod tests {
             ) -> Option<(usize, f32)> {
                 self.pairs += 1;
                 let (o, d) = (self.o, self.d);
+                let (bound, beats) = pair_limits(a.0, b.0, best, tmax);
                 let hit = self
                     .tris
-                    .nearest_pair(a, b, o, d, (0.0, tmax), best, self.avx2);
+                    .nearest_pair(a, b, o, d, (0.0, bound), beats, self.avx2);
                 hit.map(|(slot, t, _, _)| (slot, t))
             }
         }

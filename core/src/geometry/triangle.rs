@@ -560,11 +560,12 @@ impl LeafTris {
     }
 
     /// The nearest hit in two leaves of at most four slots each, `a` and `b` ((first slot,
-    /// count)), that beats the best so far: nearer than `tmax`, or at `tmax` in a slot below
-    /// `best` (see [`crate::accel::limit`]), as (slot, t, b1, b2), the lowest slot among
-    /// equal distances: what [`LeafTris::intersect`] on each, one after the other, gives,
-    /// lane by lane to the bit. With AVX2 (`avx2`, which the caller has checked) one 8-lane
-    /// test, else two 4-lane ones.
+    /// count)), among those within (tmin, bound) that `beats(slot, t)` accepts, as (slot, t,
+    /// b1, b2), the lowest slot among equal distances. With `beats` checking the bound each
+    /// leaf would be tested with (the traversal's tie rule) and `bound` the larger of the two,
+    /// as `crate::accel::pair_limits` gives them, this is what [`LeafTris::intersect`] on
+    /// each, one after the other, gives, lane by lane to the bit. With AVX2 (`avx2`, which
+    /// the caller has checked) one 8-lane test, else two 4-lane ones.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     pub fn nearest_pair(
@@ -573,16 +574,13 @@ impl LeafTris {
         b: (u32, u32),
         o: Vec3A,
         d: Vec3A,
-        (tmin, tmax): (f32, f32),
-        best: Option<usize>,
+        (tmin, bound): (f32, f32),
+        beats: impl Fn(usize, f32) -> bool,
         avx2: bool,
     ) -> Option<(usize, f32, f32, f32)> {
         assert!(a.1 <= 4 && b.1 <= 4, "leaves of at most four slots");
         let (la, lb) = (self.leaf(a.0, a.1), self.leaf(b.0, b.1));
         let (na, nb) = (a.1 as usize, b.1 as usize);
-        // Hits up to the larger of the two leaves' bounds, each lane checked against its own
-        // leaf's bound below.
-        let bound = crate::accel::limit(a.0.min(b.0), best, tmax);
         let (hits, [t, b1, b2]) = 'test: {
             #[cfg(target_arch = "x86_64")]
             if avx2 && na > 0 && nb > 0 {
@@ -615,12 +613,11 @@ impl LeafTris {
                 b.0 as usize + lane - 4
             };
             let th = t[lane];
-            let beats = th < tmax || (th == tmax && best.is_some_and(|b| slot < b));
             let nearer = match won {
                 None => true,
                 Some((s, l)) => th < t[l] || (th == t[l] && slot < s),
             };
-            if beats && nearer {
+            if nearer && beats(slot, th) {
                 won = Some((slot, lane));
             }
         }
@@ -846,8 +843,11 @@ mod tests {
                 for (tmax, best) in states {
                     for (x, y) in [(a, b), (b, a)] {
                         let want = bits(one_by_one(x, y, tmax, best));
+                        let bound = crate::accel::limit(x.0.min(y.0), best, tmax);
+                        let beats =
+                            |slot: usize, t: f32| t < crate::accel::limit(slot as u32, best, tmax);
                         for simd in [false, avx2] {
-                            let got = pack.nearest_pair(x, y, o, d, (0.0, tmax), best, simd);
+                            let got = pack.nearest_pair(x, y, o, d, (0.0, bound), beats, simd);
                             assert_eq!(bits(got), want, "nearest, {x:?} {y:?}, ray {k}, {simd}");
                         }
                     }

@@ -10,7 +10,7 @@
 //! outside the BVH. Triangles of materials that are not opaque pass the alpha test.
 
 use super::{ObjectKind, Scene};
-use crate::accel::{AnyLeaves, Bvh, ClosestLeaves};
+use crate::accel::{pair_limits, AnyLeaves, Bvh, ClosestLeaves};
 use crate::alloc::huge_vec;
 use crate::geometry::interaction::NO_SLOT;
 use crate::geometry::triangle::{leaf_runs, LeafTris, Mesh, TriangleGeom};
@@ -342,7 +342,8 @@ impl ClosestLeaves for TopClosest<'_> {
         best: Option<usize>,
     ) -> Option<(usize, f32)> {
         let (ray, tris) = (self.ray, &self.scene.aggregate.tris);
-        let (slot, t, b1, b2) = tris.nearest_pair(a, b, ray.o, ray.d, (0.0, tmax), best, true)?;
+        let (bound, beats) = pair_limits(a.0, b.0, best, tmax);
+        let (slot, t, b1, b2) = tris.nearest_pair(a, b, ray.o, ray.d, (0.0, bound), beats, true)?;
         self.packed_hit(slot, t, b1, b2)
     }
 }
