@@ -13,7 +13,8 @@ use clap::Args;
 use glam::{Vec2, Vec3A};
 use rayon::prelude::*;
 use raytile_core::accel::{
-    AnyLeaves, Bvh, BvhBuildParams, PlocSearchDistance, SortPrecision, Width, PRESETS,
+    pair_limits, AnyLeaves, Bvh, BvhBuildParams, ClosestLeaves, PlocSearchDistance, SortPrecision,
+    Width, PRESETS,
 };
 use raytile_core::geometry::triangle::{LeafTris, TriangleGeom};
 use raytile_core::geometry::{Aabb, Ray};
@@ -342,29 +343,37 @@ pub fn run(args: BenchArgs) -> Result<()> {
             let packed = LeafTris::new(order.len(), bvh.leaves(), |slot| {
                 Some(tris[order[slot] as usize])
             });
+            // Closest hits, one leaf at a time and, as the renderer traces them with AVX2,
+            // two small leaves a node enters at once; both must hit the same triangles.
+            bvh.mark_leaves(|_, _| true);
             let mut figures = Vec::new();
             for rays in [&coherent, &incoherent] {
-                let t = Instant::now();
-                let hits: usize = rays
-                    .par_chunks(4096)
-                    .map(|c| {
-                        c.iter()
-                            .filter(|r| {
-                                bvh.closest_leaves(r, f32::INFINITY, |_, start, count, tmax| {
-                                    packed
-                                        .intersect(start, count, r.o, r.d, 0.0, tmax)
-                                        .map(|(lane, t, _, _)| (start as usize + lane, t))
-                                })
-                                .is_some()
+                let mut ways = Vec::new();
+                for pairs in [false, raytile_core::accel::avx2()] {
+                    let t = Instant::now();
+                    let hits: Vec<Option<(usize, f32)>> = rays
+                        .par_chunks(4096)
+                        .flat_map_iter(|c| {
+                            c.iter().map(|r| {
+                                let mut leaves = ClosestTris {
+                                    tris: &packed,
+                                    ray: r,
+                                    pairs,
+                                };
+                                bvh.closest_with(r, f32::INFINITY, &mut leaves)
                             })
-                            .count()
-                    })
-                    .sum();
-                figures.push((mrays(rays.len(), t.elapsed().as_secs_f64()), hits));
+                        })
+                        .collect();
+                    ways.push((mrays(rays.len(), t.elapsed().as_secs_f64()), hits));
+                }
+                anyhow::ensure!(
+                    ways[0].1 == ways[1].1,
+                    "closest hits one leaf at a time and with leaf pairs differ"
+                );
+                figures.push((ways[0].0, ways[1].0));
             }
             // Shadow rays (to the light, t < 1) one leaf at a time, then, as the renderer
             // casts them with AVX2, two leaves a node enters at once.
-            bvh.mark_leaves(|_, _| true);
             let mut shadows = Vec::new();
             for pairs in [false, raytile_core::accel::avx2()] {
                 let t = Instant::now();
@@ -393,14 +402,50 @@ pub fn run(args: BenchArgs) -> Result<()> {
             );
             let (sah_nodes, sah_leaves) = bvh.sah_cost();
             println!(
-                "| BVH {name}, {w}-wide, {} triangles | build {:.3} s; {:.2} Mrays/s coherent, {:.2} Mrays/s incoherent, {:.2} Mrays/s shadow ({:.2} with leaf pairs); {} nodes, {} leaves, {:.1} MB; SAH {:.2} nodes + {:.2} leaves |",
-                tris.len(), build, figures[0].0, figures[1].0, shadows[0].0, shadows[1].0,
+                "| BVH {name}, {w}-wide, {} triangles | build {:.3} s; {:.2} Mrays/s coherent ({:.2} with leaf pairs), {:.2} Mrays/s incoherent ({:.2} with leaf pairs), {:.2} Mrays/s shadow ({:.2} with leaf pairs); {} nodes, {} leaves, {:.1} MB; SAH {:.2} nodes + {:.2} leaves |",
+                tris.len(), build, figures[0].0, figures[0].1, figures[1].0, figures[1].1,
+                shadows[0].0, shadows[1].0,
                 bvh.node_count(), bvh.leaves().len(), bvh.memory_bytes() as f64 / 1e6, sah_nodes,
                 sah_leaves
             );
         }
     }
     Ok(())
+}
+
+/// The leaves of `raytile bench`'s mesh for closest hits: four triangles at a time, or two
+/// leaves at once if `pairs` (which needs AVX2), as the renderer tests them.
+struct ClosestTris<'a> {
+    tris: &'a LeafTris,
+    ray: &'a Ray,
+    pairs: bool,
+}
+
+impl ClosestLeaves for ClosestTris<'_> {
+    fn leaf(&mut self, _: bool, start: u32, count: u32, tmax: f32) -> Option<(usize, f32)> {
+        let (o, d) = (self.ray.o, self.ray.d);
+        let (lane, t, _, _) = self.tris.intersect(start, count, o, d, 0.0, tmax)?;
+        Some((start as usize + lane, t))
+    }
+
+    fn pairs(&self) -> bool {
+        self.pairs
+    }
+
+    fn pair(
+        &mut self,
+        a: (u32, u32),
+        b: (u32, u32),
+        tmax: f32,
+        best: Option<usize>,
+    ) -> Option<(usize, f32)> {
+        let (o, d) = (self.ray.o, self.ray.d);
+        let (bound, beats) = pair_limits(a.0, b.0, best, tmax);
+        let (slot, t, _, _) = self
+            .tris
+            .nearest_pair(a, b, o, d, (0.0, bound), beats, true)?;
+        Some((slot, t))
+    }
 }
 
 /// The leaves of `raytile bench`'s mesh for shadow rays (t < 1): four triangles at a time,

@@ -425,8 +425,9 @@ fn cluster_with_an_environment_matches_render() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
-/// `raytile bench` on small sizes: every figure printed, the BVH rows with the shadow-ray
-/// throughput both ways (the command fails if leaf pairs block other rays than single leaves).
+/// `raytile bench` on small sizes: every figure printed, the BVH rows with closest-hit and
+/// shadow-ray throughput both ways (the command fails if leaf pairs hit or block other rays
+/// than single leaves).
 #[test]
 fn bench_prints_its_figures_at_small_sizes() {
     let o = raytile()
@@ -451,7 +452,10 @@ fn bench_prints_its_figures_at_small_sizes() {
     assert_eq!(rows.len(), 2, "{out}");
     for row in rows {
         assert!(
-            row.contains("Mrays/s shadow (") && row.contains("with leaf pairs)"),
+            row.contains("Mrays/s coherent (")
+                && row.contains("Mrays/s incoherent (")
+                && row.contains("Mrays/s shadow (")
+                && row.contains("with leaf pairs)"),
             "{row}"
         );
     }
