@@ -10,11 +10,13 @@ use std::path::PathBuf;
 /// `raytile cluster` flags.
 #[derive(Args, Debug)]
 pub struct ClusterArgs {
-    /// Number of local workers.
-    #[arg(long, default_value_t = 2)]
+    /// Number of local workers (at most 256).
+    #[arg(long, default_value_t = 2,
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=256))]
     pub workers: usize,
-    /// Render threads in total, split among the workers (default: every core).
-    #[arg(long)]
+    /// Render threads in total, split among the workers, each given at least one (default:
+    /// every core; at most 1024).
+    #[arg(long, value_parser = crate::threads_flag(1))]
     pub threads: Option<usize>,
     /// Address of the coordinator (default: 127.0.0.1:8080; with --render, any free port
     /// on 127.0.0.1).

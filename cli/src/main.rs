@@ -35,6 +35,12 @@ enum Command {
     Cluster(cluster::ClusterArgs),
 }
 
+/// The parser of a `--threads` flag: `min` to [`raytile_worker::MAX_THREADS`].
+fn threads_flag(min: u64) -> clap::builder::RangedU64ValueParser<usize> {
+    clap::builder::RangedU64ValueParser::<usize>::new()
+        .range(min..=raytile_worker::MAX_THREADS as u64)
+}
+
 fn main() {
     let cli = Cli::parse();
     let result = match cli.command {

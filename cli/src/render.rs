@@ -1,6 +1,6 @@
 //! `raytile render`: one scene, one machine, one image.
 
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use raytile_core::film::{self, OutputOptions, ToneMap};
@@ -28,8 +28,8 @@ pub struct RenderArgs {
     /// Settings that differ from the scene's own.
     #[command(flatten)]
     pub overrides: RenderOverrides,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
+    /// Worker threads (default: all cores; at most 1024).
+    #[arg(long, value_parser = crate::threads_flag(1))]
     pub threads: Option<usize>,
     /// Exposure in stops for PNG output.
     #[arg(long, default_value_t = 0.0)]
@@ -75,9 +75,6 @@ pub fn run(args: RenderArgs) -> Result<()> {
     let settings = desc.render.resolve(&args.overrides).map_err(flag_error)?;
     let mut pool = rayon::ThreadPoolBuilder::new();
     if let Some(t) = args.threads {
-        if t == 0 {
-            bail!("--threads must be at least 1");
-        }
         pool = pool.num_threads(t);
     }
     let pool = pool.build().context("starting worker threads")?;

@@ -80,6 +80,50 @@ fn errors_are_one_line_and_a_nonzero_exit() {
     }
 }
 
+/// Thread and worker counts no machine has are refused by the flag parser, at once, before a
+/// thread is started (rather than spawning four billion of them).
+#[test]
+fn absurd_thread_and_worker_counts_are_refused() {
+    let s = scene("cornell-box.json");
+    let cases: [(&[&str], &str); 5] = [
+        (
+            &["render", &s, "-o", "x.png", "--threads", "4294967296"],
+            "--threads",
+        ),
+        (
+            &["render", &s, "-o", "x.png", "--threads", "1025"],
+            "--threads",
+        ),
+        (
+            &["render", &s, "-o", "x.png", "--threads", "0"],
+            "--threads",
+        ),
+        (
+            &["cluster", "--threads", "100000", "--render", &s],
+            "--threads",
+        ),
+        (
+            &["cluster", "--workers", "1000000", "--render", &s],
+            "--workers",
+        ),
+    ];
+    for (args, flag) in cases {
+        let t = std::time::Instant::now();
+        let o = raytile().args(args).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert!(
+            err.contains(flag) && err.contains("not in"),
+            "{args:?}: {err}"
+        );
+        assert!(
+            t.elapsed().as_secs() < 10,
+            "{args:?} took {:?}",
+            t.elapsed()
+        );
+    }
+}
+
 /// `raytile submit` refuses what it can tell is wrong before it uploads anything: nothing listens
 /// at the coordinator address, so reaching it would be a different error.
 #[test]

@@ -40,6 +40,11 @@ pub struct Stats {
     pub cancelled: AtomicU64,
 }
 
+/// The most render threads a worker (or `raytile render`) starts: far more than any machine
+/// has cores, and few enough that a mistyped count is an error rather than an hour of
+/// spawning threads.
+pub const MAX_THREADS: usize = 1024;
+
 /// How a worker runs.
 #[derive(Clone, Debug)]
 pub struct Config {
@@ -47,7 +52,7 @@ pub struct Config {
     pub coordinator: String,
     /// Bearer token.
     pub token: Option<String>,
-    /// Render threads; 0 means every core.
+    /// Render threads; 0 means every core; at most [`MAX_THREADS`].
     pub threads: usize,
     /// Name shown in `GET /v1/workers`.
     pub name: String,
@@ -157,6 +162,11 @@ enum Flow {
 /// Runs the worker until `shutdown` completes. A task being rendered when it does is handed
 /// back to the coordinator. Returns an error only for bad configuration.
 pub async fn run(config: Config, shutdown: impl Future<Output = ()> + Send) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        config.threads <= MAX_THREADS,
+        "render threads: at most {MAX_THREADS}, not {}",
+        config.threads
+    );
     let threads = if config.threads == 0 {
         std::thread::available_parallelism().map_or(1, |n| n.get())
     } else {
@@ -786,5 +796,15 @@ mod tests {
             .expect("the upload hung");
         assert_eq!(stats.accepted.load(Ordering::SeqCst), 0);
         assert_eq!(served.load(Ordering::SeqCst), UPLOAD_SERVER_ERRORS as u64);
+    }
+
+    /// A configuration asking for more render threads than [`MAX_THREADS`] is an error before
+    /// any thread starts or the coordinator is asked for work.
+    #[tokio::test]
+    async fn too_many_threads_is_a_configuration_error() {
+        let mut config = Config::new("http://127.0.0.1:9");
+        config.threads = MAX_THREADS + 1;
+        let err = run(config, std::future::pending()).await.unwrap_err();
+        assert!(err.to_string().contains("at most 1024"), "{err}");
     }
 }

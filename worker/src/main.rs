@@ -21,8 +21,8 @@ struct Args {
     /// Bearer token.
     #[arg(long, env = "RAYTILE_TOKEN", hide_env_values = true)]
     token: Option<String>,
-    /// Render threads (default: every core).
-    #[arg(long, env = "RAYTILE_THREADS", default_value_t = 0)]
+    /// Render threads (default, or 0: every core; at most 1024).
+    #[arg(long, env = "RAYTILE_THREADS", default_value_t = 0, value_parser = threads_flag())]
     threads: usize,
     /// Name shown by the coordinator (default: host name).
     #[arg(long, env = "RAYTILE_NAME")]
@@ -77,4 +77,10 @@ async fn main() {
         eprintln!("raytile-worker: {e:#}");
         std::process::exit(1);
     }
+}
+
+/// The parser of `--threads`: 0 (every core) to [`raytile_worker::MAX_THREADS`].
+fn threads_flag() -> clap::builder::RangedU64ValueParser<usize> {
+    clap::builder::RangedU64ValueParser::<usize>::new()
+        .range(0..=raytile_worker::MAX_THREADS as u64)
 }

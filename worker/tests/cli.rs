@@ -46,3 +46,19 @@ fn a_coordinator_that_is_no_url_is_refused_at_once() {
         "{err}"
     );
 }
+
+/// A thread count no machine has is refused by the flag parser, before any thread starts.
+#[test]
+fn an_absurd_thread_count_is_refused_at_once() {
+    for threads in ["1025", "4294967296", "-1"] {
+        let out = Command::new(env!("CARGO_BIN_EXE_raytile-worker"))
+            .args(["--coordinator", "http://127.0.0.1:9"])
+            .arg(format!("--threads={threads}"))
+            .env_remove("RAYTILE_TOKEN")
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{threads}: {err}");
+        assert!(err.contains("--threads"), "{threads}: {err}");
+    }
+}
