@@ -28,6 +28,10 @@ pub struct ClusterArgs {
     /// Bearer token for the coordinator.
     #[arg(long, env = "RAYTILE_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
+    /// Allow a non-loopback --listen address without a token (anyone who reaches it may
+    /// submit jobs).
+    #[arg(long)]
+    pub insecure: bool,
     /// Render this scene, write the image to -o and exit.
     #[arg(long)]
     pub render: Option<PathBuf>,
@@ -66,6 +70,7 @@ async fn cluster(a: ClusterArgs) -> anyhow::Result<()> {
         .unwrap_or_else(|| tmp.path().join("data"));
     let mut cfg = raytile_coordinator::Config::new(&data_dir);
     cfg.token = a.token.clone().filter(|t| !t.is_empty());
+    cfg.insecure = a.insecure;
     cfg.startup_grace = std::time::Duration::from_secs(5);
     let listen = a.listen.clone().unwrap_or_else(|| {
         if a.render.is_some() {
@@ -89,11 +94,23 @@ async fn cluster(a: ClusterArgs) -> anyhow::Result<()> {
     let stopped = |mut rx: tokio::sync::watch::Receiver<bool>| async move {
         let _ = rx.wait_for(|v| *v).await;
     };
-    let coord = tokio::spawn(raytile_coordinator::run(
+    let mut coord = tokio::spawn(raytile_coordinator::run(
         listener,
         cfg,
         stopped(stop_rx.clone()),
     ));
+    // The coordinator refuses to start on a bad data folder or an exposed address without a
+    // token: wait until it answers, or stop with its error, before any worker starts.
+    let api = Client::new(&base, a.token.clone())?;
+    loop {
+        tokio::select! {
+            r = &mut coord => return Err(coordinator_stopped(r)),
+            up = api.health() => match up {
+                Ok(_) => break,
+                Err(_) => tokio::time::sleep(std::time::Duration::from_millis(20)).await,
+            },
+        }
+    }
     let total = a
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
@@ -113,24 +130,44 @@ async fn cluster(a: ClusterArgs) -> anyhow::Result<()> {
             stopped(stop_workers_rx.clone()),
         )));
     }
-    let result = match &a.render {
-        Some(scene) => {
-            let api = Client::new(&base, a.token.clone())?;
-            submit::submit_and_follow(&api, scene, &a.job, true, Some(a.output.as_path()))
-                .await
-                .map(|_| ())
+    let work = async {
+        match &a.render {
+            Some(scene) => {
+                submit::submit_and_follow(&api, scene, &a.job, true, Some(a.output.as_path()))
+                    .await
+                    .map(|_| ())
+            }
+            None => {
+                eprintln!(
+                    "raytile cluster: coordinator on {base} with {n} workers; Ctrl-C to stop"
+                );
+                tokio::signal::ctrl_c().await.ok();
+                Ok(())
+            }
         }
-        None => {
-            eprintln!("raytile cluster: coordinator on {base} with {n} workers; Ctrl-C to stop");
-            tokio::signal::ctrl_c().await.ok();
-            Ok(())
-        }
+    };
+    // A coordinator that stops on its own (its database failing, say) ends the cluster with
+    // its error rather than leaving the workers asking a dead address.
+    let (result, coord_done) = tokio::select! {
+        r = work => (r, None),
+        r = &mut coord => (Err(coordinator_stopped(r)), Some(())),
     };
     let _ = stop_workers_tx.send(true);
     for w in workers {
         let _ = w.await;
     }
     let _ = stop_tx.send(true);
-    let _ = coord.await;
+    if coord_done.is_none() {
+        let _ = coord.await;
+    }
     result
+}
+
+/// The error of a coordinator task that ended before it was asked to stop.
+fn coordinator_stopped(r: Result<anyhow::Result<()>, tokio::task::JoinError>) -> anyhow::Error {
+    match r {
+        Ok(Err(e)) => e.context("the coordinator stopped"),
+        Ok(Ok(())) => anyhow::anyhow!("the coordinator stopped unexpectedly"),
+        Err(e) => anyhow::anyhow!("the coordinator failed: {e}"),
+    }
 }

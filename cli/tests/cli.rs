@@ -124,6 +124,49 @@ fn absurd_thread_and_worker_counts_are_refused() {
     }
 }
 
+/// A coordinator that cannot start ends `raytile cluster` at once with its error (it used to
+/// print its banner, or report the upload it could not make, while nothing listened).
+#[test]
+fn cluster_stops_with_the_coordinators_start_error() {
+    let dir = std::env::temp_dir().join(format!("raytile-cli-baddb-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("raytile.sqlite3"), "not a database").unwrap();
+    let d = dir.to_str().unwrap();
+    let s = scene("cornell-box.json");
+    let cases: [(&[&str], &str); 3] = [
+        (
+            &["--data-dir", d, "--listen", "127.0.0.1:0"],
+            "opening the database",
+        ),
+        (
+            &["--data-dir", d, "--render", &s, "-o", "x.png"],
+            "opening the database",
+        ),
+        (&["--listen", "0.0.0.0:0"], "without a token"),
+    ];
+    for (args, want) in cases {
+        let t = std::time::Instant::now();
+        let o = raytile()
+            .arg("cluster")
+            .args(args)
+            .env_remove("RAYTILE_TOKEN")
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+        assert!(
+            err.contains("the coordinator stopped") && err.contains(want),
+            "{args:?}: {err}"
+        );
+        assert!(
+            t.elapsed().as_secs() < 10,
+            "{args:?} took {:?}",
+            t.elapsed()
+        );
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// `raytile submit` refuses what it can tell is wrong before it uploads anything: nothing listens
 /// at the coordinator address, so reaching it would be a different error.
 #[test]
