@@ -717,3 +717,133 @@ async fn priority_and_tiles_of_a_job() {
         .iter()
         .all(|t| t["passes_done"] == 0 && t["workers"].as_array().unwrap().is_empty()));
 }
+
+/// A tar archive of regular files (a name ending in '/' is a folder record), names written as
+/// given: `./a` and `x//y` stay as they are.
+fn raw_tar(members: &[(&str, &[u8])]) -> Vec<u8> {
+    let mut out = Vec::new();
+    for (name, data) in members {
+        let dir = name.ends_with('/');
+        let data: &[u8] = if dir { b"" } else { data };
+        let mut h = [0u8; 512];
+        h[..name.len()].copy_from_slice(name.as_bytes());
+        h[100..107].copy_from_slice(b"0000644");
+        h[108..115].copy_from_slice(b"0000000");
+        h[116..123].copy_from_slice(b"0000000");
+        h[124..135].copy_from_slice(format!("{:011o}", data.len()).as_bytes());
+        h[136..147].copy_from_slice(b"00000000000");
+        h[156] = if dir { b'5' } else { b'0' };
+        h[257..265].copy_from_slice(b"ustar\x0000");
+        h[148..156].copy_from_slice(b"        ");
+        let sum: u32 = h.iter().map(|&b| b as u32).sum();
+        h[148..155].copy_from_slice(format!("{sum:06o}\0").as_bytes());
+        out.extend_from_slice(&h);
+        out.extend_from_slice(data);
+        out.resize(out.len().div_ceil(512) * 512, 0);
+    }
+    out.resize(out.len() + 1024, 0);
+    out
+}
+
+/// A zip archive of stored members with names written as given, duplicates included (CRCs
+/// left at zero: only the names are read before such an archive is refused).
+fn raw_zip(names: &[&str]) -> Vec<u8> {
+    let (mut out, mut central) = (Vec::new(), Vec::new());
+    for name in names {
+        let offset = out.len() as u32;
+        let n = name.len() as u16;
+        // Signature, version 2.0, no flags, stored, time, date, CRC and sizes zero.
+        out.extend_from_slice(b"PK\x03\x04");
+        out.extend_from_slice(&20u16.to_le_bytes());
+        out.extend_from_slice(&[0u8; 20]);
+        out.extend_from_slice(&n.to_le_bytes());
+        out.extend_from_slice(&0u16.to_le_bytes());
+        out.extend_from_slice(name.as_bytes());
+        // The same in the central directory, made by Unix, then no extra field, no comment,
+        // disk 0, attributes 0 and the local header's offset.
+        central.extend_from_slice(b"PK\x01\x02");
+        central.extend_from_slice(&0x0314u16.to_le_bytes());
+        central.extend_from_slice(&20u16.to_le_bytes());
+        central.extend_from_slice(&[0u8; 20]);
+        central.extend_from_slice(&n.to_le_bytes());
+        central.extend_from_slice(&[0u8; 12]);
+        central.extend_from_slice(&offset.to_le_bytes());
+        central.extend_from_slice(name.as_bytes());
+    }
+    let (start, len) = (out.len() as u32, central.len() as u32);
+    out.extend_from_slice(&central);
+    let count = (names.len() as u16).to_le_bytes();
+    out.extend_from_slice(b"PK\x05\x06\0\0\0\0");
+    out.extend_from_slice(&count);
+    out.extend_from_slice(&count);
+    out.extend_from_slice(&len.to_le_bytes());
+    out.extend_from_slice(&start.to_le_bytes());
+    out.extend_from_slice(&0u16.to_le_bytes());
+    out
+}
+
+/// Archives whose member paths clash once normalised (a name twice, `./a` and `a`, `x//y` and
+/// `x/y`, a file that another member needs as a folder) are refused with a 422 naming the
+/// member, tar and zip alike, and leave nothing in the data directory.
+#[tokio::test]
+async fn archives_whose_paths_clash_are_refused_naming_the_member() {
+    let dir = tempfile::tempdir().unwrap();
+    let st = test_state(dir.path(), None);
+    let s: &[u8] = br#"{"objects": []}"#;
+    let mut cases: Vec<(&str, Vec<u8>, &str)> = vec![
+        (
+            "tar",
+            raw_tar(&[("scene.json", s), ("scene.json", s)]),
+            "scene.json",
+        ),
+        (
+            "tar",
+            raw_tar(&[("scene.json", s), ("./scene.json", s)]),
+            "./scene.json",
+        ),
+        (
+            "tar",
+            raw_tar(&[("scene.json", s), ("x//y", s), ("x/y", s)]),
+            "x/y",
+        ),
+        (
+            "tar",
+            raw_tar(&[("scene.json", s), ("a", s), ("a/b", s)]),
+            "a/b",
+        ),
+        (
+            "tar",
+            raw_tar(&[("scene.json", s), ("a/", s), ("a", s)]),
+            "a",
+        ),
+    ];
+    for (names, culprit) in [
+        (&["scene.json", "scene.json"][..], "scene.json"),
+        (&["scene.json", "./scene.json"][..], "./scene.json"),
+        (&["scene.json", "a", "a/b"][..], "a/b"),
+    ] {
+        cases.push(("zip", raw_zip(names), culprit));
+    }
+    for (format, blob, culprit) in cases {
+        let (code, body) = call(&st, post(&format!("/v1/scenes?format={format}"), blob)).await;
+        assert_eq!(
+            code,
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "{format} {culprit}: {body}"
+        );
+        assert_error_body(culprit, &body);
+        let message = body["error"]["message"].as_str().unwrap();
+        assert!(
+            message.contains(&format!("refusing archive member '{culprit}'")),
+            "{format} {culprit}: {body}"
+        );
+        for d in ["scenes", "tmp"] {
+            let left: Vec<_> = std::fs::read_dir(dir.path().join(d)).unwrap().collect();
+            assert!(left.is_empty(), "{format} {culprit}: {d}/ holds {left:?}");
+        }
+    }
+    // The same members without the clash are a scene.
+    let ok = raw_tar(&[("scene.json", s), ("a/", s), ("a//b", s)]);
+    let (code, body) = call(&st, post("/v1/scenes?format=tar", ok)).await;
+    assert_eq!(code, StatusCode::CREATED, "{body}");
+}

@@ -17,6 +17,11 @@ pub enum PackageError {
     /// An archive member would land outside the folder, or is a link or device.
     #[error("refusing archive member '{0}': {1}")]
     UnsafeMember(String, &'static str),
+    /// Two members land on the same path once their names are normalised (`a` and `./a`, a
+    /// name given twice), or a member is a file where another one needs a folder (`a` and
+    /// `a/b`).
+    #[error("refusing archive member '{0}': {1}")]
+    Clash(String, String),
     /// The archive unpacks to too much data or too many files.
     #[error("archive too large when unpacked (limit {0} bytes, {1} files)")]
     TooLarge(u64, usize),
@@ -159,44 +164,32 @@ pub fn unpack(
             return Ok(dest);
         }
         SceneFormat::Tar => {
-            let f = std::fs::File::open(blob)?;
-            let mut ar = tar::Archive::new(f);
+            // Every member is looked at before anything is written: an archive whose paths
+            // clash is refused as a whole.
+            let mut paths = MemberPaths::default();
+            let mut ar = tar::Archive::new(std::fs::File::open(blob)?);
+            let entries = ar
+                .entries_with_seek()
+                .map_err(|e| PackageError::Archive(e.to_string()))?;
+            for e in entries {
+                let e = e.map_err(|e| PackageError::Archive(e.to_string()))?;
+                if let Some(m) = tar_member(&e)? {
+                    paths.add(&m, limits)?;
+                }
+            }
+            let mut ar = tar::Archive::new(std::fs::File::open(blob)?);
             let entries = ar
                 .entries()
                 .map_err(|e| PackageError::Archive(e.to_string()))?;
             for e in entries {
                 let mut e = e.map_err(|e| PackageError::Archive(e.to_string()))?;
-                let name = e
-                    .path()
-                    .map_err(|e| PackageError::Archive(e.to_string()))?
-                    .to_string_lossy()
-                    .into_owned();
-                let rel = safe_relative(&name)?;
-                let kind = e.header().entry_type();
-                if kind.is_dir() {
+                let Some(m) = tar_member(&e)? else { continue };
+                if m.is_dir {
                     continue;
-                }
-                if kind.is_pax_global_extensions()
-                    || kind.is_pax_local_extensions()
-                    || kind.is_gnu_longname()
-                {
-                    continue;
-                }
-                if !kind.is_file() {
-                    return Err(PackageError::UnsafeMember(
-                        name,
-                        "links and special files are not allowed",
-                    ));
-                }
-                if rel.as_os_str().is_empty() {
-                    continue;
-                }
-                if files.len() >= limits.max_files {
-                    return Err(PackageError::TooLarge(limits.max_bytes, limits.max_files));
                 }
                 let declared = e.header().size().unwrap_or(u64::MAX);
-                copy_limited(&mut e, declared, &dir.join(&rel), &mut budget, limits)?;
-                files.push(rel);
+                copy_limited(&mut e, declared, &dir.join(&m.rel), &mut budget, limits)?;
+                files.push(m.rel);
             }
         }
         SceneFormat::Zip => {
@@ -206,28 +199,188 @@ pub fn unpack(
             if ar.len() > limits.max_files {
                 return Err(PackageError::TooLarge(limits.max_bytes, limits.max_files));
             }
+            // The zip reader keeps one member per name: a name given twice is found in the
+            // central directory itself.
+            let start = ar.central_directory_start();
+            zip_duplicate_name(&mut std::fs::File::open(blob)?, start, ar.len(), limits)?;
+            let mut paths = MemberPaths::default();
+            for i in 0..ar.len() {
+                let e = ar
+                    .by_index_raw(i)
+                    .map_err(|e| PackageError::Archive(e.to_string()))?;
+                if let Some(m) = zip_member(e.name(), e.is_dir(), e.is_symlink())? {
+                    paths.add(&m, limits)?;
+                }
+            }
             for i in 0..ar.len() {
                 let mut e = ar
                     .by_index(i)
                     .map_err(|e| PackageError::Archive(e.to_string()))?;
-                let name = e.name().to_string();
-                let rel = safe_relative(&name)?;
-                if e.is_dir() {
+                let Some(m) = zip_member(e.name(), e.is_dir(), e.is_symlink())? else {
                     continue;
-                }
-                if e.is_symlink() {
-                    return Err(PackageError::UnsafeMember(name, "links are not allowed"));
-                }
-                if rel.as_os_str().is_empty() {
+                };
+                if m.is_dir {
                     continue;
                 }
                 let declared = e.size();
-                copy_limited(&mut e, declared, &dir.join(&rel), &mut budget, limits)?;
-                files.push(rel);
+                copy_limited(&mut e, declared, &dir.join(&m.rel), &mut budget, limits)?;
+                files.push(m.rel);
             }
         }
     }
     pick_entry(&files, entry).map(|rel| dir.join(rel))
+}
+
+/// An archive member that unpacks to something: a file or a folder, by its name in the
+/// archive and its normalised relative path.
+struct Member {
+    name: String,
+    rel: PathBuf,
+    is_dir: bool,
+}
+
+/// A tar member as unpacked: `None` for the records that are no file of the scene (pax and
+/// GNU long-name records, the archive's own root folder); links and special files refused.
+fn tar_member<R: Read>(e: &tar::Entry<'_, R>) -> Result<Option<Member>, PackageError> {
+    let name = e
+        .path()
+        .map_err(|e| PackageError::Archive(e.to_string()))?
+        .to_string_lossy()
+        .into_owned();
+    let rel = safe_relative(&name)?;
+    let kind = e.header().entry_type();
+    if kind.is_pax_global_extensions() || kind.is_pax_local_extensions() || kind.is_gnu_longname() {
+        return Ok(None);
+    }
+    let is_dir = kind.is_dir();
+    if !is_dir && !kind.is_file() {
+        return Err(PackageError::UnsafeMember(
+            name,
+            "links and special files are not allowed",
+        ));
+    }
+    if rel.as_os_str().is_empty() {
+        return Ok(None);
+    }
+    Ok(Some(Member { name, rel, is_dir }))
+}
+
+/// A zip member as unpacked (see [`tar_member`]).
+fn zip_member(name: &str, is_dir: bool, is_link: bool) -> Result<Option<Member>, PackageError> {
+    let rel = safe_relative(name)?;
+    if is_link && !is_dir {
+        return Err(PackageError::UnsafeMember(
+            name.into(),
+            "links are not allowed",
+        ));
+    }
+    if rel.as_os_str().is_empty() {
+        return Ok(None);
+    }
+    Ok(Some(Member {
+        name: name.into(),
+        rel,
+        is_dir,
+    }))
+}
+
+/// The paths an archive's members unpack to, each with the first member that needs it: a
+/// file, or a folder (named, or holding a file). Two members clash when they are the same
+/// file, or when one is a file and the other needs that path to be a folder.
+#[derive(Default)]
+struct MemberPaths {
+    files: std::collections::HashMap<PathBuf, String>,
+    folders: std::collections::HashMap<PathBuf, String>,
+    named_folders: usize,
+}
+
+impl MemberPaths {
+    fn add(&mut self, m: &Member, limits: UnpackLimits) -> Result<(), PackageError> {
+        let clash = |why: String| Err(PackageError::Clash(m.name.clone(), why));
+        if m.is_dir {
+            self.named_folders += 1;
+        }
+        if (!m.is_dir && self.files.len() >= limits.max_files)
+            || self.named_folders > limits.max_files
+        {
+            return Err(PackageError::TooLarge(limits.max_bytes, limits.max_files));
+        }
+        if let Some(other) = self.files.get(&m.rel) {
+            return clash(if m.is_dir {
+                format!("member '{other}' is a file of that path, so it cannot be a folder")
+            } else {
+                format!("member '{other}' is the same file (names are compared after removing './' and repeated '/')")
+            });
+        }
+        if !m.is_dir {
+            if let Some(other) = self.folders.get(&m.rel) {
+                return clash(format!(
+                    "member '{other}' makes that path a folder, so it cannot be a file"
+                ));
+            }
+        }
+        // The folders this member needs: its parents, and itself if it is one.
+        let skip = usize::from(!m.is_dir);
+        for folder in m.rel.ancestors().skip(skip) {
+            if folder.as_os_str().is_empty() {
+                break;
+            }
+            if let Some(other) = self.files.get(folder) {
+                return clash(format!(
+                    "member '{other}' is a file, so '{}' cannot be a folder",
+                    folder.display()
+                ));
+            }
+            self.folders
+                .entry(folder.to_path_buf())
+                .or_insert_with(|| m.name.clone());
+        }
+        if !m.is_dir {
+            self.files.insert(m.rel.clone(), m.name.clone());
+        }
+        Ok(())
+    }
+}
+
+/// Reads the names in a zip's central directory (at `start`, `members` the number of distinct
+/// names the zip reader found) and refuses the archive when a name is given twice: the
+/// reader would keep only one of them.
+fn zip_duplicate_name<R: Read + std::io::Seek>(
+    r: &mut R,
+    start: u64,
+    members: usize,
+    limits: UnpackLimits,
+) -> Result<(), PackageError> {
+    const CENTRAL_HEADER: [u8; 4] = [0x50, 0x4b, 0x01, 0x02];
+    let bad = |e: std::io::Error| PackageError::Archive(format!("reading the zip directory: {e}"));
+    r.seek(std::io::SeekFrom::Start(start)).map_err(bad)?;
+    let mut r = std::io::BufReader::new(r);
+    let mut seen = std::collections::HashSet::new();
+    let mut fixed = [0u8; 46];
+    loop {
+        match r.read_exact(&mut fixed) {
+            Ok(()) if fixed[..4] == CENTRAL_HEADER => {}
+            // The end of the directory (the end records follow it).
+            _ => break,
+        }
+        let len = |i: usize| u16::from_le_bytes([fixed[i], fixed[i + 1]]) as usize;
+        let (name_len, rest) = (len(28), len(30) + len(32));
+        let mut name = vec![0u8; name_len];
+        r.read_exact(&mut name).map_err(bad)?;
+        std::io::copy(&mut (&mut r).take(rest as u64), &mut std::io::sink()).map_err(bad)?;
+        if seen.contains(&name) {
+            let name = String::from_utf8_lossy(&name).into_owned();
+            return Err(PackageError::Clash(
+                name,
+                "the archive holds that name twice".into(),
+            ));
+        }
+        seen.insert(name);
+        if seen.len() > members.max(limits.max_files) {
+            return Err(PackageError::TooLarge(limits.max_bytes, limits.max_files));
+        }
+    }
+    Ok(())
 }
 
 fn is_scene_file(p: &Path) -> bool {
@@ -390,15 +543,21 @@ mod tests {
     fn tar_with(members: &[(&str, &[u8])]) -> Vec<u8> {
         let mut b = tar::Builder::new(Vec::new());
         for (name, data) in members {
+            // A name ending in '/' is a folder record.
+            let data = if name.ends_with('/') { &[][..] } else { data };
             let mut h = tar::Header::new_gnu();
             h.set_size(data.len() as u64);
             h.set_mode(0o644);
-            h.set_entry_type(tar::EntryType::Regular);
+            h.set_entry_type(if name.ends_with('/') {
+                tar::EntryType::Directory
+            } else {
+                tar::EntryType::Regular
+            });
             // set_path refuses '..', so write the raw name as an attacker would.
             let raw = &mut h.as_old_mut().name;
             raw[..name.len()].copy_from_slice(name.as_bytes());
             h.set_cksum();
-            b.append(&h, *data).unwrap();
+            b.append(&h, data).unwrap();
         }
         b.into_inner().unwrap()
     }
@@ -531,6 +690,98 @@ mod tests {
             pack_files(&files, &mut out).unwrap();
             assert_eq!(packed_size(&files), out.len() as u64, "{files:?}");
         }
+    }
+
+    fn zip_with(members: &[(&str, &[u8])]) -> Vec<u8> {
+        let mut w = zip::ZipWriter::new(std::io::Cursor::new(Vec::new()));
+        for (name, data) in members {
+            let opts = zip::write::SimpleFileOptions::default()
+                .compression_method(zip::CompressionMethod::Stored);
+            if let Some(folder) = name.strip_suffix('/') {
+                w.add_directory(folder, opts).unwrap();
+            } else {
+                w.start_file(*name, opts).unwrap();
+                std::io::Write::write_all(&mut w, data).unwrap();
+            }
+        }
+        w.finish().unwrap().into_inner()
+    }
+
+    /// Unpacks into a fresh folder; the error, and whether anything was written.
+    fn unpack_error(blob: &[u8]) -> (String, bool) {
+        let t = tempfile::tempdir().unwrap();
+        let p = t.path().join("blob");
+        std::fs::write(&p, blob).unwrap();
+        let out = t.path().join("out");
+        std::fs::create_dir(&out).unwrap();
+        let fmt = sniff(blob).unwrap();
+        let e = unpack(&p, fmt, None, &out, UnpackLimits::default()).unwrap_err();
+        let written = std::fs::read_dir(&out).unwrap().next().is_some();
+        (e.to_string(), written)
+    }
+
+    #[test]
+    fn refuses_archives_whose_paths_clash_before_writing_anything() {
+        let s: &[u8] = b"{}";
+        type Members<'a> = &'a [(&'a str, &'a [u8])];
+        let cases: [(Members, &str); 7] = [
+            (&[("scene.json", s), ("scene.json", s)], "scene.json"),
+            (&[("scene.json", s), ("./scene.json", s)], "./scene.json"),
+            (&[("scene.json", s), ("x/y", s), ("x//y", s)], "x//y"),
+            (&[("scene.json", s), ("a", s), ("a/b", s)], "a/b"),
+            (&[("scene.json", s), ("a/b", s), ("a", s)], "a"),
+            (&[("scene.json", s), ("a/", s), ("a", s)], "a"),
+            (&[("scene.json", s), ("a", s), ("a/", s)], "a/"),
+        ];
+        for (members, culprit) in cases {
+            let (e, written) = unpack_error(&tar_with(members));
+            assert!(
+                e.starts_with(&format!("refusing archive member '{culprit}': ")),
+                "tar {members:?}: {e}"
+            );
+            assert!(
+                !written,
+                "tar {members:?}: files written before the refusal"
+            );
+        }
+        // Zip: the writer refuses a name twice, so the second name is made equal afterwards.
+        let mut z = zip_with(&[("scene.json", s), ("scene.jsoX", s)]);
+        let mut at = 0;
+        while let Some(i) = z[at..].windows(10).position(|w| w == b"scene.jsoX") {
+            z[at + i + 9] = b'n';
+            at += i + 10;
+        }
+        let (e, written) = unpack_error(&z);
+        assert!(e.contains("'scene.json'") && e.contains("twice"), "{e}");
+        assert!(!written);
+        for (members, culprit) in [
+            (&[("scene.json", s), ("a", s), ("a/b", s)][..], "a/b"),
+            (
+                &[("scene.json", s), ("./scene.json", s)][..],
+                "./scene.json",
+            ),
+            (&[("scene.json", s), ("a/", s), ("a", s)][..], "a"),
+        ] {
+            let (e, written) = unpack_error(&zip_with(members));
+            assert!(
+                e.starts_with(&format!("refusing archive member '{culprit}': ")),
+                "zip {members:?}: {e}"
+            );
+            assert!(
+                !written,
+                "zip {members:?}: files written before the refusal"
+            );
+        }
+        // Folders named on their own and by their files are fine.
+        let t = tar_with(&[("d/s.gltf", s), ("d/tex/a.png", s), ("d/tex/b.png", s)]);
+        assert_eq!(check_unpack(&t, None).unwrap(), "d/s.gltf");
+        let z = zip_with(&[
+            ("d/", s),
+            ("d/s.gltf", s),
+            ("d/tex/", s),
+            ("d/tex/a.png", s),
+        ]);
+        assert_eq!(check_unpack(&z, None).unwrap(), "d/s.gltf");
     }
 
     #[test]
