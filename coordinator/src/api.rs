@@ -624,6 +624,24 @@ fn check_splats(splats: &[(u32, [i64; 3])], splat_pixels: Option<u64>) -> Result
     Ok(())
 }
 
+/// Every pixel sum of a result must be a finite number: a NaN or an infinity would turn the
+/// tile black (or spread into the frame) when it is composed. (Splats are integers, always
+/// finite.) The error names the first pixel, in frame coordinates, and the value.
+fn check_finite(acc: &proto::tile::TileAccum) -> Result<(), String> {
+    let w = acc.tile.width().max(1) as usize;
+    for (i, p) in acc.pixels.iter().enumerate() {
+        if let Some(k) = p.iter().position(|v| !v.is_finite()) {
+            let (x, y) = (acc.tile.x0 as usize + i % w, acc.tile.y0 as usize + i / w);
+            let what = ["red sum", "green sum", "blue sum", "weight"][k];
+            return Err(format!(
+                "pixel ({x}, {y}) has a {what} of {}: a result's sums must be finite numbers",
+                p[k]
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Path parameters of a result upload (by name, so that a bad one is named in the answer).
 #[derive(Deserialize)]
 struct TaskPath {
@@ -644,10 +662,10 @@ async fn upload_result(
     headers: HeaderMap,
     body: Body,
 ) -> Result<Json<proto::ResultReply>, AppError> {
-    let (tile, splat_pixels) = {
+    let (tile, task_pass, splat_pixels) = {
         let s = state.sched();
-        let (tile, _) = s.task_for_upload(&job, task)?;
-        (tile, s.splat_pixels(&job))
+        let (tile, pass) = s.task_for_upload(&job, task)?;
+        (tile, pass, s.splat_pixels(&job))
     };
     let expected = proto::tile::encoded_len(&tile);
     // A bdpt result carries at most one splat per pixel of the frame after its pixels.
@@ -674,6 +692,29 @@ async fn upload_result(
         proto::tile::decode(&buf).map_err(|e| AppError::invalid("body", e.to_string()))?;
     check_splats(&acc.splats, splat_pixels)?;
     let worker = q.worker.unwrap_or_else(|| "unknown".into());
+    if let Err(why) = check_finite(&acc) {
+        // Refused, so that no frame shows a corrupted tile. When the sender holds the task's
+        // lease, the refusal counts as a failure of the task on that worker: the task is
+        // queued again at once for another worker (or fails its job after
+        // --max-task-failures), and a worker that keeps sending such results is blocked from
+        // the job like any failing worker. Nothing is lost: the tile is rendered again.
+        let message = format!("result refused: {why}");
+        if acc.tile == tile && pass == task_pass {
+            let now = state.now();
+            let changed = {
+                let mut s = state.sched();
+                match s.lease_held_by(&job, task, &worker) {
+                    Some(lease) => s.fail(&lease, &message, now)?,
+                    None => false,
+                }
+            };
+            if changed {
+                tracing::warn!(%job, task, %worker, "{message}");
+                state.notify.notify_waiters();
+            }
+        }
+        return Err(AppError::invalid("body", message));
+    }
     let delivery = Delivery {
         worker: &worker,
         tile: acc.tile,

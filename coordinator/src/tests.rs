@@ -847,3 +847,92 @@ async fn archives_whose_paths_clash_are_refused_naming_the_member() {
     let (code, body) = call(&st, post("/v1/scenes?format=tar", ok)).await;
     assert_eq!(code, StatusCode::CREATED, "{body}");
 }
+
+/// A result whose sums hold a NaN or an infinity is refused with a 422 naming the pixel: the
+/// task counts a failure of the worker holding its lease and is queued again at once, so
+/// another result (a good one) completes it and no frame shows a corrupted tile.
+#[tokio::test]
+async fn results_with_non_finite_sums_are_refused_and_the_task_is_queued_again() {
+    use raytile_proto::tile::{encode, TileAccum};
+    let dir = tempfile::tempdir().unwrap();
+    let st = test_state(dir.path(), None);
+    let (_, scene) = call(&st, post("/v1/scenes", r#"{"objects": []}"#)).await;
+    let body = format!(
+        r#"{{"scene": "{}", "width": 4, "height": 2, "spp": 1, "tile_size": 16}}"#,
+        scene["id"].as_str().unwrap()
+    );
+    let (code, job) = call(&st, post("/v1/jobs", body)).await;
+    assert_eq!(code, StatusCode::CREATED, "{job}");
+    let job = job["id"].as_str().unwrap().to_string();
+    let reg = format!(
+        r#"{{"name": "w", "threads": 1, "render_version": {}}}"#,
+        raytile_core::RENDER_VERSION
+    );
+    let (_, w) = call(&st, post("/v1/workers", reg)).await;
+    let worker = w["worker_id"].as_str().unwrap().to_string();
+    let lease_uri = format!("/v1/workers/{worker}/lease");
+    let upload = |task: u64, worker: &str, pixels: Vec<[f32; 4]>| {
+        let acc = TileAccum {
+            tile: raytile_proto::Tile {
+                x0: 0,
+                y0: 0,
+                x1: 4,
+                y1: 2,
+            },
+            pixels,
+            bad_samples: 0,
+            splats: Vec::new(),
+        };
+        Request::put(format!(
+            "/v1/jobs/{job}/tasks/{task}/result?worker={worker}"
+        ))
+        .body(Body::from(encode(&acc, 0)))
+        .unwrap()
+    };
+    let good = vec![[0.5, 0.25, 0.125, 1.0]; 8];
+    let mut task = 0;
+    for (k, bad) in [(0, f32::NAN), (3, f32::INFINITY)] {
+        let (code, lease) = call(&st, post(&lease_uri, "")).await;
+        assert_eq!(code, StatusCode::OK, "{lease}");
+        task = lease["task"].as_u64().unwrap();
+        let mut pixels = good.clone();
+        pixels[6][k] = bad;
+        // From a worker that does not hold the lease: refused, the lease stays.
+        let (code, body) = call(&st, upload(task, "someone-else", pixels.clone())).await;
+        assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+        let (_, status) = call(&st, get(&format!("/v1/jobs/{job}"))).await;
+        assert_eq!(status["tasks_leased"], 1, "{status}");
+        // From the lease holder: refused naming the pixel, the task queued again.
+        let (code, body) = call(&st, upload(task, &worker, pixels)).await;
+        assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+        assert_error_body("non-finite result", &body);
+        assert_eq!(body["error"]["field"], "body");
+        let message = body["error"]["message"].as_str().unwrap();
+        assert!(message.contains("pixel (2, 1)"), "{message}");
+        let (_, status) = call(&st, get(&format!("/v1/jobs/{job}"))).await;
+        assert_eq!(
+            (&status["tasks_leased"], &status["tasks_done"]),
+            (&0.into(), &0.into()),
+            "{status}"
+        );
+        assert!(
+            status["failures"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|f| f["error"].as_str().unwrap().contains("result refused")),
+            "{status}"
+        );
+    }
+    // Two failures of the one task (below the limit of three): a good result completes it.
+    let (code, lease) = call(&st, post(&lease_uri, "")).await;
+    assert_eq!(code, StatusCode::OK, "{lease}");
+    let (code, body) = call(&st, upload(task, &worker, good.clone())).await;
+    assert_eq!(
+        (code, &body["accepted"]),
+        (StatusCode::OK, &true.into()),
+        "{body}"
+    );
+    let (_, status) = call(&st, get(&format!("/v1/jobs/{job}"))).await;
+    assert_eq!(status["state"], "done", "{status}");
+}

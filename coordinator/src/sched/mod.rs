@@ -422,6 +422,16 @@ impl Sched {
         Ok((work.tile, work.pass))
     }
 
+    /// The lease `worker` holds on task `idx` of `job`, if it holds one.
+    pub fn lease_held_by(&self, job: &str, idx: u32, worker: &str) -> Option<String> {
+        let j = self
+            .jobs
+            .get(job)
+            .filter(|j| (idx as usize) < j.tasks().len())?;
+        let (w, lease) = j.lease_of(idx as usize)?;
+        (w == worker).then(|| lease.to_string())
+    }
+
     /// The number of pixels of `job`'s frame when its results may carry splats (light that
     /// one tile's samples carry to other pixels: `bdpt`), else `None`.
     pub fn splat_pixels(&self, job: &str) -> Option<u64> {
