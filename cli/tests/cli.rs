@@ -238,6 +238,37 @@ fn cluster_reports_the_coordinators_refusal_as_the_flag() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// A camera the scene does not have is refused by the coordinator when the job is submitted,
+/// not by the workers later, and reported as the flag.
+#[test]
+fn submit_reports_a_camera_the_scene_does_not_have() {
+    let dir = std::env::temp_dir().join(format!("raytile-cli-camera-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for camera in ["zzz", "7"] {
+        let o = raytile()
+            .args(["cluster", "--workers", "1", "--threads", "1", "--render"])
+            .arg(scene("cornell-box.json"))
+            .arg("-o")
+            .arg(dir.join("x.png"))
+            .args([
+                "--width", "16", "--height", "16", "--spp", "1", "--camera", camera,
+            ])
+            .env_remove("RAYTILE_TOKEN")
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert!(
+            err.contains(&format!(
+                "raytile: --camera: the scene has no camera named or numbered '{camera}'"
+            )),
+            "{err}"
+        );
+        assert!(!dir.join("x.png").exists());
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// A scene folder: `scene.json` with a texture (through a link inside the folder) and a glTF
 /// include whose buffer sits beside it, plus files the scene does not use.
 fn scene_folder(dir: &Path) -> std::path::PathBuf {

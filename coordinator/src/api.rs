@@ -274,6 +274,8 @@ async fn create_job(
         .defaults
         .resolve(&req.overrides)
         .map_err(|e| AppError::invalid(e.field, e.message))?;
+    m.check_camera(settings.camera.as_deref())
+        .map_err(|e| AppError::invalid("camera", e))?;
     let lim = &state.cfg.limits;
     lim.check_job(&settings)
         .map_err(|e| AppError::invalid(e.field, e.message))?;

@@ -115,7 +115,9 @@ fn schemas() -> Value {
             "width": u32_in(1, MAX_EDGE), "height": u32_in(1, MAX_EDGE), "spp": u32_in(1, MAX_SPP),
             "max_depth": u32_in(0, MAX_DEPTH),
             "integrator": {"type": "string", "enum": IntegratorKind::ALL.map(IntegratorKind::name)},
-            "seed": u32_in(0, u32::MAX), "camera": {"type": "string"},
+            "seed": u32_in(0, u32::MAX),
+            "camera": {"description": "a camera of the scene: its name, or its index from 0 (a string of digits is a name first, then an index); one the scene does not have is refused with 422",
+                "oneOf": [{"type": "string"}, {"type": "integer", "minimum": 0}]},
             "filter": {"type": "string", "enum": FilterKind::ALL.map(FilterKind::name)},
             "tile_size": u32_in(1, MAX_TILE_EDGE), "passes": u32_in(1, MAX_SPP),
             "priority": {"type": "integer", "minimum": i32::MIN, "maximum": i32::MAX},
@@ -229,7 +231,7 @@ pub fn document() -> Value {
             "/v1/jobs": {
                 "post": with_body(json_body("JobRequest"), op("Submit a job", json!([]), Inputs { json: true, writes: true, ..none },
                     json!({"201": ok_json("Created", "JobStatus"),
-                        "422": err("Invalid settings, a setting over this coordinator's limits, or an unknown scene (field named)"),
+                        "422": err("Invalid settings, a setting over this coordinator's limits, a camera the scene does not have, or an unknown scene (field named)"),
                         "429": err("Too many unfinished jobs")}))),
                 "get": op("List jobs", json!([]), none, json!({"200": ok_json("Jobs", "JobList")}))},
             "/v1/jobs/{id}": {

@@ -24,6 +24,9 @@ pub struct LoadedScene {
     pub defaults: RenderDefaults,
     /// Non-fatal problems.
     pub warnings: Vec<String>,
+    /// The names of the scene's cameras, in order (`None`: not known, a job's camera is then
+    /// not checked).
+    pub cameras: Option<Vec<String>>,
 }
 
 /// Why the loader refused a scene.
@@ -85,6 +88,7 @@ pub fn core_scene_loader(limits: SceneLimits) -> SceneLoader {
         };
         match std::panic::catch_unwind(load) {
             Ok(Ok(desc)) => Ok(LoadedScene {
+                cameras: Some(desc.cameras.iter().map(|c| c.name.clone()).collect()),
                 defaults: desc.render,
                 warnings: desc.warnings,
             }),
@@ -109,6 +113,48 @@ pub struct SceneMeta {
     pub defaults: RenderDefaults,
     /// Loader warnings.
     pub warnings: Vec<String>,
+    /// The names of the scene's cameras, in order; `None` for scenes stored by a coordinator
+    /// that did not record them.
+    #[serde(default)]
+    pub cameras: Option<Vec<String>>,
+}
+
+impl SceneMeta {
+    /// Checks that the scene has the camera `sel` names (by name, or by index when no camera
+    /// has that name, as the renderer picks it), or that it can render without one when
+    /// `sel` is `None`. The error is for a 422 naming `camera`.
+    pub fn check_camera(&self, sel: Option<&str>) -> Result<(), String> {
+        let (Some(cameras), Some(sel)) = (&self.cameras, sel) else {
+            // No choice: the scene's first camera, or one framing the scene if it has none.
+            return Ok(());
+        };
+        if cameras.iter().any(|c| c == sel) {
+            return Ok(());
+        }
+        if sel.parse::<usize>().is_ok_and(|i| i < cameras.len()) {
+            return Ok(());
+        }
+        if cameras.is_empty() {
+            return Err(format!(
+                "the scene has no camera, so there is none named or numbered '{sel}' \
+                 (leave camera out to render from a camera framing the scene)"
+            ));
+        }
+        const SHOWN: usize = 20;
+        let mut list: Vec<String> = cameras
+            .iter()
+            .take(SHOWN)
+            .enumerate()
+            .map(|(i, c)| format!("{i}: '{c}'"))
+            .collect();
+        if cameras.len() > SHOWN {
+            list.push(format!("and {} more", cameras.len() - SHOWN));
+        }
+        Err(format!(
+            "the scene has no camera named or numbered '{sel}' (its cameras: {})",
+            list.join(", ")
+        ))
+    }
 }
 
 /// Query of `POST /v1/scenes`.
@@ -320,6 +366,7 @@ fn store_scene(
         entry: rel,
         defaults: loaded.defaults,
         warnings: loaded.warnings,
+        cameras: loaded.cameras,
     };
     let text = serde_json::to_vec_pretty(&m).map_err(AppError::internal)?;
     std::fs::write(stage.path().join("meta.json"), text).map_err(AppError::internal)?;

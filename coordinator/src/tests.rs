@@ -936,3 +936,80 @@ async fn results_with_non_finite_sums_are_refused_and_the_task_is_queued_again()
     let (_, status) = call(&st, get(&format!("/v1/jobs/{job}"))).await;
     assert_eq!(status["state"], "done", "{status}");
 }
+
+/// A job's camera is checked against the scene's cameras: a name, or an index given as a JSON
+/// integer or a string of digits; one the scene does not have is a 422 naming `camera` with
+/// the cameras it has.
+#[tokio::test]
+async fn a_jobs_camera_must_be_one_of_the_scenes() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut c = Config::new(dir.path());
+    c.scene_loader = Arc::new(|p: &std::path::Path| {
+        let text = std::fs::read_to_string(p).unwrap();
+        let cameras = if text.contains("no cameras") {
+            vec![]
+        } else {
+            vec!["front".to_string(), "side".to_string()]
+        };
+        Ok(LoadedScene {
+            cameras: Some(cameras),
+            ..LoadedScene::default()
+        })
+    });
+    let st = AppState::open(c).unwrap();
+    let (_, scene) = call(&st, post("/v1/scenes", r#"{"objects": []}"#)).await;
+    let id = scene["id"].as_str().unwrap().to_string();
+    let (_, bare) = call(
+        &st,
+        post("/v1/scenes", r#"{"objects": [], "x": "no cameras"}"#),
+    )
+    .await;
+    let bare = bare["id"].as_str().unwrap().to_string();
+    let job = |scene: &str, camera: &str| {
+        let st = st.clone();
+        let camera = if camera.is_empty() {
+            String::new()
+        } else {
+            format!(r#", "camera": {camera}"#)
+        };
+        let body = format!(r#"{{"scene": "{scene}", "width": 16, "height": 16{camera}}}"#);
+        async move { call(&st, post("/v1/jobs", body)).await }
+    };
+    for (scene, camera, want) in [
+        (&id, r#""side""#, Some("side")),
+        (&id, "1", Some("1")),
+        (&id, r#""1""#, Some("1")),
+        (&id, "0", Some("0")),
+        (&id, "", None),
+        (&bare, "", None),
+    ] {
+        let (code, body) = job(scene, camera).await;
+        assert_eq!(code, StatusCode::CREATED, "{camera}: {body}");
+        assert_eq!(
+            body["settings"]["camera"].as_str(),
+            want,
+            "{camera}: {body}"
+        );
+    }
+    for (scene, camera, says) in [
+        (
+            &id,
+            r#""zzz""#,
+            "no camera named or numbered 'zzz' (its cameras: 0: 'front', 1: 'side')",
+        ),
+        (&id, "2", "no camera named or numbered '2'"),
+        (&id, "-1", "camera name (string) or index"),
+        (&id, "1.5", "camera name (string) or index"),
+        (&bare, "0", "the scene has no camera"),
+    ] {
+        let (code, body) = job(scene, camera).await;
+        assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{camera}: {body}");
+        assert_error_body(camera, &body);
+        assert_eq!(body["error"]["field"], "camera", "{camera}: {body}");
+        let message = body["error"]["message"].as_str().unwrap();
+        assert!(
+            message.starts_with("camera: ") && message.contains(says),
+            "{camera}: {message}"
+        );
+    }
+}

@@ -498,8 +498,12 @@ pub struct RenderOverrides {
     #[serde(skip_serializing_if = "Option::is_none")]
     #[cfg_attr(feature = "clap", arg(long))]
     pub seed: Option<u32>,
-    /// Camera name or index.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    /// Camera name or index. In JSON a string (a name, or an index in decimal) or an integer
+    /// index (`"camera": 1` is `"camera": "1"`), as `--camera` takes either.
+    #[serde(
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "camera_name_or_index"
+    )]
     #[cfg_attr(feature = "clap", arg(long))]
     pub camera: Option<String>,
     /// Pixel filter: box, gaussian, blackman-harris.
@@ -544,6 +548,41 @@ pub struct RenderOverrides {
     #[serde(skip_serializing_if = "Option::is_none")]
     #[cfg_attr(feature = "clap", arg(long, value_name = "X"))]
     pub environment_strength: Option<f32>,
+}
+
+/// Reads a camera choice: a name (string), an index (integer ≥ 0, kept as its decimal
+/// string, which the renderer reads as an index), or null for none.
+fn camera_name_or_index<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> Result<Option<String>, D::Error> {
+    struct Camera;
+    impl<'de> serde::de::Visitor<'de> for Camera {
+        type Value = Option<String>;
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str("a camera name (string) or index (integer ≥ 0)")
+        }
+        fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<Self::Value, E> {
+            Ok(Some(v.to_string()))
+        }
+        fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<Self::Value, E> {
+            Ok(Some(v.to_string()))
+        }
+        fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<Self::Value, E> {
+            u64::try_from(v)
+                .map(|v| Some(v.to_string()))
+                .map_err(|_| E::invalid_value(serde::de::Unexpected::Signed(v), &self))
+        }
+        fn visit_unit<E: serde::de::Error>(self) -> Result<Self::Value, E> {
+            Ok(None)
+        }
+        fn visit_none<E: serde::de::Error>(self) -> Result<Self::Value, E> {
+            Ok(None)
+        }
+        fn visit_some<D: serde::Deserializer<'de>>(self, d: D) -> Result<Self::Value, D::Error> {
+            d.deserialize_any(Camera)
+        }
+    }
+    d.deserialize_any(Camera)
 }
 
 impl RenderOverrides {
@@ -688,6 +727,36 @@ mod tests {
         };
         let n: usize = s.tiles().iter().map(|t| t.pixel_count()).sum();
         assert_eq!(n, 3700);
+    }
+
+    #[test]
+    fn a_camera_is_a_name_or_an_index() {
+        let camera = |json: &str| {
+            serde_json::from_str::<RenderOverrides>(json)
+                .map(|o| o.camera)
+                .map_err(|e| e.to_string())
+        };
+        assert_eq!(camera(r#"{"camera": "side"}"#), Ok(Some("side".into())));
+        assert_eq!(camera(r#"{"camera": "1"}"#), Ok(Some("1".into())));
+        assert_eq!(camera(r#"{"camera": 1}"#), Ok(Some("1".into())));
+        assert_eq!(camera(r#"{"camera": null}"#), Ok(None));
+        assert_eq!(camera(r#"{}"#), Ok(None));
+        for bad in [
+            r#"{"camera": -1}"#,
+            r#"{"camera": 1.5}"#,
+            r#"{"camera": [1]}"#,
+        ] {
+            let e = camera(bad).unwrap_err();
+            assert!(e.contains("a camera name (string) or index"), "{bad}: {e}");
+        }
+        // What is sent is what is read.
+        let o = RenderOverrides {
+            camera: Some("2".into()),
+            ..Default::default()
+        };
+        let back: RenderOverrides =
+            serde_json::from_str(&serde_json::to_string(&o).unwrap()).unwrap();
+        assert_eq!(back, o);
     }
 
     #[test]
