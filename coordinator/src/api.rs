@@ -436,14 +436,33 @@ async fn job_image(
             format!("unknown image format '{name}' (expected png, exr or hdr)"),
         )
     })?;
+    if state.sched().layout(&id).is_none() {
+        return Err(no_job(&id));
+    }
+    // A frame takes memory in proportion to its pixels while it is composed and encoded: a
+    // bounded number at once, the other requests wait here holding nothing.
+    let wait = state.cfg.image_wait;
+    let permit = match tokio::time::timeout(wait, state.image_slots.clone().acquire_owned()).await {
+        Ok(Ok(permit)) => permit,
+        Ok(Err(_)) => return Err(AppError::Unavailable),
+        Err(_) => {
+            return Err(AppError::Busy(format!(
+                "{} images are being made and none ended within {} s: try again shortly",
+                state.cfg.max_parallel_images.max(1),
+                wait.as_secs_f64()
+            )))
+        }
+    };
     let (layout, conn) = {
         let s = state.sched();
+        // Looked up again: the job may have been purged while this request waited.
         let layout = s.layout(&id).ok_or_else(|| no_job(&id))?;
         (layout, s.reader().map_err(AppError::internal)?)
     };
     let job_id = id.clone();
     // Pass by pass, one stored tile decoded at a time: the frame and one tile in memory.
     let bytes = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, AppError> {
+        let _permit = permit;
         let film = compose::compose_by_pass(&layout, |tasks, add| {
             crate::store::for_each_result(&conn, &job_id, tasks, |idx, data| {
                 match proto::tile::decode(data) {
@@ -453,6 +472,8 @@ async fn job_image(
             })
         })
         .map_err(AppError::internal)?;
+        // The store's connection is not needed while the image is encoded.
+        drop(conn);
         compose::encode(&film, format).map_err(AppError::internal)
     })
     .await

@@ -184,6 +184,13 @@ pub struct Config {
     pub scene_limits: SceneLimits,
     /// Parses uploaded scenes (the core's loader; tests inject fakes).
     pub scene_loader: SceneLoader,
+    /// Most job images composed and encoded at once. Each holds its whole frame and the
+    /// encoded image while it runs (some 40 bytes per pixel at its peak, more for `bdpt`),
+    /// so this bounds the memory image requests take together; further requests wait.
+    pub max_parallel_images: usize,
+    /// How long an image request waits for one of the others to end before it is answered
+    /// 503 (retryable, with `Retry-After`).
+    pub image_wait: Duration,
     /// The time source of every scheduler call (the system clock; tests inject their own).
     pub clock: Clock,
 }
@@ -204,6 +211,8 @@ impl Config {
             limits: Limits::default(),
             scene_limits: SceneLimits::default(),
             scene_loader: core_scene_loader(SceneLimits::default()),
+            max_parallel_images: 2,
+            image_wait: Duration::from_secs(30),
             clock: clock::system_clock(),
         }
     }
@@ -237,6 +246,9 @@ pub struct Inner {
     pub scene_meta: Mutex<HashMap<String, Arc<scenes::SceneMeta>>>,
     /// One permit per scene parse that may run ([`SceneLimits::max_parallel_parses`]).
     pub parse_slots: Arc<tokio::sync::Semaphore>,
+    /// One permit per job image that may be composed and encoded at once
+    /// ([`Config::max_parallel_images`]).
+    pub image_slots: Arc<tokio::sync::Semaphore>,
     shutdown_tx: watch::Sender<bool>,
 }
 
@@ -276,6 +288,7 @@ impl AppState {
         let parse_slots = Arc::new(tokio::sync::Semaphore::new(
             cfg.scene_limits.max_parallel_parses.max(1),
         ));
+        let image_slots = Arc::new(tokio::sync::Semaphore::new(cfg.max_parallel_images.max(1)));
         Ok(AppState(Arc::new(Inner {
             cfg,
             sched: Mutex::new(sched),
@@ -283,6 +296,7 @@ impl AppState {
             started: now,
             scene_meta: Mutex::new(HashMap::new()),
             parse_slots,
+            image_slots,
             shutdown_tx,
         })))
     }

@@ -75,6 +75,14 @@ struct Args {
     /// How long an upload waits for a check to end before it is answered 503, in seconds.
     #[arg(long, default_value_t = SceneLimits::default().parse_wait.as_secs_f64())]
     scene_parse_wait: f64,
+    /// Most job images composed and encoded at once (each holds its whole frame while it
+    /// runs); further image requests wait.
+    #[arg(long, default_value_t = 2)]
+    image_encodes: usize,
+    /// How long an image request waits for another to end before it is answered 503, in
+    /// seconds.
+    #[arg(long, default_value_t = 30.0)]
+    image_wait: f64,
     /// Do not serve: ask the coordinator listening on --listen for /healthz and exit 0 when
     /// it answers 200 (a container health check; images have no curl).
     #[arg(long)]
@@ -134,6 +142,8 @@ async fn real_main(a: Args) -> anyhow::Result<()> {
         parse_wait: secs(a.scene_parse_wait, "scene-parse-wait")?,
     };
     cfg.scene_loader = core_scene_loader(cfg.scene_limits.clone());
+    cfg.max_parallel_images = a.image_encodes.max(1);
+    cfg.image_wait = secs(a.image_wait, "image-wait")?;
     let addr: std::net::SocketAddr = a
         .listen
         .parse()

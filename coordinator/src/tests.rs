@@ -1013,3 +1013,51 @@ async fn a_jobs_camera_must_be_one_of_the_scenes() {
         );
     }
 }
+
+/// Job images are made a few at a time (each holds its frame while it is encoded): a request
+/// that finds every slot taken waits, and after the configured wait is answered a retryable
+/// 503 with Retry-After; once a slot is free, the image is served.
+#[tokio::test]
+async fn image_requests_wait_for_a_slot_and_are_answered_busy_after_the_wait() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut c = Config::new(dir.path());
+    c.scene_loader = Arc::new(|_p: &std::path::Path| Ok(LoadedScene::default()));
+    c.max_parallel_images = 1;
+    c.image_wait = std::time::Duration::from_millis(200);
+    let st = AppState::open(c).unwrap();
+    let (_, scene) = call(&st, post("/v1/scenes", r#"{"objects": []}"#)).await;
+    let body = format!(
+        r#"{{"scene": "{}", "width": 16, "height": 16, "spp": 1}}"#,
+        scene["id"].as_str().unwrap()
+    );
+    let (_, job) = call(&st, post("/v1/jobs", body)).await;
+    let uri = format!("/v1/jobs/{}/image?format=exr", job["id"].as_str().unwrap());
+    // Every slot taken (as by an image being made).
+    let held = st.image_slots.clone().acquire_owned().await.unwrap();
+    let resp = app(st.clone()).oneshot(get(&uri)).await.unwrap();
+    assert_eq!(resp.status(), StatusCode::SERVICE_UNAVAILABLE);
+    assert_eq!(resp.headers()["retry-after"], "2");
+    let body = axum::body::to_bytes(resp.into_body(), usize::MAX)
+        .await
+        .unwrap();
+    let body: serde_json::Value = serde_json::from_slice(&body).unwrap();
+    assert_error_body("busy image", &body);
+    assert_eq!(
+        (&body["error"]["code"], &body["error"]["retryable"]),
+        (&"busy".into(), &true.into()),
+        "{body}"
+    );
+    // A request waiting when the slot frees gets its image.
+    let waiting = tokio::spawn(app(st.clone()).oneshot(get(&uri)));
+    tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    drop(held);
+    let resp = waiting.await.unwrap().unwrap();
+    assert_eq!(resp.status(), StatusCode::OK);
+    assert_eq!(resp.headers()["content-type"], "image/x-exr");
+    // Unknown jobs are answered at once, without a slot.
+    let _held = st.image_slots.clone().acquire_owned().await.unwrap();
+    assert_eq!(
+        call(&st, get("/v1/jobs/nope/image")).await.0,
+        StatusCode::NOT_FOUND
+    );
+}
