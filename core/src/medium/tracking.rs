@@ -83,8 +83,9 @@ pub struct Collision {
 /// segment by segment. At each collision `callback` gets the [`Collision`] and the random
 /// source, and returns `true` to keep walking (a null collision) or `false` to stop (absorption
 /// or scattering, as the caller decides). Returns exp(−∫σ_maj) per channel from the last
-/// collision to `t_max` when the walk reached the end, or (1, 1, 1) when the callback stopped
-/// it. Empty stretches (σ_maj = 0 in `channel`) cost no random numbers and no callback.
+/// collision to `t_max` when the walk reached the end, (1, 1, 1) when the callback stopped
+/// it, or (0, 0, 0) when it was cut off after [`MAX_COLLISIONS`] collisions (the path is
+/// absorbed). Empty stretches (σ_maj = 0 in `channel`) cost no random numbers and no callback.
 ///
 /// `ray.d` need not be unit (coefficients are per unit of distance); `t_max` may be infinite
 /// (a ray leaving the scene in a global medium).
@@ -153,6 +154,16 @@ fn sample_exponential(u: f32, a: f32) -> f32 {
     -ln(1.0 - u) / a
 }
 
+/// The most collisions one walk of [`sample_t_maj`] proposes. A medium whose majorant is far
+/// above its density along a long stretch (one voxel of 10^30 in an empty grid under a coarse
+/// majorant, say) would otherwise propose about majorant × distance null collisions: a sample
+/// that never ends, and a worker that cannot hand back its tile. A walk that reaches the cap
+/// ends as absorbed ([`sample_t_maj`] returns zero), which only such media ever see: a
+/// sensible one proposes a few collisions per unit of optical depth and stops at the first
+/// real one. The cap depends on the path's own random numbers alone, so images keep their
+/// bits on every machine.
+pub const MAX_COLLISIONS: u32 = 1 << 16;
+
 /// The loop of [`sample_t_maj`] for one medium's segments and point lookup.
 #[allow(clippy::too_many_arguments)]
 #[inline]
@@ -173,6 +184,7 @@ where
     F: FnMut(&Collision, &mut R) -> bool,
 {
     let mut t_maj = Vec3A::ONE;
+    let mut collisions = 0u32;
     for seg in segments {
         let sm = seg.sigma_maj[channel];
         if !(sm > 0.0) {
@@ -183,6 +195,10 @@ where
         loop {
             let t = t_min + sample_exponential(rng.next_1d(), sm);
             if t < seg.t_max {
+                collisions += 1;
+                if collisions > MAX_COLLISIONS {
+                    return Vec3A::ZERO;
+                }
                 t_maj *= exp3(-(t - t_min) * seg.sigma_maj);
                 let c = Collision {
                     t: t * inv_len,
@@ -397,6 +413,36 @@ mod tests {
             estimate(N, |r| transmittance(&m, &x, 1.5, r)),
             exact(Vec3A::splat(0.5)),
         );
+    }
+
+    /// One voxel of 10^30 in an empty grid under a single majorant cell: a walk through the
+    /// empty part would propose some 10^30 null collisions. It is cut off after
+    /// [`MAX_COLLISIONS`] and ends as absorbed, in both tracking estimators.
+    #[test]
+    fn walks_under_a_huge_majorant_are_cut_off() {
+        let g = DensityGrid::from_fn([8, 8, 8], Aabb::new(Vec3A::ZERO, Vec3A::ONE), |p| {
+            if p.cmplt(Vec3A::splat(0.125)).all() {
+                1e30
+            } else {
+                0.0
+            }
+        })
+        .unwrap();
+        let m = Medium::Grid(Box::new(
+            GridMedium::new(g, Vec3A::ONE, Vec3A::ONE, 0.0)
+                .unwrap()
+                .with_majorant_resolution([1, 1, 1]),
+        ));
+        // Through the empty far side of the box, x from 0 to 1 at y = z = 0.9.
+        let ray = Ray::new(Vec3A::new(-1.0, 0.9, 0.9), Vec3A::X);
+        let mut rng = HashRng::new(7);
+        let mut calls = 0u32;
+        let t = sample_t_maj(&m, &ray, 10.0, 0, &mut rng, |_, _| {
+            calls += 1;
+            true
+        });
+        assert_eq!((calls, t), (MAX_COLLISIONS, Vec3A::ZERO));
+        assert_eq!(transmittance(&m, &ray, 10.0, &mut rng), Vec3A::ZERO);
     }
 
     #[test]
