@@ -125,7 +125,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     )?;
     if film.bad_samples > 0 {
         eprintln!(
-            "raytile: warning: {} NaN/infinite samples were dropped",
+            "raytile: warning: {} NaN, infinite or too large samples were dropped",
             film.bad_samples
         );
     }

@@ -19,6 +19,20 @@ pub use raytile_proto::tile::TileAccum;
 /// `i64`, so any number of splats add exactly and in any order.
 pub const SPLAT_SCALE: f64 = (1u64 << 28) as f64;
 
+/// The largest value a sample may add to a pixel, per channel: half of f32's largest value
+/// over the most samples a pixel can receive ([`crate::settings::MAX_SPP`], 2^20), about
+/// 1.6·10^32. A pixel's sums therefore never overflow to infinity, whatever the sample count
+/// and however the passes are cut. A sample above it (or NaN, or infinite) is dropped and
+/// counted in [`Film::bad_samples`], as NaN and infinite ones are.
+pub const MAX_SAMPLE: f32 = f32::MAX / (2.0 * crate::settings::MAX_SPP as f32);
+
+/// Whether a sample's value `l` may be added to a pixel: finite and at most [`MAX_SAMPLE`] in
+/// magnitude in every channel.
+#[inline]
+pub fn sample_ok(l: glam::Vec3A) -> bool {
+    l.is_finite() && l.abs().max_element() <= MAX_SAMPLE
+}
+
 /// Why [`Film::add_tile`] refused a tile.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum TileMismatch {
@@ -63,7 +77,7 @@ pub struct Film {
     pub height: u32,
     /// Row-major [r, g, b, weight] sums.
     pub pixels: Vec<[f32; 4]>,
-    /// Samples dropped because they were NaN or infinite.
+    /// Samples dropped because they were NaN, infinite or above [`MAX_SAMPLE`].
     pub bad_samples: u64,
     /// Row-major fixed-point RGB sums of the light that samples carried to other pixels
     /// (`bdpt`'s splats, see [`TileAccum::splats`]); empty while none arrived.

@@ -141,7 +141,7 @@ pub fn render_tile(
                             let first = splats.len();
                             let l =
                                 bdpt::li(scene, job, ray, &mut sampler, &mut light, &mut splats);
-                            if !l.is_finite() {
+                            if !crate::film::sample_ok(l) {
                                 // The whole sample is dropped, its splats too.
                                 splats.truncate(first);
                             }
@@ -149,7 +149,7 @@ pub fn render_tile(
                         } else {
                             li(scene, job, ray, &mut sampler)
                         };
-                        if l.is_finite() {
+                        if crate::film::sample_ok(l) {
                             sum[0] += l.x;
                             sum[1] += l.y;
                             sum[2] += l.z;

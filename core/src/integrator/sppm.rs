@@ -437,7 +437,8 @@ pub fn render_tile(
                 Vec3A::ZERO
             };
             let l = st.ld + indirect;
-            if !l.is_finite() {
+            // `l` is the sum of `good` iterations' estimates.
+            if !crate::film::sample_ok(l / good) {
                 bad += good as u64;
                 return [0.0; 4];
             }
@@ -464,7 +465,7 @@ fn update_pixel(
     st: &mut PixelState,
 ) {
     let (ld, vp) = camera_pass(scene, job, x, y, it);
-    if !ld.is_finite() {
+    if !crate::film::sample_ok(ld) {
         st.bad += 1;
         return;
     }
