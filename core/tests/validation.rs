@@ -4,7 +4,11 @@
 use glam::{Mat4, Vec3, Vec3A};
 use raytile_core::light::Environment;
 use raytile_core::scene::desc::*;
+use raytile_core::scene::files::SceneFiles;
+use raytile_core::scene::json::parse_json;
+use raytile_core::settings::EnvironmentChoice;
 use raytile_core::{render, IntegratorKind, RenderJob, RenderSettings, Scene};
+use std::path::Path;
 use std::sync::Arc;
 
 fn camera() -> CameraDesc {
@@ -92,4 +96,217 @@ fn huge_finite_light_never_makes_a_non_finite_pixel() {
             );
         }
     }
+}
+
+/// The error of loading the JSON scene `text` (a sphere, a camera and what `extra` adds).
+fn json_error(extra: &str) -> String {
+    let text = format!(
+        r#"{{
+  "camera": {{"position": [0, 0, 3], "look_at": [0, 0, 0]}},
+  "materials": {{"white": {{"type": "diffuse"}}}},
+  "objects": [{{"shape": {{"type": "sphere"}}, "material": "white"}}]{extra}
+}}"#
+    );
+    match parse_json(&text, Path::new("."), Path::new("scene.json")) {
+        Ok(desc) => match Scene::build(&desc) {
+            Ok(_) => panic!("accepted: {extra}"),
+            Err(e) => panic!("refused only when built ({e}): {extra}"),
+        },
+        Err(e) => e.to_string(),
+    }
+}
+
+/// Checks that `extra` is refused with a message holding every needle.
+fn refused(extra: &str, needles: &[&str]) {
+    let e = json_error(extra);
+    for n in needles {
+        assert!(e.contains(n), "{extra}: error {e:?} does not mention {n:?}");
+    }
+}
+
+#[test]
+fn light_values_must_be_finite_non_negative_and_at_most_the_largest_radiance() {
+    let huge = ["at most 1e30", "3e38"];
+    let env = |v: &str| format!(r#", "environment": {{"type": "constant", "radiance": {v}}}"#);
+    refused(
+        &env("[3e38, 0, 0]"),
+        &[&["environment.radiance"], &huge[..]].concat(),
+    );
+    // 1e39 is infinite as an f32.
+    refused(&env("[1e39, 0, 0]"), &["environment.radiance", "finite"]);
+    refused(
+        &env("[-1, -1, -1]"),
+        &["environment.radiance", "non-negative"],
+    );
+    let emitter = |v: &str| {
+        let text = format!(
+            r#"{{"camera": {{"position": [0, 0, 3], "look_at": [0, 0, 0]}},
+  "materials": {{"lamp": {{"type": "emitter", "emission": {v}}}}},
+  "objects": [{{"shape": {{"type": "sphere"}}, "material": "lamp"}}]}}"#
+        );
+        parse_json(&text, Path::new("."), Path::new("scene.json"))
+            .unwrap_err()
+            .to_string()
+    };
+    let e = emitter("[1e31, 1, 1]");
+    assert!(
+        e.contains("materials.lamp.emission") && e.contains("at most 1e30"),
+        "{e}"
+    );
+    let e = emitter("[-1, 1, 1]");
+    assert!(
+        e.contains("materials.lamp.emission") && e.contains("non-negative"),
+        "{e}"
+    );
+    let light = |l: &str| format!(r#", "lights": [{l}]"#);
+    refused(
+        &light(r#"{"type": "point", "position": [0, 2, 0], "intensity": [-10, -10, -10]}"#),
+        &["lights[0].intensity", "non-negative"],
+    );
+    refused(
+        &light(
+            r#"{"type": "spot", "position": [0, 2, 0], "direction": [0, -1, 0], "intensity": [1e31, 1, 1]}"#,
+        ),
+        &["lights[0].intensity", "at most 1e30"],
+    );
+    refused(
+        &light(r#"{"type": "directional", "direction": [0, -1, 0], "irradiance": [1, 1e39, 1]}"#),
+        &["lights[0].irradiance", "finite"],
+    );
+    refused(
+        &light(r#"{"type": "directional", "direction": [0, -1, 0], "irradiance": [1, -1, 1]}"#),
+        &["lights[0].irradiance", "non-negative"],
+    );
+}
+
+/// Descriptions made by a program are held to the same rules when the scene is built.
+#[test]
+fn descriptions_with_bad_light_values_do_not_build() {
+    let build_err = |desc: &SceneDesc| match Scene::build(desc) {
+        Ok(_) => panic!("built"),
+        Err(e) => e.to_string(),
+    };
+    let mut d = ball();
+    d.environment = Some(EnvironmentDesc::Constant {
+        radiance: Vec3::splat(1e38),
+    });
+    let e = build_err(&d);
+    assert!(
+        e.contains("environment") && e.contains("at most 1e30"),
+        "{e}"
+    );
+    d.environment = Some(EnvironmentDesc::Constant {
+        radiance: Vec3::splat(-1.0),
+    });
+    assert!(build_err(&d).contains("non-negative"));
+    let mut d = ball();
+    d.materials[0].emission = Vec3::new(-1.0, 1.0, 1.0);
+    let e = build_err(&d);
+    assert!(e.contains("material 'm'") && e.contains("emission"), "{e}");
+    let mut d = ball();
+    d.lights.push(LightDesc::Point {
+        position: Vec3::Y * 3.0,
+        intensity: Vec3::splat(-5.0),
+        range: f32::INFINITY,
+    });
+    let e = build_err(&d);
+    assert!(e.contains("light 0") && e.contains("intensity"), "{e}");
+    // A map's texels: finite, non-negative, and not too bright once scaled.
+    let map = |texel: [f32; 4], scale: f32| {
+        let mut d = ball();
+        d.environment = Some(EnvironmentDesc::Map {
+            texture: TextureDesc {
+                name: "sky.exr".into(),
+                width: 2,
+                height: 1,
+                texels: vec![[0.5; 4], texel],
+                srgb: false,
+                wrap_u: WrapMode::Repeat,
+                wrap_v: WrapMode::Clamp,
+                bilinear: true,
+            },
+            scale,
+            rotation_y: 0.0,
+        });
+        Scene::build(&d).map(|_| ()).map_err(|e| e.to_string())
+    };
+    map([2.0, 2.0, 2.0, 1.0], 1e29).unwrap();
+    let e = map([2.0, 2.0, 2.0, 1.0], 1e30).unwrap_err();
+    assert!(
+        e.contains("sky.exr") && e.contains("texel (1, 0)") && e.contains("at most 1e30"),
+        "{e}"
+    );
+    let e = map([f32::INFINITY, 0.0, 0.0, 1.0], 1.0).unwrap_err();
+    assert!(e.contains("texel (1, 0)") && e.contains("finite"), "{e}");
+    let e = map([-0.5, 0.0, 0.0, 1.0], 1.0).unwrap_err();
+    assert!(
+        e.contains("texel (1, 0)") && e.contains("non-negative"),
+        "{e}"
+    );
+}
+
+/// A Radiance `.hdr` file of `w × 1` texels given as RGBE bytes.
+fn hdr_file(dir: &Path, name: &str, texels: &[[u8; 4]]) -> std::path::PathBuf {
+    let mut bytes = format!(
+        "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 1 +X {}\n",
+        texels.len()
+    )
+    .into_bytes();
+    bytes.extend(texels.iter().flatten());
+    let p = dir.join(name);
+    std::fs::write(&p, bytes).unwrap();
+    p
+}
+
+fn temp_dir(tag: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("raytile-validation-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// A job's own environment is held to the same bound, colour or map, strength included.
+#[test]
+fn a_jobs_environment_times_its_strength_must_not_be_too_bright() {
+    let scene = Scene::build(&ball()).unwrap();
+    let job = |environment: EnvironmentChoice, strength: f32| {
+        let settings = RenderSettings {
+            environment: Some(environment),
+            environment_strength: strength,
+            ..small(IntegratorKind::Path)
+        };
+        RenderJob::with_files(&scene, &settings, &SceneFiles::trusted(), Path::new("."))
+            .map(|_| ())
+            .map_err(|e| e.to_string())
+    };
+    job(EnvironmentChoice::Constant([1e15; 3]), 1e15).unwrap();
+    let e = job(EnvironmentChoice::Constant([1e20, 1.0, 1.0]), 1e20).unwrap_err();
+    assert!(
+        e.contains("environment_strength") && e.contains("at most 1e30"),
+        "{e}"
+    );
+    let e = job(EnvironmentChoice::Constant([1.0; 3]), 1e38).unwrap_err();
+    assert!(e.contains("at most 1e30"), "{e}");
+    let dir = temp_dir("maps");
+    // RGBE (128, 128, 128, 129) is 1.0; (255, 255, 255, 255) is about 1.7e38.
+    let ordinary = hdr_file(&dir, "ordinary.hdr", &[[128, 128, 128, 129]; 2]);
+    let brightest = hdr_file(
+        &dir,
+        "brightest.hdr",
+        &[[128, 128, 128, 129], [255, 0, 0, 255]],
+    );
+    let map = |p: &Path| EnvironmentChoice::Map(p.display().to_string());
+    job(map(&ordinary), 1e30).unwrap();
+    let e = job(map(&ordinary), 1e31).unwrap_err();
+    assert!(
+        e.contains("ordinary.hdr")
+            && e.contains("environment_strength")
+            && e.contains("at most 1e30"),
+        "{e}"
+    );
+    let e = job(map(&brightest), 1.0).unwrap_err();
+    assert!(
+        e.contains("brightest.hdr") && e.contains("texel (1, 0)"),
+        "{e}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
 }

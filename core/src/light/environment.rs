@@ -29,6 +29,50 @@ pub enum Environment {
     },
 }
 
+/// Checks an equirectangular map (RGBA texels row by row, `width` wide) and the `scale` that
+/// multiplies it (named `scale_name` in messages): the scale finite and non-negative, every texel finite and non-negative, and
+/// at most [`super::MAX_RADIANCE`] once scaled. The message names the first bad texel.
+pub fn check_map(
+    texels: &[[f32; 4]],
+    width: u32,
+    scale: f32,
+    scale_name: &str,
+) -> Result<(), String> {
+    use super::{check_radiance, show_number, MAX_RADIANCE};
+    if !(scale.is_finite() && scale >= 0.0) {
+        return Err(format!(
+            "{scale_name} must be finite and non-negative, got {}",
+            show_number(scale)
+        ));
+    }
+    let at = |i: usize| {
+        let w = width.max(1) as usize;
+        format!("texel ({}, {})", i % w, i / w)
+    };
+    let mut brightest = (0.0f32, 0);
+    for (i, t) in texels.iter().enumerate() {
+        let c = Vec3A::new(t[0], t[1], t[2]);
+        if !(c.is_finite() && c.min_element() >= 0.0) {
+            // The message of the same check as every other light's.
+            return check_radiance(&at(i), c);
+        }
+        if c.max_element() > brightest.0 {
+            brightest = (c.max_element(), i);
+        }
+    }
+    let (value, i) = brightest;
+    if f64::from(value) * f64::from(scale) > f64::from(MAX_RADIANCE) {
+        return Err(format!(
+            "{} times {scale_name} {} is {:.3e}: must be at most 1e30 (the largest radiance \
+             raytile takes)",
+            at(i),
+            show_number(scale),
+            f64::from(value) * f64::from(scale)
+        ));
+    }
+    Ok(())
+}
+
 impl Environment {
     /// The same radiance from every direction.
     pub fn constant(radiance: Vec3A) -> Self {

@@ -18,6 +18,50 @@ use crate::sampling::distrib::Distribution1D;
 use glam::{Vec2, Vec3A};
 use std::f32::consts::PI;
 
+/// The largest radiance (W·sr⁻¹·m⁻²: emission, environment), radiant intensity (W/sr: point
+/// and spot lights) or irradiance (W/m²: directional lights) a scene or a job may give, per
+/// channel: 10^30, strengths and scales included. Every physical source is far below it (the
+/// sun's luminance is about 1.6·10^9 cd/m², its intensity seen from the Earth as a point light
+/// about 3·10^27 cd), and it leaves eight orders of magnitude below f32's largest value
+/// (3.4·10^38) for what a path multiplies light by and for the sums of a pixel's samples.
+pub const MAX_RADIANCE: f32 = 1e30;
+
+/// A number as messages show it: plain when ordinary, in scientific notation when huge or tiny.
+pub fn show_number(x: f32) -> String {
+    if x != 0.0 && x.is_finite() && !(1e-4..1e7).contains(&x.abs()) {
+        format!("{x:e}")
+    } else {
+        format!("{x}")
+    }
+}
+
+/// Checks the value of a light (`what`, named in the message): finite, non-negative and at
+/// most [`MAX_RADIANCE`] in every channel.
+pub fn check_radiance(what: &str, v: Vec3A) -> Result<(), String> {
+    let got = || {
+        format!(
+            "[{}, {}, {}]",
+            show_number(v.x),
+            show_number(v.y),
+            show_number(v.z)
+        )
+    };
+    if !(v.is_finite() && v.min_element() >= 0.0) {
+        return Err(format!(
+            "{what} must be finite and non-negative, got {}",
+            got()
+        ));
+    }
+    if v.max_element() > MAX_RADIANCE {
+        return Err(format!(
+            "{what} must be at most 1e30 in every channel (the largest radiance raytile \
+             takes), got {}",
+            got()
+        ));
+    }
+    Ok(())
+}
+
 /// Luminance of linear Rec.709 RGB.
 #[inline]
 pub fn luminance(c: Vec3A) -> f32 {

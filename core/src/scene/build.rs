@@ -20,7 +20,8 @@ use crate::alloc::huge_vec;
 use crate::geometry::triangle::{Mesh, TriangleGeom};
 use crate::geometry::{aabox, plane, polygon, quadric, sphere, Aabb, Analytic};
 use crate::light::area::{Emitter, PlacedShape, TriangleLight};
-use crate::light::{AreaLight, Environment, Light};
+use crate::light::environment::check_map;
+use crate::light::{check_radiance, AreaLight, Environment, Light};
 use crate::material::{AlphaMode, Emission, Material, MaterialSlots, Model, PbrParams};
 use crate::medium::{GridMedium, HomogeneousMedium, Medium};
 use crate::settings::{EnvironmentChoice, RenderSettings};
@@ -392,26 +393,30 @@ impl Scene {
             area_lights.push(light);
         }
         stats.lights = lights.len();
-        let environment = desc.environment.as_ref().map(|e| {
-            Arc::new(match e {
-                EnvironmentDesc::Constant { radiance } => {
-                    Environment::constant(Vec3A::from(*radiance))
-                }
-                EnvironmentDesc::Map {
-                    texture: t,
-                    scale,
-                    rotation_y,
-                } => {
-                    let lookup = TextureLookup {
-                        wrap_u: t.wrap_u,
-                        wrap_v: t.wrap_v,
-                        bilinear: t.bilinear,
-                    };
-                    let texture = Texture::new(t.width, t.height, &t.texels, t.srgb, lookup);
-                    Environment::map(texture, *scale, *rotation_y)
-                }
-            })
-        });
+        let environment = match &desc.environment {
+            None => None,
+            Some(EnvironmentDesc::Constant { radiance }) => {
+                let radiance = Vec3A::from(*radiance);
+                check_radiance("radiance", radiance)
+                    .map_err(|e| invalid(format!("environment: {e}")))?;
+                Some(Arc::new(Environment::constant(radiance)))
+            }
+            Some(EnvironmentDesc::Map {
+                texture: t,
+                scale,
+                rotation_y,
+            }) => {
+                check_map(&t.texels, t.width, *scale, "scale")
+                    .map_err(|e| invalid(format!("environment map {}: {e}", t.name)))?;
+                let lookup = TextureLookup {
+                    wrap_u: t.wrap_u,
+                    wrap_v: t.wrap_v,
+                    bilinear: t.bilinear,
+                };
+                let texture = Texture::new(t.width, t.height, &t.texels, t.srgb, lookup);
+                Some(Arc::new(Environment::map(texture, *scale, *rotation_y)))
+            }
+        };
         let cameras = desc
             .cameras
             .iter()
@@ -690,6 +695,10 @@ fn build_light(l: &super::desc::LightDesc) -> Result<Light, String> {
             Ok(Vec3A::from(d))
         }
     };
+    let radiance = |what: &str, v: Vec3| {
+        let v = Vec3A::from(v);
+        check_radiance(what, v).map(|()| v)
+    };
     let range = |r: f32| {
         if r > 0.0 {
             Ok(r)
@@ -704,7 +713,7 @@ fn build_light(l: &super::desc::LightDesc) -> Result<Light, String> {
             range: r,
         } => Light::Point {
             position: ok(position)?,
-            intensity: ok(intensity)?.max(Vec3A::ZERO),
+            intensity: radiance("intensity", intensity)?,
             range: range(r)?,
         },
         LightDesc::Spot {
@@ -720,7 +729,7 @@ fn build_light(l: &super::desc::LightDesc) -> Result<Light, String> {
             Light::Spot {
                 position: ok(position)?,
                 axis: dir(direction)?,
-                intensity: ok(intensity)?.max(Vec3A::ZERO),
+                intensity: radiance("intensity", intensity)?,
                 cos_inner: inner.cos(),
                 cos_outer: outer.cos(),
                 range: range(r)?,
@@ -731,7 +740,7 @@ fn build_light(l: &super::desc::LightDesc) -> Result<Light, String> {
             irradiance,
         } => Light::Directional {
             to_light: -dir(direction)?,
-            irradiance: ok(irradiance)?.max(Vec3A::ZERO),
+            irradiance: radiance("irradiance", irradiance)?,
         },
     })
 }
@@ -843,13 +852,9 @@ fn build_material(m: &MaterialDesc, n_textures: usize) -> Result<Material, Scene
             })
         }
     };
-    if !m.emission.is_finite() {
-        return Err(invalid(format!(
-            "material '{}': emission is not finite",
-            m.name
-        )));
-    }
-    let radiance = Vec3A::from(m.emission).max(Vec3A::ZERO);
+    check_radiance("emission", Vec3A::from(m.emission))
+        .map_err(|e| invalid(format!("material '{}': {e}", m.name)))?;
+    let radiance = Vec3A::from(m.emission);
     let emission = Emission {
         radiance,
         two_sided: m.two_sided,
@@ -892,6 +897,7 @@ pub fn load_environment_map(
         .charge_memory(u64::from(w) * u64::from(h) * 16, &shown)
         .map_err(bad)?;
     let img = super::image::decode_image(&bytes).map_err(bad)?;
+    check_map(&img.texels, img.width, strength, "environment_strength").map_err(bad)?;
     let lookup = TextureLookup {
         wrap_u: WrapMode::Repeat,
         wrap_v: WrapMode::Clamp,

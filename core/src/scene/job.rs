@@ -7,7 +7,7 @@ use super::{ObjectKind, Scene, SceneCamera, SceneError};
 use crate::camera::{Camera, Projection};
 use crate::film::FilterSampler;
 use crate::geometry::{Aabb, Interaction};
-use crate::light::{Environment, Light, LightSample, LightSet};
+use crate::light::{show_number, Environment, Light, LightSample, LightSet, MAX_RADIANCE};
 use crate::settings::EnvironmentChoice;
 use crate::RenderSettings;
 use glam::{Mat4, Vec2, Vec3, Vec3A};
@@ -105,9 +105,23 @@ impl RenderJob {
             None if scene.default_environment && !settings.default_light => None,
             None => scene.environment.clone(),
             Some(EnvironmentChoice::None) => None,
-            Some(EnvironmentChoice::Constant(c)) => Some(Arc::new(Environment::constant(
-                Vec3A::from(*c) * settings.environment_strength,
-            ))),
+            Some(EnvironmentChoice::Constant(c)) => {
+                // Each of them finite and non-negative (the settings are valid): their product
+                // must not be too bright either.
+                let (c, strength) = (Vec3A::from(*c), settings.environment_strength);
+                if f64::from(c.max_element()) * f64::from(strength) > f64::from(MAX_RADIANCE) {
+                    return Err(invalid(format!(
+                        "render setting environment: {},{},{} times environment_strength {} \
+                         must be at most 1e30 in every channel (the largest radiance raytile \
+                         takes)",
+                        show_number(c.x),
+                        show_number(c.y),
+                        show_number(c.z),
+                        show_number(strength)
+                    )));
+                }
+                Some(Arc::new(Environment::constant(c * strength)))
+            }
             Some(EnvironmentChoice::Map(path)) => {
                 return Err(invalid(format!(
                     "environment {path}: a map is read from files (RenderJob::with_files, in \

@@ -9,6 +9,8 @@ use super::desc::*;
 use super::files::{folder_of, show, FileError, Resolved, SceneFiles};
 use super::SceneError;
 use crate::geometry::quadric::Quadric;
+use crate::light::check_radiance;
+use crate::light::environment::check_map;
 use glam::{EulerRot, Mat3, Mat4, Quat, Vec2, Vec3, Vec3A};
 use serde::Deserialize;
 use std::collections::BTreeMap;
@@ -772,13 +774,8 @@ impl Converter<'_> {
             let mut md = MaterialDesc::new(name.clone(), bsdf);
             md.emission = v3(m.emission);
             md.two_sided = m.two_sided;
-            if !md.emission.is_finite() || md.emission.min_element() < 0.0 {
-                return Err(self.err(
-                    &format!("{at}.emission"),
-                    "emission must be finite and non-negative",
-                    name,
-                ));
-            }
+            check_radiance("emission", md.emission.into())
+                .map_err(|e| self.err(&format!("{at}.emission"), e, name))?;
             mat_index.insert(name.clone(), self.desc.materials.len());
             self.desc.materials.push(md);
         }
@@ -872,6 +869,14 @@ impl Converter<'_> {
         for (i, l) in f.lights.iter().enumerate() {
             let at = format!("lights[{i}]");
             let range = |r: &Option<f32>| r.unwrap_or(f32::INFINITY);
+            let (field, value) = match l {
+                JLight::Point { intensity, .. } | JLight::Spot { intensity, .. } => {
+                    ("intensity", intensity)
+                }
+                JLight::Directional { irradiance, .. } => ("irradiance", irradiance),
+            };
+            check_radiance(field, v3(*value).into())
+                .map_err(|e| self.err(&format!("{at}.{field}"), e, &format!("\"{field}\"")))?;
             let light = match l {
                 JLight::Point {
                     position,
@@ -924,15 +929,33 @@ impl Converter<'_> {
         // Environment.
         if let Some(env) = &f.environment {
             self.desc.environment = Some(match env {
-                JEnvironment::Constant { radiance } => EnvironmentDesc::Constant {
-                    radiance: v3(*radiance),
-                },
+                JEnvironment::Constant { radiance } => {
+                    check_radiance("radiance", v3(*radiance).into())
+                        .map_err(|e| self.err("environment.radiance", e, "\"radiance\""))?;
+                    EnvironmentDesc::Constant {
+                        radiance: v3(*radiance),
+                    }
+                }
                 JEnvironment::Map {
                     path,
                     scale,
                     rotation,
                 } => {
+                    if !(scale.is_finite() && *scale >= 0.0) {
+                        return Err(self.err(
+                            "environment.scale",
+                            "scale must be finite and non-negative",
+                            "\"scale\"",
+                        ));
+                    }
                     let mut texture = self.image("environment.path", path)?;
+                    check_map(&texture.texels, texture.width, *scale, "scale").map_err(|e| {
+                        self.err(
+                            "environment",
+                            format!("{}: {e}", show(&path.to_string_lossy())),
+                            "\"environment\"",
+                        )
+                    })?;
                     texture.srgb = false;
                     texture.wrap_v = WrapMode::Clamp;
                     EnvironmentDesc::Map {

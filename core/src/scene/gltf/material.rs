@@ -252,7 +252,20 @@ impl Loader<'_> {
         let ef = mat.emissive_factor();
         check_finite(&ef, &format!("{what}: emissiveFactor"))?;
         check_finite(&[strength], &format!("{what}: emissiveStrength"))?;
+        if ef.iter().any(|&c| c < 0.0) {
+            return Err(format!(
+                "{what}: emissiveFactor must be non-negative, got {ef:?}"
+            ));
+        }
+        if strength < 0.0 {
+            return Err(format!(
+                "{what}: KHR_materials_emissive_strength.emissiveStrength must be non-negative, \
+                 got {strength}"
+            ));
+        }
         m.emission = Vec3::from(ef) * strength;
+        crate::light::check_radiance("emissiveFactor × emissiveStrength", m.emission.into())
+            .map_err(|e| format!("{what}: {e}"))?;
         if let Some(info) = mat.emissive_texture() {
             m.emission_texture = self.texture_ref(
                 &info.texture(),

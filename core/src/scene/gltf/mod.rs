@@ -598,11 +598,8 @@ impl<'a> Loader<'a> {
         let color = Vec3::from(light.color());
         let intensity = light.intensity();
         let power = color * intensity;
-        if !power.is_finite() || power.min_element() < 0.0 {
-            return Err(format!(
-                "{what}: colour × intensity must be finite and non-negative"
-            ));
-        }
+        crate::light::check_radiance("colour × intensity", power.into())
+            .map_err(|e| format!("{what}: {e}"))?;
         let range = light.range().unwrap_or(f32::INFINITY);
         if range.is_nan() || range <= 0.0 {
             return Err(format!("{what}: range must be positive"));

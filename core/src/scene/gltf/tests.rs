@@ -355,6 +355,48 @@ fn thin_walled_and_solid_transmission() {
     assert!(s.environment.is_none());
 }
 
+/// Negative emission is no light: refused (not taken for an unlit model), and so is emission
+/// above the largest radiance, and a light whose colour × intensity is.
+#[test]
+fn emission_and_lights_must_be_non_negative_and_not_too_bright() {
+    let material = |m: Value| {
+        tri_scene(
+            json!({"material": 0}),
+            json!({"extensionsUsed": ["KHR_materials_emissive_strength"], "materials": [m]}),
+        )
+    };
+    let strength = |s: f32| json!({"KHR_materials_emissive_strength": {"emissiveStrength": s}});
+    expect_err(
+        &material(json!({"emissiveFactor": [1.0, 1.0, 1.0], "extensions": strength(-2.0)})),
+        &["material 0", "emissiveStrength", "non-negative"],
+    );
+    expect_err(
+        &material(json!({"emissiveFactor": [-1.0, 0.0, 0.0]})),
+        &["material 0", "emissiveFactor", "non-negative"],
+    );
+    expect_err(
+        &material(json!({"emissiveFactor": [1.0, 1.0, 1.0], "extensions": strength(1e31)})),
+        &["material 0", "emissiveStrength", "at most 1e30"],
+    );
+    let s = load(&material(
+        json!({"emissiveFactor": [1.0, 1.0, 1.0], "extensions": strength(1e30)}),
+    ))
+    .unwrap();
+    assert_eq!(s.materials[0].emission, Vec3::splat(1e30));
+    let light = |intensity: f32| {
+        tri_scene(
+            json!({}),
+            json!({
+                "extensions": {"KHR_lights_punctual": {"lights": [
+                    {"type": "point", "intensity": intensity}]}},
+                "nodes": [{"mesh": 0, "extensions": {"KHR_lights_punctual": {"light": 0}}}],
+            }),
+        )
+    };
+    expect_err(&light(-1.0), &["light 0", "non-negative"]);
+    expect_err(&light(1e31), &["light 0", "at most 1e30"]);
+}
+
 #[test]
 fn strips_fans_and_index_widths() {
     let strip_fan = |mode: u32| {
