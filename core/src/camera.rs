@@ -25,6 +25,65 @@ pub enum Projection {
     },
 }
 
+impl Projection {
+    /// Checks the parameters: a field of view in (0°, 180°), a finite non-negative aperture
+    /// (0 is a pinhole), a finite non-negative focus distance, positive when the aperture is,
+    /// and a positive finite orthographic half height. The error is the field's name (as the
+    /// JSON format spells it) and a message that names it too.
+    pub fn check(&self) -> Result<(), (&'static str, String)> {
+        match *self {
+            Projection::Perspective {
+                yfov,
+                aperture_radius,
+                focus_distance,
+            } => {
+                if !(yfov > 0.0 && yfov < std::f32::consts::PI) {
+                    return Err((
+                        "fov",
+                        format!(
+                            "fov must be between 0 and 180 degrees, got {}",
+                            yfov.to_degrees()
+                        ),
+                    ));
+                }
+                if !(aperture_radius.is_finite() && aperture_radius >= 0.0) {
+                    return Err((
+                        "aperture",
+                        format!(
+                            "aperture must be finite and non-negative (0 is a pinhole), got \
+                             {aperture_radius}"
+                        ),
+                    ));
+                }
+                let focus_ok = focus_distance.is_finite()
+                    && if aperture_radius > 0.0 {
+                        focus_distance > 0.0
+                    } else {
+                        focus_distance >= 0.0
+                    };
+                if !focus_ok {
+                    return Err((
+                        "focus_distance",
+                        format!(
+                            "focus_distance must be finite and positive (non-negative for a \
+                             pinhole), got {focus_distance}"
+                        ),
+                    ));
+                }
+            }
+            Projection::Orthographic { half_height } => {
+                if !(half_height.is_finite() && half_height > 0.0) {
+                    return Err((
+                        "half_height",
+                        format!("half_height must be positive and finite, got {half_height}"),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
 /// A camera set up for one image size.
 #[derive(Clone, Debug)]
 pub struct Camera {

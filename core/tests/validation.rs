@@ -310,3 +310,137 @@ fn a_jobs_environment_times_its_strength_must_not_be_too_bright() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn cameras_must_have_a_view_and_a_lens() {
+    let cam = |fields: &str| {
+        json_error(&format!(
+            r#", "cameras": [{{"position": [0, 0, 3], "look_at": [0, 0, 0]{fields}}}]"#
+        ))
+    };
+    let refused = |fields: &str, needles: &[&str]| {
+        let e = cam(fields);
+        for n in needles {
+            assert!(
+                e.contains(n),
+                "{fields}: error {e:?} does not mention {n:?}"
+            );
+        }
+    };
+    refused(
+        r#", "type": "orthographic", "half_height": 0"#,
+        &["cameras[1].half_height", "positive"],
+    );
+    refused(
+        r#", "type": "orthographic", "half_height": -2"#,
+        &["cameras[1].half_height"],
+    );
+    refused(
+        r#", "aperture": -0.1"#,
+        &["cameras[1].aperture", "non-negative"],
+    );
+    refused(r#", "focus_distance": -3"#, &["cameras[1].focus_distance"]);
+    refused(
+        r#", "aperture": 0.1, "focus_distance": 0"#,
+        &["cameras[1].focus_distance", "positive"],
+    );
+    // A pinhole, and a focus distance of 0 with it, are fine.
+    let ok = r#"{"cameras": [{"position": [0, 0, 3], "look_at": [0, 0, 0], "aperture": 0, "focus_distance": 0},
+        {"type": "orthographic", "position": [0, 0, 3], "look_at": [0, 0, 0], "half_height": 2}]}"#;
+    let desc = parse_json(ok, Path::new("."), Path::new("scene.json")).unwrap();
+    Scene::build(&desc).unwrap();
+    // The same rules for descriptions made by a program, and a camera's transform must
+    // have a direction.
+    let build_err = |c: CameraDesc| {
+        let mut d = ball();
+        d.cameras = vec![c];
+        Scene::build(&d).map(|_| ()).unwrap_err().to_string()
+    };
+    let e = build_err(CameraDesc {
+        projection: Projection::Orthographic { half_height: 0.0 },
+        ..camera()
+    });
+    assert!(
+        e.contains("camera 0 ('cam')") && e.contains("half_height"),
+        "{e}"
+    );
+    let e = build_err(CameraDesc {
+        transform: Mat4::from_scale(Vec3::ZERO),
+        ..camera()
+    });
+    assert!(e.contains("camera 0") && e.contains("singular"), "{e}");
+    let mut projective = camera().transform;
+    projective.x_axis.w = 0.5;
+    let e = build_err(CameraDesc {
+        transform: projective,
+        ..camera()
+    });
+    assert!(e.contains("last row"), "{e}");
+}
+
+#[test]
+fn spot_cones_must_be_ordered_and_at_most_a_right_angle() {
+    let spot = |inner: f32, outer: f32| {
+        format!(
+            r#", "lights": [{{"type": "spot", "position": [0, 2, 0], "direction": [0, -1, 0], "intensity": [10, 10, 10], "inner_angle": {inner}, "outer_angle": {outer}}}]"#
+        )
+    };
+    refused(
+        &spot(60.0, 10.0),
+        &["lights[0].inner_angle", "outer_angle (10 degrees), got 60"],
+    );
+    refused(&spot(-5.0, 10.0), &["lights[0].inner_angle"]);
+    refused(&spot(0.0, 120.0), &["lights[0].outer_angle", "at most 90"]);
+    refused(&spot(0.0, 0.0), &["lights[0].outer_angle"]);
+    let mut d = ball();
+    d.lights.push(LightDesc::Spot {
+        position: Vec3::Y * 3.0,
+        direction: Vec3::NEG_Y,
+        intensity: Vec3::ONE,
+        inner_angle: 1.0,
+        outer_angle: 0.2,
+        range: f32::INFINITY,
+    });
+    let e = Scene::build(&d).map(|_| ()).unwrap_err().to_string();
+    assert!(e.contains("light 0") && e.contains("inner_angle"), "{e}");
+    // A hard-edged cone (inner = outer) is fine.
+    let text = format!(
+        r#"{{"camera": {{"position": [0, 0, 3], "look_at": [0, 0, 0]}}{}}}"#,
+        spot(30.0, 30.0)
+    );
+    parse_json(&text, Path::new("."), Path::new("scene.json")).unwrap();
+}
+
+#[test]
+fn transforms_must_be_affine() {
+    let matrix = |last: &str| {
+        format!(
+            r#", "objects": [{{"shape": {{"type": "sphere"}}, "material": "white", "transform": {{"matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], {last}]}}}}]"#
+        )
+    };
+    // `objects` is given twice in `json_error`'s text: use a scene of its own.
+    let load = |last: &str| {
+        let text = format!(
+            r#"{{"camera": {{"position": [0, 0, 3], "look_at": [0, 0, 0]}},
+  "materials": {{"white": {{"type": "diffuse"}}}}{}}}"#,
+            matrix(last)
+        );
+        parse_json(&text, Path::new("."), Path::new("scene.json")).map_err(|e| e.to_string())
+    };
+    let e = load("[0, 0.5, 0, 1]").unwrap_err();
+    assert!(
+        e.contains("objects[0].transform") && e.contains("last row"),
+        "{e}"
+    );
+    let e = load("[0, 0, 0, 2]").unwrap_err();
+    assert!(e.contains("last row"), "{e}");
+    // Rounding in the last row is tolerated.
+    load("[0, 0, 1e-8, 1.0000001]").unwrap();
+    let mut d = ball();
+    d.objects[0].transform.z_axis.w = -1.0;
+    let e = Scene::build(&d).map(|_| ()).unwrap_err().to_string();
+    assert!(
+        e.contains("object 0 ('ball')") && e.contains("last row"),
+        "{e}"
+    );
+}

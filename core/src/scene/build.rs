@@ -11,8 +11,8 @@
 
 use super::aggregate::{Aggregate, MeshBlas, Prim, Run, TopLevel};
 use super::desc::{
-    BsdfDesc, EnvironmentDesc, MaterialDesc, MediumDesc, MeshDesc, SceneDesc, ShapeDesc,
-    TextureRef, WrapMode,
+    check_spot_angles, check_transform, BsdfDesc, EnvironmentDesc, MaterialDesc, MediumDesc,
+    MeshDesc, SceneDesc, ShapeDesc, TextureRef, WrapMode,
 };
 use super::files::SceneFiles;
 use super::{Object, ObjectKind, RenderJob, Scene, SceneCamera, SceneError, SceneStats};
@@ -186,14 +186,9 @@ impl Scene {
                     o.material
                 )));
             }
-            if !o.transform.is_finite() {
-                return Err(invalid(format!("{}: transform is not finite", ctx())));
-            }
+            check_transform(&o.transform).map_err(|e| invalid(format!("{}: {e}", ctx())))?;
             let to_world = Affine3A::from_mat4(o.transform);
             let det = to_world.matrix3.determinant();
-            if !(det.abs() > 1e-12) || !det.is_finite() {
-                return Err(invalid(format!("{}: transform is singular", ctx())));
-            }
             let to_object = to_world.inverse();
             let normal_matrix = to_object.matrix3.transpose();
             let kind = match &o.shape {
@@ -420,12 +415,18 @@ impl Scene {
         let cameras = desc
             .cameras
             .iter()
-            .map(|c| SceneCamera {
-                name: c.name.clone(),
-                transform: c.transform,
-                projection: c.projection,
+            .enumerate()
+            .map(|(ci, c)| {
+                let bad = |e: String| invalid(format!("camera {ci} ('{}'): {e}", c.name));
+                check_transform(&c.transform).map_err(bad)?;
+                c.projection.check().map_err(|(_, e)| bad(e))?;
+                Ok(SceneCamera {
+                    name: c.name.clone(),
+                    transform: c.transform,
+                    projection: c.projection,
+                })
             })
-            .collect();
+            .collect::<Result<_, SceneError>>()?;
 
         let has_interfaces = materials.iter().any(|m| m.interface);
         Ok(Scene {
@@ -724,8 +725,11 @@ fn build_light(l: &super::desc::LightDesc) -> Result<Light, String> {
             outer_angle,
             range: r,
         } => {
-            let outer = outer_angle.clamp(0.0, PI * 0.5);
-            let inner = inner_angle.clamp(0.0, outer);
+            check_spot_angles(inner_angle.to_degrees(), outer_angle.to_degrees())
+                .map_err(|(_, e)| e)?;
+            // Within rounding of the checked range.
+            let outer = outer_angle.min(PI * 0.5);
+            let inner = inner_angle.min(outer);
             Light::Spot {
                 position: ok(position)?,
                 axis: dir(direction)?,

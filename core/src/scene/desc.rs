@@ -18,6 +18,77 @@ pub use crate::camera::Projection;
 pub use crate::material::AlphaMode;
 pub use crate::texture::WrapMode;
 
+/// Largest difference from [0, 0, 0, 1] the last row of a transform may show (rounding).
+const AFFINE_TOLERANCE: f32 = 1e-6;
+
+/// Checks an object's or a camera's transform: finite, affine (its last row is [0, 0, 0, 1]:
+/// a projective transform has no meaning for either), and not singular (no zero scale).
+pub fn check_transform(m: &Mat4) -> Result<(), String> {
+    if !m.is_finite() {
+        return Err("transform is not finite".into());
+    }
+    let det = glam::Mat3::from_mat4(*m).determinant();
+    if !(det.abs() > 1e-12) || !det.is_finite() {
+        return Err("transform is singular (a zero scale)".into());
+    }
+    let row = m.row(3);
+    if (row - glam::Vec4::W).abs().max_element() > AFFINE_TOLERANCE {
+        return Err(format!(
+            "the transform's last row must be [0, 0, 0, 1] (no projection), got [{}, {}, {}, {}]",
+            row.x, row.y, row.z, row.w
+        ));
+    }
+    Ok(())
+}
+
+/// Checks a material parameter that lives in [0, 1] (metallic, roughness...).
+pub fn check_unit(what: &str, x: f32) -> Result<(), String> {
+    if (0.0..=1.0).contains(&x) {
+        Ok(())
+    } else {
+        Err(format!("{what} must be between 0 and 1, got {x}"))
+    }
+}
+
+/// Checks an index of refraction (inside relative to outside): finite and positive.
+pub fn check_ior(ior: f32) -> Result<(), String> {
+    if ior.is_finite() && ior > 0.0 {
+        Ok(())
+    } else {
+        Err(format!("ior must be positive, got {ior}"))
+    }
+}
+
+/// Checks a per-channel coefficient (absorption per metre): finite and non-negative.
+pub fn check_coefficient(what: &str, v: Vec3) -> Result<(), String> {
+    if v.is_finite() && v.min_element() >= 0.0 {
+        Ok(())
+    } else {
+        Err(format!(
+            "{what} must be finite and non-negative in every channel, got [{}, {}, {}]",
+            v.x, v.y, v.z
+        ))
+    }
+}
+
+/// Checks a spot light's cone (half-angles in degrees): 0 ≤ inner ≤ outer, 0 < outer ≤ 90.
+/// The error is the field (`inner_angle` or `outer_angle`) and its message.
+pub fn check_spot_angles(inner: f32, outer: f32) -> Result<(), (&'static str, String)> {
+    if !(outer > 0.0 && outer <= 90.0 + 1e-4) {
+        return Err((
+            "outer_angle",
+            format!("outer_angle must be above 0 and at most 90 degrees, got {outer}"),
+        ));
+    }
+    if !(inner >= 0.0 && inner <= outer) {
+        return Err((
+            "inner_angle",
+            format!("inner_angle must be between 0 and outer_angle ({outer} degrees), got {inner}"),
+        ));
+    }
+    Ok(())
+}
+
 /// A complete scene description: geometry, materials, lights, cameras and render defaults.
 #[derive(Clone, Debug, Default)]
 pub struct SceneDesc {

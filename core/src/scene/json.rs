@@ -907,6 +907,9 @@ impl Converter<'_> {
                             ))
                         }
                     };
+                    check_spot_angles(*inner_angle, *outer_angle).map_err(|(field, e)| {
+                        self.err(&format!("{at}.{field}"), e, &format!("\"{field}\""))
+                    })?;
                     LightDesc::Spot {
                         position: v3(*position),
                         direction: dir,
@@ -1169,7 +1172,7 @@ impl Converter<'_> {
                 }
                 Projection::Perspective {
                     yfov: c.fov.to_radians(),
-                    aperture_radius: c.aperture.max(0.0),
+                    aperture_radius: c.aperture,
                     focus_distance: c.focus_distance.unwrap_or(fwd.length()),
                 }
             }
@@ -1177,6 +1180,9 @@ impl Converter<'_> {
                 half_height: c.half_height,
             },
         };
+        projection
+            .check()
+            .map_err(|(field, e)| self.err(&format!("{at}.{field}"), e, &format!("\"{field}\"")))?;
         Ok(CameraDesc {
             name: c.name.clone().unwrap_or_else(|| format!("camera {i}")),
             transform,
@@ -1416,7 +1422,9 @@ fn transform(t: &JTransform) -> Result<Mat4, String> {
         if t.translate.is_some() || t.rotate.is_some() || t.scale.is_some() {
             return Err("use either `matrix` or translate/rotate/scale, not both".into());
         }
-        return Ok(Mat4::from_cols_array_2d(&m).transpose());
+        let m = Mat4::from_cols_array_2d(&m).transpose();
+        check_transform(&m)?;
+        return Ok(m);
     }
     let s = match t.scale {
         None => Vec3::ONE,
@@ -1431,11 +1439,9 @@ fn transform(t: &JTransform) -> Result<Mat4, String> {
             x.to_radians(),
         )
     });
-    Ok(Mat4::from_scale_rotation_translation(
-        s,
-        r,
-        v3(t.translate.unwrap_or([0.0; 3])),
-    ))
+    let m = Mat4::from_scale_rotation_translation(s, r, v3(t.translate.unwrap_or([0.0; 3])));
+    check_transform(&m)?;
+    Ok(m)
 }
 
 #[cfg(test)]

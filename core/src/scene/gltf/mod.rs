@@ -541,6 +541,15 @@ impl<'a> Loader<'a> {
         world: Mat4,
     ) -> Result<(), String> {
         let what = format!("camera {}", cam.index());
+        // Only the rotation and the position are used, but a zero scale leaves neither.
+        let det = glam::Mat3::from_mat4(world).determinant();
+        if !(det.abs() > 1e-12) {
+            return Err(format!(
+                "{what} (node {}): the node's transform is singular (a zero scale), so the \
+                 camera has no direction",
+                node.index()
+            ));
+        }
         let name = cam
             .name()
             .or(node.name())

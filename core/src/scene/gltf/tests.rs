@@ -835,6 +835,17 @@ fn lights_cameras_and_units() {
         }),
     );
     expect_err(&bad, &["light 0", "cone"]);
+
+    // A camera on a node of zero scale has no direction: refused, not rendered black.
+    let flat = tri_scene(
+        json!({}),
+        json!({
+            "scenes": [{"nodes": [0, 1]}],
+            "nodes": [{"mesh": 0}, {"scale": [0, 0, 0], "translation": [0, 0, 5], "camera": 0}],
+            "cameras": [{"type": "perspective", "perspective": {"yfov": 0.7, "znear": 0.1}}],
+        }),
+    );
+    expect_err(&flat, &["camera 0", "node 1", "singular"]);
 }
 
 #[test]
