@@ -444,3 +444,94 @@ fn transforms_must_be_affine() {
         "{e}"
     );
 }
+
+#[test]
+fn material_parameters_must_be_in_their_ranges() {
+    let material = |m: &str| {
+        let text = format!(
+            r#"{{"camera": {{"position": [0, 0, 3], "look_at": [0, 0, 0]}},
+  "materials": {{"m": {m}}},
+  "objects": [{{"shape": {{"type": "sphere"}}, "material": "m"}}]}}"#
+        );
+        parse_json(&text, Path::new("."), Path::new("scene.json")).map_err(|e| e.to_string())
+    };
+    let refused = |m: &str, needles: &[&str]| {
+        let e = material(m).unwrap_err();
+        for n in needles {
+            assert!(e.contains(n), "{m}: error {e:?} does not mention {n:?}");
+        }
+    };
+    refused(
+        r#"{"type": "metal", "roughness": -0.3}"#,
+        &["materials.m.roughness", "between 0 and 1"],
+    );
+    refused(
+        r#"{"type": "metal", "roughness": 1.5}"#,
+        &["materials.m.roughness"],
+    );
+    refused(
+        r#"{"type": "frosted_glass", "roughness": -1}"#,
+        &["materials.m.roughness"],
+    );
+    refused(
+        r#"{"type": "pbr", "metallic": 5}"#,
+        &["materials.m.metallic", "got 5"],
+    );
+    refused(
+        r#"{"type": "pbr", "roughness": -2}"#,
+        &["materials.m.roughness", "got -2"],
+    );
+    refused(
+        r#"{"type": "pbr", "transmission": 2}"#,
+        &["materials.m.transmission"],
+    );
+    refused(
+        r#"{"type": "pbr", "ior": 0}"#,
+        &["materials.m.ior", "positive"],
+    );
+    refused(
+        r#"{"type": "glass", "ior": 0}"#,
+        &["materials.m.ior", "positive"],
+    );
+    refused(
+        r#"{"type": "glass", "absorption": [0.1, -0.5, 0]}"#,
+        &["materials.m.absorption", "non-negative"],
+    );
+    for ok in [
+        r#"{"type": "metal", "roughness": 0}"#,
+        r#"{"type": "metal", "preset": "gold", "roughness": 1}"#,
+        r#"{"type": "pbr", "metallic": 1, "roughness": 0, "ior": 1.33, "transmission": 1}"#,
+        r#"{"type": "glass", "ior": 0.75, "absorption": [0.1, 0.5, 0]}"#,
+    ] {
+        Scene::build(&material(ok).unwrap()).unwrap();
+    }
+    // Descriptions made by a program: the same rules when built.
+    let build_err = |bsdf: BsdfDesc| {
+        let mut d = ball();
+        d.materials[0].bsdf = bsdf;
+        Scene::build(&d).map(|_| ()).unwrap_err().to_string()
+    };
+    let e = build_err(BsdfDesc::Pbr(Box::new(PbrDesc {
+        metallic: 5.0,
+        ..PbrDesc::default()
+    })));
+    assert!(e.contains("material 'm'") && e.contains("metallic"), "{e}");
+    let e = build_err(BsdfDesc::Pbr(Box::new(PbrDesc {
+        ior: -1.0,
+        ..PbrDesc::default()
+    })));
+    assert!(e.contains("ior"), "{e}");
+    let e = build_err(BsdfDesc::Dielectric {
+        ior: 1.5,
+        transmittance: Vec3::ONE,
+        absorption: Vec3::new(-1.0, 0.0, 0.0),
+        thin: false,
+    });
+    assert!(e.contains("absorption"), "{e}");
+    let e = build_err(BsdfDesc::Conductor {
+        eta: Vec3::ONE,
+        k: Vec3::ONE,
+        alpha: -0.1,
+    });
+    assert!(e.contains("alpha"), "{e}");
+}

@@ -11,8 +11,9 @@
 
 use super::aggregate::{Aggregate, MeshBlas, Prim, Run, TopLevel};
 use super::desc::{
-    check_spot_angles, check_transform, BsdfDesc, EnvironmentDesc, MaterialDesc, MediumDesc,
-    MeshDesc, SceneDesc, ShapeDesc, TextureRef, WrapMode,
+    check_coefficient, check_ior, check_spot_angles, check_transform, check_unit, BsdfDesc,
+    EnvironmentDesc, MaterialDesc, MediumDesc, MeshDesc, SceneDesc, ShapeDesc, TextureRef,
+    WrapMode,
 };
 use super::files::SceneFiles;
 use super::{Object, ObjectKind, RenderJob, Scene, SceneCamera, SceneError, SceneStats};
@@ -792,6 +793,7 @@ fn build_material(m: &MaterialDesc, n_textures: usize) -> Result<Material, Scene
         },
         ..Default::default()
     };
+    let bad = |e: String| invalid(format!("material '{}': {e}", m.name));
     let mut absorption = Vec3A::ZERO;
     let mut base_color = Vec4::ONE;
     let mut interface = false;
@@ -813,20 +815,31 @@ fn build_material(m: &MaterialDesc, n_textures: usize) -> Result<Material, Scene
             absorption: a,
             thin,
         } => {
+            check_ior(*ior).map_err(bad)?;
+            check_coefficient("absorption", *a).map_err(bad)?;
             if !thin {
-                absorption = Vec3A::from(*a).max(Vec3A::ZERO);
+                absorption = Vec3A::from(*a);
             }
             Model::dielectric(*ior, Vec3A::from(*transmittance), *thin)
         }
         BsdfDesc::Conductor { eta, k, alpha } => {
+            check_unit("alpha (roughness²)", *alpha).map_err(bad)?;
             Model::conductor(Vec3A::from(*eta), Vec3A::from(*k), *alpha)
         }
         BsdfDesc::RoughDielectric {
             ior,
             alpha,
             transmittance,
-        } => Model::rough_dielectric(*ior, *alpha, Vec3A::from(*transmittance)),
+        } => {
+            check_ior(*ior).map_err(bad)?;
+            check_unit("alpha (roughness²)", *alpha).map_err(bad)?;
+            Model::rough_dielectric(*ior, *alpha, Vec3A::from(*transmittance))
+        }
         BsdfDesc::Pbr(p) => {
+            check_unit("metallic", p.metallic).map_err(bad)?;
+            check_unit("roughness", p.roughness).map_err(bad)?;
+            check_unit("transmission", p.transmission).map_err(bad)?;
+            check_ior(p.ior).map_err(bad)?;
             slots.base = check(&p.base_color_texture)?;
             slots.metallic_roughness = check(&p.metallic_roughness_texture)?;
             slots.transmission = check(&p.transmission_texture)?;

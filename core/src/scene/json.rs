@@ -710,6 +710,8 @@ impl Converter<'_> {
                     thin,
                 } => {
                     check_ior(*ior).map_err(|e| self.err(&format!("{at}.ior"), e, name))?;
+                    check_coefficient("absorption", v3(*absorption))
+                        .map_err(|e| self.err(&format!("{at}.absorption"), e, name))?;
                     BsdfDesc::Dielectric {
                         ior: *ior,
                         transmittance: v3(*transmittance),
@@ -723,6 +725,8 @@ impl Converter<'_> {
                     k,
                     roughness,
                 } => {
+                    check_unit("roughness", *roughness)
+                        .map_err(|e| self.err(&format!("{at}.roughness"), e, name))?;
                     let (pe, pk) = match preset.as_deref() {
                         None => ([0.2, 0.92, 1.1], [3.9, 2.45, 2.14]),
                         Some(p) => metal_preset(p).ok_or_else(|| {
@@ -732,7 +736,7 @@ impl Converter<'_> {
                     BsdfDesc::Conductor {
                         eta: v3(eta.unwrap_or(pe)),
                         k: v3(k.unwrap_or(pk)),
-                        alpha: roughness.clamp(0.0, 1.0).powi(2),
+                        alpha: roughness.powi(2),
                     }
                 }
                 JBsdf::RoughDielectric {
@@ -741,9 +745,11 @@ impl Converter<'_> {
                     transmittance,
                 } => {
                     check_ior(*ior).map_err(|e| self.err(&format!("{at}.ior"), e, name))?;
+                    check_unit("roughness", *roughness)
+                        .map_err(|e| self.err(&format!("{at}.roughness"), e, name))?;
                     BsdfDesc::RoughDielectric {
                         ior: *ior,
-                        alpha: roughness.clamp(0.0, 1.0).powi(2),
+                        alpha: roughness.powi(2),
                         transmittance: v3(*transmittance),
                     }
                 }
@@ -755,16 +761,28 @@ impl Converter<'_> {
                     specular,
                     ior,
                     transmission,
-                } => BsdfDesc::Pbr(Box::new(PbrDesc {
-                    base_color: [base_color[0], base_color[1], base_color[2], 1.0],
-                    base_color_texture: tex_ref(&self, &format!("{at}.texture"), texture)?,
-                    metallic: *metallic,
-                    roughness: *roughness,
-                    specular: *specular,
-                    ior: *ior,
-                    transmission: *transmission,
-                    ..PbrDesc::default()
-                })),
+                } => {
+                    for (field, x) in [
+                        ("metallic", metallic),
+                        ("roughness", roughness),
+                        ("specular", specular),
+                        ("transmission", transmission),
+                    ] {
+                        check_unit(field, *x)
+                            .map_err(|e| self.err(&format!("{at}.{field}"), e, name))?;
+                    }
+                    check_ior(*ior).map_err(|e| self.err(&format!("{at}.ior"), e, name))?;
+                    BsdfDesc::Pbr(Box::new(PbrDesc {
+                        base_color: [base_color[0], base_color[1], base_color[2], 1.0],
+                        base_color_texture: tex_ref(&self, &format!("{at}.texture"), texture)?,
+                        metallic: *metallic,
+                        roughness: *roughness,
+                        specular: *specular,
+                        ior: *ior,
+                        transmission: *transmission,
+                        ..PbrDesc::default()
+                    }))
+                }
                 JBsdf::Emitter {} => BsdfDesc::Diffuse {
                     albedo: Vec3::ZERO,
                     texture: None,
@@ -1393,14 +1411,6 @@ impl Converter<'_> {
             self.desc.cameras.push(c);
         }
         self.desc.warnings.extend(inc.warnings);
-    }
-}
-
-fn check_ior(ior: f32) -> Result<(), String> {
-    if ior.is_finite() && ior > 0.0 {
-        Ok(())
-    } else {
-        Err(format!("ior must be positive, got {ior}"))
     }
 }
 

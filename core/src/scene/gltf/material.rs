@@ -21,6 +21,11 @@ fn num(obj: Option<&Value>, key: &str, default: f32, what: &str) -> Result<f32, 
     }
 }
 
+/// What `KHR_materials_ior.ior` 0 (an infinite index) becomes: its reflectance at normal
+/// incidence ((n − 1)/(n + 1))² is 0.999996, rising to 1 at grazing angles, and the index
+/// stays finite for the refraction code.
+pub(super) const IOR_INFINITE: f32 = 1e6;
+
 fn check_finite(values: &[f32], what: &str) -> Result<(), String> {
     if values.iter().all(|x| x.is_finite()) {
         Ok(())
@@ -193,7 +198,18 @@ impl Loader<'_> {
         }
         if let Some(ior) = mat.ior() {
             check_finite(&[ior], &format!("{what}: KHR_materials_ior.ior"))?;
-            p.ior = ior;
+            p.ior = match ior {
+                // The specification's specular-glossiness compatibility mode: an infinite
+                // index, whose Fresnel term is 1 at every angle.
+                0.0 => IOR_INFINITE,
+                ior if ior >= 1.0 => ior,
+                _ => {
+                    return Err(format!(
+                        "{what}: KHR_materials_ior.ior must be at least 1, or 0 (an infinite \
+                         index), got {ior}"
+                    ))
+                }
+            };
         }
         if let Some(tr) = mat.transmission() {
             p.transmission = tr.transmission_factor();

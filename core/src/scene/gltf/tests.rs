@@ -355,6 +355,33 @@ fn thin_walled_and_solid_transmission() {
     assert!(s.environment.is_none());
 }
 
+/// `KHR_materials_ior`: at least 1, or 0, which the specification defines as an infinite
+/// index (Fresnel reflectance 1); anything else is refused.
+#[test]
+fn ior_follows_the_specification() {
+    let ior = |v: f32| {
+        tri_scene(
+            json!({"material": 0}),
+            json!({"extensionsUsed": ["KHR_materials_ior"],
+                "materials": [{"extensions": {"KHR_materials_ior": {"ior": v}}}]}),
+        )
+    };
+    assert_eq!(pbr(&load(&ior(1.0)).unwrap().materials[0]).ior, 1.0);
+    assert_eq!(pbr(&load(&ior(2.4)).unwrap().materials[0]).ior, 2.4);
+    let s = load(&ior(0.0)).unwrap();
+    let n = pbr(&s.materials[0]).ior;
+    assert!(((n - 1.0) / (n + 1.0)).powi(2) > 0.9999, "ior 0 became {n}");
+    crate::Scene::build(&s).unwrap();
+    expect_err(
+        &ior(-1.5),
+        &["material 0", "KHR_materials_ior.ior", "at least 1"],
+    );
+    expect_err(
+        &ior(0.5),
+        &["material 0", "KHR_materials_ior.ior", "at least 1"],
+    );
+}
+
 /// Negative emission is no light: refused (not taken for an unlit model), and so is emission
 /// above the largest radiance, and a light whose colour × intensity is.
 #[test]
