@@ -5,6 +5,7 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use raytile_core::film::{self, OutputOptions, ToneMap};
 use raytile_core::scene::files::SceneFiles;
+use raytile_core::scene::gltf::{no_light_warning, NO_LIGHT_WARNING};
 use raytile_core::{load_scene, RenderJob, RenderOverrides, RenderProgress, Scene, SettingsError};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -69,10 +70,15 @@ pub fn run(args: RenderArgs) -> Result<()> {
     let start = Instant::now();
     film::ImageFormat::from_path(&args.output)?;
     let desc = load_scene(&args.scene)?;
-    for w in &desc.warnings {
-        eprintln!("raytile: warning: {w}");
-    }
     let settings = desc.render.resolve(&args.overrides).map_err(flag_error)?;
+    for w in &desc.warnings {
+        // The default light's warning says what this render does in its place.
+        if w == NO_LIGHT_WARNING {
+            eprintln!("raytile: warning: {}", no_light_warning(&settings));
+        } else {
+            eprintln!("raytile: warning: {w}");
+        }
+    }
     let mut pool = rayon::ThreadPoolBuilder::new();
     if let Some(t) = args.threads {
         pool = pool.num_threads(t);

@@ -578,3 +578,71 @@ fn bench_prints_its_figures_at_small_sizes() {
         );
     }
 }
+
+/// A model with no light gets the default white environment, with a warning; with a light of
+/// the render's own (or none), the warning says so instead.
+#[test]
+fn the_default_light_warning_says_what_the_render_does() {
+    let dir = std::env::temp_dir().join(format!("raytile-cli-unlit-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let model = dir.join("unlit.gltf");
+    std::fs::write(
+        &model,
+        r#"{"asset": {"version": "2.0"},
+  "buffers": [{"byteLength": 36, "uri": "data:application/octet-stream;base64,AAAAAAAAAAAAAAAAAACAPwAAAAAAAAAAAAAAAAAAgD8AAAAA"}],
+  "bufferViews": [{"buffer": 0, "byteLength": 36}],
+  "accessors": [{"bufferView": 0, "componentType": 5126, "type": "VEC3", "count": 3,
+    "min": [0, 0, 0], "max": [1, 1, 0]}],
+  "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+  "nodes": [{"mesh": 0}], "scenes": [{"nodes": [0]}]}"#,
+    )
+    .unwrap();
+    let out = dir.join("out.exr");
+    let render = |extra: &[&str]| {
+        let o = raytile()
+            .arg("render")
+            .arg(&model)
+            .arg("-o")
+            .arg(&out)
+            .args([
+                "--width",
+                "8",
+                "--height",
+                "8",
+                "--spp",
+                "1",
+                "--threads",
+                "1",
+            ])
+            .args(extra)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr).to_string();
+        assert!(o.status.success(), "{err}");
+        err
+    };
+    let added = "a constant white environment was added";
+    let err = render(&[]);
+    assert!(err.contains("has no light") && err.contains(added), "{err}");
+    for (flags, says) in [
+        (
+            &["--environment", "none"][..],
+            "environment is none: no light was added",
+        ),
+        (
+            &["--environment", "0.5,0.5,0.5"][..],
+            "environment (0.5,0.5,0.5) lights it",
+        ),
+        (
+            &["--no-default-light"][..],
+            "default light is off: no light was added",
+        ),
+    ] {
+        let err = render(flags);
+        assert!(
+            err.contains("has no light") && err.contains(says) && !err.contains(added),
+            "{flags:?}: {err}"
+        );
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -46,6 +46,36 @@ pub const SUPPORTED_EXTENSIONS: &[&str] = &[
 /// Largest glTF/GLB file or external buffer read.
 pub(super) const MAX_FILE_BYTES: u64 = 1 << 32;
 
+/// The warning the loader gives a model that nothing lights, when it adds the default light.
+pub const NO_LIGHT_WARNING: &str = "the scene has no light (no punctual light, no emissive \
+    surface other than emissive textures): a constant white environment was added";
+
+/// [`NO_LIGHT_WARNING`] as it applies to a render with `settings`: the environment a job
+/// brings (or none) replaces the default light, and `default_light` false leaves it out, so
+/// the warning says what lights the render instead.
+pub fn no_light_warning(settings: &crate::RenderSettings) -> String {
+    use crate::settings::EnvironmentChoice;
+    let unlit = "the scene has no light (no punctual light, no emissive surface other than \
+                 emissive textures)";
+    match &settings.environment {
+        Some(EnvironmentChoice::None) => format!(
+            "{unlit} and the render's environment is none: no light was added, only emissive \
+             surfaces show"
+        ),
+        Some(EnvironmentChoice::Constant(_) | EnvironmentChoice::Map(_)) => {
+            format!(
+            "{unlit}: the render's environment ({}) lights it in place of the default white one",
+            settings.environment.as_ref().map_or(String::new(), |e| e.to_string())
+        )
+        }
+        None if !settings.default_light => format!(
+            "{unlit} and the default light is off: no light was added, only emissive surfaces \
+             show"
+        ),
+        None => NO_LIGHT_WARNING.to_string(),
+    }
+}
+
 /// Options for [`load_gltf_with`] and [`load_gltf_slice`].
 #[derive(Clone, Debug)]
 pub struct GltfOptions {
@@ -674,9 +704,7 @@ impl<'a> Loader<'a> {
                 radiance: Vec3::ONE,
             });
             self.desc.default_environment = true;
-            self.warn(
-                "the scene has no light (no punctual light, no emissive surface other than emissive textures): a constant white environment was added".into(),
-            );
+            self.warn(NO_LIGHT_WARNING.into());
         }
         Ok(())
     }
