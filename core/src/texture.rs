@@ -60,8 +60,9 @@ pub fn linear_to_srgb(c: f32) -> f32 {
 
 impl Texture {
     /// A `width × height` image from its RGBA texels, row by row from the top, decoding sRGB
-    /// colour (not alpha) to linear once here when `srgb`. Non-finite texels become zero; a
-    /// texel count that does not match the size gives a single white texel.
+    /// colour (not alpha) to linear once here when `srgb`. Non-finite texels become zero, and
+    /// negative values zero (no texture of colour, alpha, normals or light has a meaning
+    /// below it); a texel count that does not match the size gives a single white texel.
     pub fn new(
         width: u32,
         height: u32,
@@ -79,7 +80,7 @@ impl Texture {
                     Vec4::new(r, g, b, a)
                 };
                 if v.is_finite() {
-                    v
+                    v.max(Vec4::ZERO)
                 } else {
                     Vec4::ZERO
                 }
@@ -220,6 +221,30 @@ mod tests {
         assert!((s.x - 0.214_041).abs() < 1e-4, "{s}");
         assert_eq!(l.x, 0.5);
         assert!((linear_to_srgb(srgb_to_linear(0.3)) - 0.3).abs() < 1e-5);
+    }
+
+    /// NaN, infinite and negative texels (a few are common in real EXR files) are read as 0.
+    #[test]
+    fn bad_texels_are_read_as_zero() {
+        let lookup = TextureLookup {
+            wrap_u: WrapMode::Clamp,
+            wrap_v: WrapMode::Clamp,
+            bilinear: false,
+        };
+        let t = Texture::new(
+            3,
+            1,
+            &[
+                [f32::NAN, 0.5, 0.5, 1.0],
+                [f32::INFINITY, 0.5, 0.5, 1.0],
+                [-0.25, 0.5, 2.0, 1.0],
+            ],
+            false,
+            lookup,
+        );
+        assert_eq!(t.texel(0, 0), Vec4::ZERO);
+        assert_eq!(t.texel(1, 0), Vec4::ZERO);
+        assert_eq!(t.texel(2, 0), Vec4::new(0.0, 0.5, 2.0, 1.0));
     }
 
     #[test]

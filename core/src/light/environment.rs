@@ -30,15 +30,17 @@ pub enum Environment {
 }
 
 /// Checks an equirectangular map (RGBA texels row by row, `width` wide) and the `scale` that
-/// multiplies it (named `scale_name` in messages): the scale finite and non-negative, every texel finite and non-negative, and
-/// at most [`super::MAX_RADIANCE`] once scaled. The message names the first bad texel.
+/// multiplies it (named `scale_name` in messages): the scale finite and non-negative, and
+/// every texel at most [`super::MAX_RADIANCE`] once scaled (the message names the brightest).
+/// NaN, infinite and negative texels are not refused: [`Texture::new`] reads them as zero, as
+/// real EXR skies may hold a few (from colour conversions or stitching).
 pub fn check_map(
     texels: &[[f32; 4]],
     width: u32,
     scale: f32,
     scale_name: &str,
 ) -> Result<(), String> {
-    use super::{check_radiance, show_number, MAX_RADIANCE};
+    use super::{show_number, MAX_RADIANCE};
     if !(scale.is_finite() && scale >= 0.0) {
         return Err(format!(
             "{scale_name} must be finite and non-negative, got {}",
@@ -52,9 +54,8 @@ pub fn check_map(
     let mut brightest = (0.0f32, 0);
     for (i, t) in texels.iter().enumerate() {
         let c = Vec3A::new(t[0], t[1], t[2]);
-        if !(c.is_finite() && c.min_element() >= 0.0) {
-            // The message of the same check as every other light's.
-            return check_radiance(&at(i), c);
+        if !c.is_finite() {
+            continue;
         }
         if c.max_element() > brightest.0 {
             brightest = (c.max_element(), i);

@@ -146,6 +146,8 @@ impl Loader<'_> {
             &[p.metallic, p.roughness],
             &format!("{what}: metallic/roughness"),
         )?;
+        p.metallic = self.unit_factor(p.metallic, &format!("{what}: metallicFactor"));
+        p.roughness = self.unit_factor(p.roughness, &format!("{what}: roughnessFactor"));
         if let Some(info) = pbr.base_color_texture() {
             p.base_color_texture = self.texture_ref(
                 &info.texture(),
@@ -214,6 +216,8 @@ impl Loader<'_> {
         if let Some(tr) = mat.transmission() {
             p.transmission = tr.transmission_factor();
             check_finite(&[p.transmission], &format!("{what}: transmissionFactor"))?;
+            p.transmission =
+                self.unit_factor(p.transmission, &format!("{what}: transmissionFactor"));
             if let Some(info) = tr.transmission_texture() {
                 p.transmission_texture = self.texture_ref(
                     &info.texture(),

@@ -201,6 +201,19 @@ impl Loader<'_> {
         log::warn!("{message}");
         self.desc.warnings.push(message);
     }
+
+    /// A factor the specification bounds to [0, 1] (metallic, roughness, transmission),
+    /// clamped into it with a warning when a file strays out (exporters write 1.0000001 now
+    /// and then; the renderer refuses such values only from its own scene format).
+    pub(super) fn unit_factor(&mut self, value: f32, what: &str) -> f32 {
+        let clamped = value.clamp(0.0, 1.0);
+        if clamped != value {
+            self.warn(format!(
+                "{what} {value} is outside [0, 1]; {clamped} is used"
+            ));
+        }
+        clamped
+    }
 }
 
 /// Refuses unsupported required extensions; warns about unsupported optional ones.

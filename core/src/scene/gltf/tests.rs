@@ -355,6 +355,32 @@ fn thin_walled_and_solid_transmission() {
     assert!(s.environment.is_none());
 }
 
+/// Factors the specification bounds to [0, 1] are clamped into it with a warning (exporters
+/// stray by a rounding error now and then), and the scene builds.
+#[test]
+fn unit_factors_out_of_range_are_clamped_with_a_warning() {
+    let s = load(&tri_scene(
+        json!({"material": 0}),
+        json!({"extensionsUsed": ["KHR_materials_transmission"],
+            "materials": [{
+                "pbrMetallicRoughness": {"metallicFactor": 1.0000001, "roughnessFactor": -0.2},
+                "extensions": {"KHR_materials_transmission": {"transmissionFactor": 3.0}}}]}),
+    ))
+    .unwrap();
+    let p = pbr(&s.materials[0]);
+    assert_eq!((p.metallic, p.roughness, p.transmission), (1.0, 0.0, 1.0));
+    for f in ["metallicFactor", "roughnessFactor", "transmissionFactor"] {
+        assert!(
+            s.warnings
+                .iter()
+                .any(|w| w.contains(f) && w.contains("outside [0, 1]")),
+            "{f}: {:?}",
+            s.warnings
+        );
+    }
+    crate::Scene::build(&s).unwrap();
+}
+
 /// `KHR_materials_ior`: at least 1, or 0, which the specification defines as an infinite
 /// index (Fresnel reflectance 1); anything else is refused.
 #[test]
