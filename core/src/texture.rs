@@ -4,7 +4,7 @@ use glam::{Mat3, Vec2, Vec3, Vec4};
 use serde::{Deserialize, Serialize};
 
 /// Texture addressing outside [0, 1].
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum WrapMode {
     /// Tile the image.
@@ -32,7 +32,8 @@ pub struct TextureLookup {
 pub struct Texture {
     width: u32,
     height: u32,
-    texels: Vec<Vec4>,
+    /// Linear RGBA, row by row (arrays rather than `Vec4`s, so the loader's buffer is reused).
+    texels: Vec<[f32; 4]>,
     wrap_u: WrapMode,
     wrap_v: WrapMode,
     bilinear: bool,
@@ -70,28 +71,40 @@ impl Texture {
         srgb: bool,
         lookup: TextureLookup,
     ) -> Self {
+        Self::from_texels(width, height, texels.to_vec(), srgb, lookup)
+    }
+
+    /// [`Texture::new`] taking the texels by value: they are converted in place, so a large
+    /// image is held once while its texture is made, not twice.
+    pub fn from_texels(
+        width: u32,
+        height: u32,
+        mut texels: Vec<[f32; 4]>,
+        srgb: bool,
+        lookup: TextureLookup,
+    ) -> Self {
         let expected = width as usize * height as usize;
-        let mut texels: Vec<Vec4> = texels
-            .iter()
-            .map(|&[r, g, b, a]| {
-                let v = if srgb {
-                    Vec4::new(srgb_to_linear(r), srgb_to_linear(g), srgb_to_linear(b), a)
-                } else {
-                    Vec4::new(r, g, b, a)
-                };
-                if v.is_finite() {
-                    v.max(Vec4::ZERO)
-                } else {
-                    Vec4::ZERO
-                }
-            })
-            .collect();
+        for t in &mut texels {
+            let [r, g, b, a] = *t;
+            let v = if srgb {
+                Vec4::new(srgb_to_linear(r), srgb_to_linear(g), srgb_to_linear(b), a)
+            } else {
+                Vec4::new(r, g, b, a)
+            };
+            *t = if v.is_finite() {
+                v.max(Vec4::ZERO)
+            } else {
+                Vec4::ZERO
+            }
+            .to_array();
+        }
         let (mut width, mut height) = (width, height);
         if expected == 0 || texels.len() != expected {
-            texels = vec![Vec4::ONE];
+            texels = vec![[1.0; 4]];
             width = 1;
             height = 1;
         }
+        texels.shrink_to_fit();
         Self {
             width,
             height,
@@ -104,7 +117,7 @@ impl Texture {
 
     /// Bytes of texel memory, for cache budgets.
     pub fn memory_bytes(&self) -> usize {
-        self.texels.capacity() * std::mem::size_of::<Vec4>()
+        self.texels.capacity() * std::mem::size_of::<[f32; 4]>()
     }
 
     /// Width in texels.
@@ -122,14 +135,14 @@ impl Texture {
     pub fn texel(&self, x: i64, y: i64) -> Vec4 {
         let x = wrap(x, self.width as i64, self.wrap_u);
         let y = wrap(y, self.height as i64, self.wrap_v);
-        self.texels[y as usize * self.width as usize + x as usize]
+        Vec4::from_array(self.texels[y as usize * self.width as usize + x as usize])
     }
 
     /// Filtered value at `uv` ((0,0) is the top-left corner of the image, as in glTF).
     #[inline]
     pub fn lookup(&self, uv: Vec2) -> Vec4 {
         if !uv.is_finite() {
-            return self.texels[0];
+            return Vec4::from_array(self.texels[0]);
         }
         let x = uv.x * self.width as f32 - 0.5;
         let y = uv.y * self.height as f32 - 0.5;

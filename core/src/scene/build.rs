@@ -54,22 +54,24 @@ impl Scene {
     /// each mesh's arrays are freed as soon as its runtime mesh is made, before the BVHs are
     /// built (on rayon's pool, in parallel where it pays: bounds, corners, validation).
     pub fn build_owned(mut desc: SceneDesc) -> Result<Scene, SceneError> {
-        let textures: Vec<Texture> = desc
-            .textures
-            .iter()
+        // Each texture's description is freed once its texture is made, so a scene's texels
+        // are held about once, not twice, while it builds.
+        let n_textures = desc.textures.len();
+        let textures: Vec<Texture> = std::mem::take(&mut desc.textures)
+            .into_iter()
             .map(|t| {
                 let lookup = TextureLookup {
                     wrap_u: t.wrap_u,
                     wrap_v: t.wrap_v,
                     bilinear: t.bilinear,
                 };
-                Texture::new(t.width, t.height, &t.texels, t.srgb, lookup)
+                Texture::from_texels(t.width, t.height, t.texels, t.srgb, lookup)
             })
             .collect();
         let materials = desc
             .materials
             .iter()
-            .map(|m| build_material(m, desc.textures.len()))
+            .map(|m| build_material(m, n_textures))
             .collect::<Result<Vec<_>, _>>()?;
 
         // Meshes: validate and convert, each description freed once converted.
@@ -78,6 +80,7 @@ impl Scene {
         for (mi, m) in mesh_descs.into_iter().enumerate() {
             meshes.push(build_mesh(mi, m)?);
         }
+        let environment_desc = desc.environment.take();
         let desc = &desc;
         let mut uses = vec![0u32; meshes.len()];
         for o in &desc.objects {
@@ -389,10 +392,11 @@ impl Scene {
             area_lights.push(light);
         }
         stats.lights = lights.len();
-        let environment = match &desc.environment {
+        // The map's description likewise, once the map is made.
+        let environment = match environment_desc {
             None => None,
             Some(EnvironmentDesc::Constant { radiance }) => {
-                let radiance = Vec3A::from(*radiance);
+                let radiance = Vec3A::from(radiance);
                 check_radiance("radiance", radiance)
                     .map_err(|e| invalid(format!("environment: {e}")))?;
                 Some(Arc::new(Environment::constant(radiance)))
@@ -402,15 +406,15 @@ impl Scene {
                 scale,
                 rotation_y,
             }) => {
-                check_map(&t.texels, t.width, *scale, "scale")
+                check_map(&t.texels, t.width, scale, "scale")
                     .map_err(|e| invalid(format!("environment map {}: {e}", t.name)))?;
                 let lookup = TextureLookup {
                     wrap_u: t.wrap_u,
                     wrap_v: t.wrap_v,
                     bilinear: t.bilinear,
                 };
-                let texture = Texture::new(t.width, t.height, &t.texels, t.srgb, lookup);
-                Some(Arc::new(Environment::map(texture, *scale, *rotation_y)))
+                let texture = Texture::from_texels(t.width, t.height, t.texels, t.srgb, lookup);
+                Some(Arc::new(Environment::map(texture, scale, rotation_y)))
             }
         };
         let cameras = desc
@@ -920,7 +924,7 @@ pub fn load_environment_map(
         wrap_v: WrapMode::Clamp,
         bilinear: true,
     };
-    let texture = Texture::new(img.width, img.height, &img.texels, false, lookup);
+    let texture = Texture::from_texels(img.width, img.height, img.texels, false, lookup);
     Ok(Environment::map(
         texture,
         strength,

@@ -69,10 +69,19 @@ pub fn decode_image(bytes: &[u8]) -> Result<DecodedImage, String> {
         .decode()
         .map_err(|e| format!("cannot decode: {e}"))?
         .into_rgba32f();
+    let (width, height) = (img.width(), img.height());
+    // The decoder's buffer becomes the texels (no second copy of the image at its peak),
+    // unless its capacity is no whole number of texels.
+    let texels = bytemuck::allocation::try_cast_vec::<f32, [f32; 4]>(img.into_raw())
+        .unwrap_or_else(|(_, raw)| {
+            raw.chunks_exact(4)
+                .map(|c| [c[0], c[1], c[2], c[3]])
+                .collect()
+        });
     Ok(DecodedImage {
-        width: img.width(),
-        height: img.height(),
-        texels: img.pixels().map(|p| p.0).collect(),
+        width,
+        height,
+        texels,
     })
 }
 

@@ -381,20 +381,26 @@ impl Loader<'_> {
     /// The [`crate::scene::desc::SceneDesc::textures`] index of glTF texture `tex` as sRGB or
     /// linear data; `None` (with a warning) for a texture without an image.
     fn texture(&mut self, tex: &gltf::Texture, srgb: bool) -> Result<Option<usize>, String> {
-        if let Some(&i) = self.texture_cache.get(&(tex.index(), srgb)) {
-            return Ok(Some(i));
-        }
         let Some(image) = tex.source() else {
             self.warn(format!("texture {}: no image source; ignored", tex.index()));
             return Ok(None);
         };
-        let decoded = self.image(&image)?;
         let sampler = tex.sampler();
         let wrap = |w: gltf::texture::WrappingMode| match w {
             gltf::texture::WrappingMode::ClampToEdge => WrapMode::Clamp,
             gltf::texture::WrappingMode::MirroredRepeat => WrapMode::MirroredRepeat,
             gltf::texture::WrappingMode::Repeat => WrapMode::Repeat,
         };
+        let (wrap_u, wrap_v) = (wrap(sampler.wrap_s()), wrap(sampler.wrap_t()));
+        let bilinear = !matches!(
+            sampler.mag_filter(),
+            Some(gltf::texture::MagFilter::Nearest)
+        );
+        let key = (image.index(), srgb, wrap_u, wrap_v, bilinear);
+        if let Some(&i) = self.texture_cache.get(&key) {
+            return Ok(Some(i));
+        }
+        let decoded = self.image(&image)?;
         self.charge(
             decoded.texels.len() * 16,
             &format!("texture {}", tex.index()),
@@ -408,16 +414,13 @@ impl Loader<'_> {
             height: decoded.height,
             texels: decoded.texels.clone(),
             srgb,
-            wrap_u: wrap(sampler.wrap_s()),
-            wrap_v: wrap(sampler.wrap_t()),
-            bilinear: !matches!(
-                sampler.mag_filter(),
-                Some(gltf::texture::MagFilter::Nearest)
-            ),
+            wrap_u,
+            wrap_v,
+            bilinear,
         };
         let i = self.desc.textures.len();
         self.desc.textures.push(desc);
-        self.texture_cache.insert((tex.index(), srgb), i);
+        self.texture_cache.insert(key, i);
         Ok(Some(i))
     }
 

@@ -177,7 +177,18 @@ pub(super) struct Loader<'a> {
     /// SceneDesc mesh per (mesh, primitive); `None` for skipped primitives.
     mesh_cache: HashMap<(usize, usize), Option<usize>>,
     material_cache: HashMap<Option<usize>, usize>,
-    texture_cache: HashMap<(usize, bool), usize>,
+    /// By (image, sRGB, wrap s, wrap t, bilinear): textures of one image with the same
+    /// sampling share one description (and its texels), whichever glTF texture names them.
+    texture_cache: HashMap<
+        (
+            usize,
+            bool,
+            super::desc::WrapMode,
+            super::desc::WrapMode,
+            bool,
+        ),
+        usize,
+    >,
     image_cache: HashMap<usize, Rc<crate::scene::image::DecodedImage>>,
 }
 

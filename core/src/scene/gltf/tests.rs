@@ -222,14 +222,16 @@ fn colour_textures_are_srgb_and_data_textures_linear() {
         json!({
             "images": [{"uri": png_data_uri()}],
             "samplers": [{"magFilter": 9728, "wrapS": 33071, "wrapT": 33648}],
-            "textures": [{"source": 0, "sampler": 0}],
+            // Textures 1 and 2 name the same image and sampling as texture 0 (an exporter's
+            // habit): they share its decoded copy.
+            "textures": [{"source": 0, "sampler": 0}, {"source": 0, "sampler": 0}, {"source": 0, "sampler": 0}],
             "materials": [{
                 "pbrMetallicRoughness": {
                     "baseColorTexture": {"index": 0},
-                    "metallicRoughnessTexture": {"index": 0},
+                    "metallicRoughnessTexture": {"index": 1},
                 },
                 "normalTexture": {"index": 0, "scale": 0.5},
-                "emissiveTexture": {"index": 0},
+                "emissiveTexture": {"index": 2},
             }],
         }),
     );
@@ -244,7 +246,11 @@ fn colour_textures_are_srgb_and_data_textures_linear() {
     let (n, scale) = m.normal_texture.unwrap();
     assert!(!s.textures[n.texture].srgb);
     assert_eq!(scale, 0.5);
-    assert_eq!(s.textures.len(), 2, "one decoded copy per colour space");
+    assert_eq!(
+        s.textures.len(),
+        2,
+        "one decoded copy per colour space, whichever texture names the image"
+    );
     assert_eq!((base.width, base.height), (2, 2));
     assert_eq!(base.texels[1], [1.0, 0.0, 128.0 / 255.0, 1.0]);
     assert_eq!(
