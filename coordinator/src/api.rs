@@ -279,8 +279,17 @@ async fn create_job(
     let lim = &state.cfg.limits;
     lim.check_job(&settings)
         .map_err(|e| AppError::invalid(e.field, e.message))?;
-    if let Some(proto::EnvironmentChoice::Map(map)) = &settings.environment {
-        scenes::check_environment_map(&state, &m, map).await?;
+    // The job's environment times its strength, as a worker will set it up.
+    match &settings.environment {
+        Some(proto::EnvironmentChoice::Map(map)) => {
+            scenes::check_environment_map(&state, &m, map, settings.environment_strength).await?;
+        }
+        Some(proto::EnvironmentChoice::Constant(c)) => {
+            let scaled = glam::Vec3A::from(*c) * settings.environment_strength;
+            raytile_core::light::check_radiance("the environment colour times it", scaled)
+                .map_err(|e| AppError::invalid("environment_strength", e))?;
+        }
+        _ => {}
     }
     // The layout (every tile, ordered centre-out) is the costly part of a large job: made here,
     // outside the scheduler's lock, which then only stores one row.

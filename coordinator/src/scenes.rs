@@ -389,11 +389,13 @@ fn store_scene(
 /// through the scene's confined resolver within `limits`, like any file of the scene, and
 /// decoded once, at most [`SceneLimits::max_parallel_parses`] at a time. The error says why
 /// (a missing file, a path leaving the folder, an undecodable image), for a 422 naming the
-/// `environment` field.
+/// `environment` field. Its texels times the job's `strength` must be at most the largest
+/// radiance, as a worker checks them.
 pub async fn check_environment_map(
     state: &AppState,
     m: &SceneMeta,
     map: &str,
+    strength: f32,
 ) -> Result<(), AppError> {
     let limits = state.cfg.scene_limits.clone();
     let permit =
@@ -423,7 +425,7 @@ pub async fn check_environment_map(
         .with_memory_limit(limits.max_parse_memory);
         let base = file.parent().unwrap_or(Path::new("."));
         let check =
-            || raytile_core::scene::build::load_environment_map(&map, base, &files, 1.0, 0.0);
+            || raytile_core::scene::build::load_environment_map(&map, base, &files, strength, 0.0);
         match std::panic::catch_unwind(std::panic::AssertUnwindSafe(check)) {
             Ok(Ok(_)) => Ok(()),
             Ok(Err(e)) => Err(AppError::invalid(

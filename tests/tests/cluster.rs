@@ -1255,7 +1255,8 @@ mod cancel {
 
 /// A job's own environment (`environment`: a map packed with the scene, or a colour): the
 /// farm's image equals the local render bit for bit, and a map outside the scene's folder or
-/// missing from it is refused with 422 naming the field. (Needs the core.)
+/// missing from it, or an environment too bright once scaled, is refused with 422 naming the
+/// field. (Needs the core.)
 mod environment {
     use super::*;
     use raytile_core::scene::files::SceneFiles;
@@ -1355,6 +1356,31 @@ mod environment {
             assert_eq!(r.status(), 422, "{map}");
             let body: serde_json::Value = r.json().await.unwrap();
             assert_eq!(body["error"]["field"], "environment", "{map}: {body}");
+        }
+        // A colour or a map that the strength takes above the largest radiance (1e30): 422
+        // at submission, not a failure on every worker.
+        let too_bright = [
+            (
+                EnvironmentChoice::Constant([1.0; 3]),
+                "environment_strength",
+            ),
+            (EnvironmentChoice::Map("studio.hdr".into()), "environment"),
+        ];
+        for (env, field) in too_bright {
+            let mut req = job(&id, 16);
+            req.overrides.environment = Some(env.clone());
+            req.overrides.environment_strength = Some(1e38);
+            let r = reqwest::Client::new()
+                .post(format!("{}/v1/jobs", c.base))
+                .json(&req)
+                .send()
+                .await
+                .unwrap();
+            assert_eq!(r.status(), 422, "{env}");
+            let body: serde_json::Value = r.json().await.unwrap();
+            assert_eq!(body["error"]["field"], field, "{env}: {body}");
+            let message = body["error"]["message"].as_str().unwrap_or_default();
+            assert!(message.contains("1e30"), "{env}: {body}");
         }
         for w in ws {
             w.stop().await;
