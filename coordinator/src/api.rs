@@ -656,17 +656,37 @@ fn check_splats(splats: &[(u32, [i64; 3])], splat_pixels: Option<u64>) -> Result
     Ok(())
 }
 
-/// Every pixel sum of a result must be a finite number: a NaN or an infinity would turn the
-/// tile black (or spread into the frame) when it is composed. (Splats are integers, always
-/// finite.) The error names the first pixel, in frame coordinates, and the value.
-fn check_finite(acc: &proto::tile::TileAccum) -> Result<(), String> {
+/// Every pixel sum of a result must be one a renderer can have made from a pass of
+/// `samples` samples: finite (a NaN or an infinity would turn the tile black, or spread into
+/// the frame, when it is composed), a weight (the samples kept) from 0 to `samples`, and
+/// colour sums at most the weight times the largest sample value the film takes (so that
+/// adding passes never overflows). (Splats are integers, always finite.) The error names the
+/// first pixel, in frame coordinates, and the value.
+pub(crate) fn check_sums(acc: &proto::tile::TileAccum, samples: u32) -> Result<(), String> {
     let w = acc.tile.width().max(1) as usize;
+    let limit = f64::from(raytile_core::film::MAX_SAMPLE);
     for (i, p) in acc.pixels.iter().enumerate() {
+        let at = || (acc.tile.x0 as usize + i % w, acc.tile.y0 as usize + i / w);
         if let Some(k) = p.iter().position(|v| !v.is_finite()) {
-            let (x, y) = (acc.tile.x0 as usize + i % w, acc.tile.y0 as usize + i / w);
+            let (x, y) = at();
             let what = ["red sum", "green sum", "blue sum", "weight"][k];
             return Err(format!(
                 "pixel ({x}, {y}) has a {what} of {}: a result's sums must be finite numbers",
+                p[k]
+            ));
+        }
+        let weight = p[3];
+        if !(0.0..=samples as f32).contains(&weight) {
+            let (x, y) = at();
+            return Err(format!(
+                "pixel ({x}, {y}) has a weight of {weight}: the pass has {samples} samples"
+            ));
+        }
+        if let Some(k) = (0..3).find(|&k| f64::from(p[k].abs()) > f64::from(weight) * limit) {
+            let (x, y) = at();
+            return Err(format!(
+                "pixel ({x}, {y}) has a colour sum of {} over {weight} samples: above the \
+                 largest sample value ({limit:e}) times the weight",
                 p[k]
             ));
         }
@@ -694,10 +714,10 @@ async fn upload_result(
     headers: HeaderMap,
     body: Body,
 ) -> Result<Json<proto::ResultReply>, AppError> {
-    let (tile, task_pass, splat_pixels) = {
+    let (tile, task_pass, pass_samples, splat_pixels) = {
         let s = state.sched();
         let (tile, pass) = s.task_for_upload(&job, task)?;
-        (tile, pass, s.splat_pixels(&job))
+        (tile, pass, s.pass_samples(&job, pass), s.splat_pixels(&job))
     };
     let expected = proto::tile::encoded_len(&tile);
     // A bdpt result carries at most one splat per pixel of the frame after its pixels.
@@ -724,7 +744,7 @@ async fn upload_result(
         proto::tile::decode(&buf).map_err(|e| AppError::invalid("body", e.to_string()))?;
     check_splats(&acc.splats, splat_pixels)?;
     let worker = q.worker.unwrap_or_else(|| "unknown".into());
-    if let Err(why) = check_finite(&acc) {
+    if let Err(why) = check_sums(&acc, pass_samples) {
         // Refused, so that no frame shows a corrupted tile. When the sender holds the task's
         // lease, the refusal counts as a failure of the task on that worker: the task is
         // queued again at once for another worker (or fails its job after

@@ -937,6 +937,42 @@ async fn results_with_non_finite_sums_are_refused_and_the_task_is_queued_again()
     assert_eq!(status["state"], "done", "{status}");
 }
 
+/// A result's sums must be ones a pass of its samples can make: finite, weights from 0 to the
+/// pass's samples, colour sums at most the weight times the film's largest sample value.
+#[test]
+fn result_sums_are_held_to_what_a_pass_can_make() {
+    use raytile_proto::tile::TileAccum;
+    let acc = |p: [f32; 4]| TileAccum {
+        tile: raytile_proto::Tile {
+            x0: 8,
+            y0: 4,
+            x1: 10,
+            y1: 5,
+        },
+        pixels: vec![[0.5, 0.25, -0.125, 4.0], p],
+        bad_samples: 0,
+        splats: Vec::new(),
+    };
+    let max = raytile_core::film::MAX_SAMPLE;
+    // Fine: fewer samples kept than the pass has, negative sums (the normals integrator's),
+    // the largest sample values.
+    for p in [[0.0; 4], [1.0, -2.0, 3.0, 3.0], [max, -max, max * 2.0, 2.0]] {
+        crate::api::check_sums(&acc(p), 4).unwrap();
+    }
+    let refused = [
+        ([f32::NAN, 0.0, 0.0, 1.0], "red sum of NaN"),
+        ([0.0, 0.0, 0.0, f32::INFINITY], "weight of inf"),
+        ([0.0, 0.0, 0.0, 5.0], "weight of 5: the pass has 4 samples"),
+        ([0.0, 0.0, 0.0, -1.0], "weight of -1"),
+        ([0.0, max * 3.0, 0.0, 2.0], "colour sum"),
+        ([1.0, 0.0, 0.0, 0.0], "colour sum of 1 over 0 samples"),
+    ];
+    for (p, want) in refused {
+        let e = crate::api::check_sums(&acc(p), 4).unwrap_err();
+        assert!(e.contains("pixel (9, 4)") && e.contains(want), "{p:?}: {e}");
+    }
+}
+
 /// A job's camera is checked against the scene's cameras: a name, or an index given as a JSON
 /// integer or a string of digits; one the scene does not have is a 422 naming `camera` with
 /// the cameras it has.

@@ -422,6 +422,19 @@ impl Sched {
         Ok((work.tile, work.pass))
     }
 
+    /// The number of samples per pixel in pass `pass` of `job` (0 for an unknown job or pass).
+    pub fn pass_samples(&self, job: &str, pass: u32) -> u32 {
+        self.jobs
+            .get(job)
+            .and_then(|j| {
+                j.settings
+                    .pass_ranges()
+                    .get(pass as usize)
+                    .map(|r| r.len() as u32)
+            })
+            .unwrap_or(0)
+    }
+
     /// The lease `worker` holds on task `idx` of `job`, if it holds one.
     pub fn lease_held_by(&self, job: &str, idx: u32, worker: &str) -> Option<String> {
         let j = self
