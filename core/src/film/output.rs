@@ -100,8 +100,12 @@ pub struct OutputOptions {
     pub tonemap: ToneMap,
 }
 
+/// Narkowicz's fit of the ACES film curve. Values above 10⁹ (where the curve has long been
+/// flat at one) are taken as 10⁹, so that x² cannot overflow to ∞/∞ = NaN and a very bright
+/// pixel comes out white, not black.
 #[inline]
 fn aces(x: f32) -> f32 {
+    let x = x.min(1e9);
     let (a, b, c, d, e) = (2.51, 0.03, 2.43, 0.59, 0.14);
     ((x * (a * x + b)) / (x * (c * x + d) + e)).clamp(0.0, 1.0)
 }
@@ -172,6 +176,17 @@ pub fn save(film: &Film, path: &Path, opts: &OutputOptions) -> Result<(), FilmEr
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// ACES maps every bright value to white, however bright (x² used to overflow to NaN,
+    /// written as black, above about 10¹⁹).
+    #[test]
+    fn aces_is_white_for_any_bright_value() {
+        for x in [10.0, 1e6, 1e9, 1e19, 1e30, f32::MAX] {
+            assert_eq!(aces(x), 1.0, "{x}");
+        }
+        assert_eq!(aces(0.0), 0.0);
+        assert!(aces(0.18) > 0.1 && aces(0.18) < 0.3);
+    }
     use crate::{Tile, TileAccum};
 
     fn film() -> Film {
