@@ -108,20 +108,29 @@ fn absurd_thread_and_worker_counts_are_refused() {
         ),
     ];
     for (args, flag) in cases {
-        let t = std::time::Instant::now();
-        let o = raytile().args(args).output().unwrap();
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
-        assert!(
-            err.contains(flag) && err.contains("not in"),
-            "{args:?}: {err}"
-        );
-        assert!(
-            t.elapsed().as_secs() < 10,
-            "{args:?} took {:?}",
-            t.elapsed()
-        );
+        refused_at_once(args, 2, &[flag, "not in"]);
     }
+}
+
+/// Runs `raytile ARGS` (no token in the environment): it must exit with `code` within ten
+/// seconds, its error output holding every one of `wants`.
+fn refused_at_once(args: &[&str], code: i32, wants: &[&str]) {
+    let t = std::time::Instant::now();
+    let o = raytile()
+        .args(args)
+        .env_remove("RAYTILE_TOKEN")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(code), "{args:?}: {err}");
+    for want in wants {
+        assert!(err.contains(want), "{args:?}: {err}");
+    }
+    assert!(
+        t.elapsed().as_secs() < 10,
+        "{args:?} took {:?}",
+        t.elapsed()
+    );
 }
 
 /// A coordinator that cannot start ends `raytile cluster` at once with its error (it used to
@@ -135,34 +144,17 @@ fn cluster_stops_with_the_coordinators_start_error() {
     let s = scene("cornell-box.json");
     let cases: [(&[&str], &str); 3] = [
         (
-            &["--data-dir", d, "--listen", "127.0.0.1:0"],
+            &["cluster", "--data-dir", d, "--listen", "127.0.0.1:0"],
             "opening the database",
         ),
         (
-            &["--data-dir", d, "--render", &s, "-o", "x.png"],
+            &["cluster", "--data-dir", d, "--render", &s, "-o", "x.png"],
             "opening the database",
         ),
-        (&["--listen", "0.0.0.0:0"], "without a token"),
+        (&["cluster", "--listen", "0.0.0.0:0"], "without a token"),
     ];
     for (args, want) in cases {
-        let t = std::time::Instant::now();
-        let o = raytile()
-            .arg("cluster")
-            .args(args)
-            .env_remove("RAYTILE_TOKEN")
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
-        assert!(
-            err.contains("the coordinator stopped") && err.contains(want),
-            "{args:?}: {err}"
-        );
-        assert!(
-            t.elapsed().as_secs() < 10,
-            "{args:?} took {:?}",
-            t.elapsed()
-        );
+        refused_at_once(args, 1, &["the coordinator stopped", want]);
     }
     std::fs::remove_dir_all(&dir).ok();
 }
@@ -244,26 +236,19 @@ fn cluster_reports_the_coordinators_refusal_as_the_flag() {
 fn submit_reports_a_camera_the_scene_does_not_have() {
     let dir = std::env::temp_dir().join(format!("raytile-cli-camera-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
+    let (s, out) = (scene("cornell-box.json"), dir.join("x.png"));
+    let out = out.to_str().unwrap();
     for camera in ["zzz", "7"] {
-        let o = raytile()
-            .args(["cluster", "--workers", "1", "--threads", "1", "--render"])
-            .arg(scene("cornell-box.json"))
-            .arg("-o")
-            .arg(dir.join("x.png"))
-            .args([
-                "--width", "16", "--height", "16", "--spp", "1", "--camera", camera,
-            ])
-            .env_remove("RAYTILE_TOKEN")
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert_eq!(o.status.code(), Some(1), "{err}");
-        assert!(
-            err.contains(&format!(
-                "raytile: --camera: the scene has no camera named or numbered '{camera}'"
-            )),
-            "{err}"
-        );
+        let flags = ["--width", "16", "--height", "16", "--spp", "1"];
+        let args = [
+            &["cluster", "--workers", "1", "--threads", "1"][..],
+            &flags,
+            &["--render", &s, "-o", out, "--camera", camera],
+        ]
+        .concat();
+        let want =
+            format!("raytile: --camera: the scene has no camera named or numbered '{camera}'");
+        refused_at_once(&args, 1, &[&want]);
         assert!(!dir.join("x.png").exists());
     }
     std::fs::remove_dir_all(&dir).ok();
