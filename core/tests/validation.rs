@@ -493,7 +493,47 @@ fn material_parameters_must_be_in_their_ranges() {
         r#"{"type": "glass", "absorption": [0.1, -0.5, 0]}"#,
         &["materials.m.absorption", "non-negative"],
     );
+    // Colours that reflect or transmit more than all, or less than none, of the light.
+    for (m, field, got) in [
+        (
+            r#"{"type": "diffuse", "albedo": [1.2, 0.5, 0.5]}"#,
+            "albedo",
+            "1.2",
+        ),
+        (
+            r#"{"type": "diffuse", "albedo": [0.5, -0.1, 0.5]}"#,
+            "albedo",
+            "-0.1",
+        ),
+        (
+            r#"{"type": "mirror", "reflectance": [0, 0, 2]}"#,
+            "reflectance",
+            "2",
+        ),
+        (
+            r#"{"type": "glass", "transmittance": [1, 1, 1.5]}"#,
+            "transmittance",
+            "1.5",
+        ),
+        (
+            r#"{"type": "frosted_glass", "transmittance": [-1, 1, 1]}"#,
+            "transmittance",
+            "-1",
+        ),
+        (
+            r#"{"type": "pbr", "base_color": [0.8, 3, 0.8]}"#,
+            "base_color",
+            "3",
+        ),
+        (r#"{"type": "metal", "eta": [0, 1, 1]}"#, "eta", "positive"),
+        (r#"{"type": "metal", "k": [1, -2, 1]}"#, "k", "non-negative"),
+    ] {
+        refused(m, &[&format!("materials.m.{field}"), got]);
+    }
     for ok in [
+        r#"{"type": "diffuse", "albedo": [1, 0, 1]}"#,
+        r#"{"type": "mirror", "reflectance": [0, 0, 0]}"#,
+        r#"{"type": "metal", "eta": [0.2, 0.9, 1.1], "k": [0, 0, 0]}"#,
         r#"{"type": "metal", "roughness": 0}"#,
         r#"{"type": "metal", "preset": "gold", "roughness": 1}"#,
         r#"{"type": "pbr", "metallic": 1, "roughness": 0, "ior": 1.33, "transmission": 1}"#,
@@ -530,4 +570,37 @@ fn material_parameters_must_be_in_their_ranges() {
         alpha: -0.1,
     });
     assert!(e.contains("alpha"), "{e}");
+    for (bsdf, field) in [
+        (
+            BsdfDesc::Diffuse {
+                albedo: Vec3::new(0.5, 1.5, 0.5),
+                texture: None,
+            },
+            "albedo",
+        ),
+        (
+            BsdfDesc::Mirror {
+                reflectance: Vec3::splat(f32::NAN),
+            },
+            "reflectance",
+        ),
+        (
+            BsdfDesc::Pbr(Box::new(PbrDesc {
+                base_color: [0.5, 0.5, 0.5, 1.5],
+                ..PbrDesc::default()
+            })),
+            "alpha",
+        ),
+        (
+            BsdfDesc::Conductor {
+                eta: Vec3::ONE,
+                k: Vec3::splat(f32::INFINITY),
+                alpha: 0.1,
+            },
+            "k must be",
+        ),
+    ] {
+        let e = build_err(bsdf);
+        assert!(e.contains("material 'm'") && e.contains(field), "{e}");
+    }
 }

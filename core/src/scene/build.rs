@@ -11,9 +11,9 @@
 
 use super::aggregate::{Aggregate, MeshBlas, Prim, Run, TopLevel};
 use super::desc::{
-    check_coefficient, check_ior, check_spot_angles, check_transform, check_unit, BsdfDesc,
-    EnvironmentDesc, MaterialDesc, MediumDesc, MeshDesc, SceneDesc, ShapeDesc, TextureRef,
-    WrapMode,
+    check_coefficient, check_ior, check_metal, check_reflectance, check_spot_angles,
+    check_transform, check_unit, BsdfDesc, EnvironmentDesc, MaterialDesc, MediumDesc, MeshDesc,
+    SceneDesc, ShapeDesc, TextureRef, WrapMode,
 };
 use super::files::SceneFiles;
 use super::{Object, ObjectKind, RenderJob, Scene, SceneCamera, SceneError, SceneStats};
@@ -801,6 +801,9 @@ fn build_material(m: &MaterialDesc, n_textures: usize) -> Result<Material, Scene
     let mut absorption = Vec3A::ZERO;
     let mut base_color = Vec4::ONE;
     let mut interface = false;
+    if let Some((field, v)) = m.bsdf.tint() {
+        check_reflectance(field, v).map_err(bad)?;
+    }
     let model = match &m.bsdf {
         BsdfDesc::Interface => {
             interface = true;
@@ -828,6 +831,7 @@ fn build_material(m: &MaterialDesc, n_textures: usize) -> Result<Material, Scene
         }
         BsdfDesc::Conductor { eta, k, alpha } => {
             check_unit("alpha (roughness²)", *alpha).map_err(bad)?;
+            check_metal(*eta, *k).map_err(|(_, e)| bad(e))?;
             Model::conductor(Vec3A::from(*eta), Vec3A::from(*k), *alpha)
         }
         BsdfDesc::RoughDielectric {
@@ -844,6 +848,7 @@ fn build_material(m: &MaterialDesc, n_textures: usize) -> Result<Material, Scene
             check_unit("roughness", p.roughness).map_err(bad)?;
             check_unit("transmission", p.transmission).map_err(bad)?;
             check_ior(p.ior).map_err(bad)?;
+            check_unit("base_color alpha", p.base_color[3]).map_err(bad)?;
             slots.base = check(&p.base_color_texture)?;
             slots.metallic_roughness = check(&p.metallic_roughness_texture)?;
             slots.transmission = check(&p.transmission_texture)?;

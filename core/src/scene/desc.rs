@@ -50,6 +50,34 @@ pub fn check_unit(what: &str, x: f32) -> Result<(), String> {
     }
 }
 
+/// Checks a reflectance or transmittance (an albedo, a tint): every channel in [0, 1]. More
+/// than 1 would make light, less than 0 negative light.
+pub fn check_reflectance(what: &str, v: Vec3) -> Result<(), String> {
+    if v.cmpge(Vec3::ZERO).all() && v.cmple(Vec3::ONE).all() {
+        Ok(())
+    } else {
+        Err(format!(
+            "{what} must be between 0 and 1 in every channel, got [{}, {}, {}]",
+            v.x, v.y, v.z
+        ))
+    }
+}
+
+/// Checks a metal's complex index of refraction: η finite and positive, k finite and
+/// non-negative, in every channel. The error is the field (`eta` or `k`) and its message.
+pub fn check_metal(eta: Vec3, k: Vec3) -> Result<(), (&'static str, String)> {
+    if !(eta.is_finite() && eta.min_element() > 0.0) {
+        return Err((
+            "eta",
+            format!(
+                "eta must be finite and positive in every channel, got [{}, {}, {}]",
+                eta.x, eta.y, eta.z
+            ),
+        ));
+    }
+    check_coefficient("k", k).map_err(|e| ("k", e))
+}
+
 /// Checks an index of refraction (inside relative to outside): finite and positive.
 pub fn check_ior(ior: f32) -> Result<(), String> {
     if ior.is_finite() && ior > 0.0 {
@@ -271,6 +299,24 @@ pub enum BsdfDesc {
     },
     /// The glTF 2.0 metallic–roughness model with the extensions raytile understands.
     Pbr(Box<PbrDesc>),
+}
+
+impl BsdfDesc {
+    /// The material's reflectance or transmittance colour, with its name in raytile's JSON
+    /// format, for [`check_reflectance`]: diffuse albedo, mirror reflectance, glass
+    /// transmittance or the base colour.
+    pub fn tint(&self) -> Option<(&'static str, Vec3)> {
+        match self {
+            BsdfDesc::Diffuse { albedo, .. } => Some(("albedo", *albedo)),
+            BsdfDesc::Mirror { reflectance } => Some(("reflectance", *reflectance)),
+            BsdfDesc::Dielectric { transmittance, .. }
+            | BsdfDesc::RoughDielectric { transmittance, .. } => {
+                Some(("transmittance", *transmittance))
+            }
+            BsdfDesc::Pbr(p) => Some(("base_color", Vec3::from_slice(&p.base_color[..3]))),
+            BsdfDesc::Conductor { .. } | BsdfDesc::Interface => None,
+        }
+    }
 }
 
 /// Parameters of the glTF metallic–roughness material (core spec plus extensions).

@@ -789,6 +789,14 @@ impl Converter<'_> {
                 },
                 JBsdf::Interface {} => BsdfDesc::Interface,
             };
+            if let Some((field, v)) = bsdf.tint() {
+                check_reflectance(field, v)
+                    .map_err(|e| self.err(&format!("{at}.{field}"), e, name))?;
+            }
+            if let BsdfDesc::Conductor { eta, k, .. } = &bsdf {
+                check_metal(*eta, *k)
+                    .map_err(|(field, e)| self.err(&format!("{at}.{field}"), e, name))?;
+            }
             let mut md = MaterialDesc::new(name.clone(), bsdf);
             md.emission = v3(m.emission);
             md.two_sided = m.two_sided;

@@ -136,6 +136,7 @@ impl Loader<'_> {
         let pbr = mat.pbr_metallic_roughness();
         let base_color = pbr.base_color_factor();
         check_finite(&base_color, &format!("{what}: baseColorFactor"))?;
+        let base_color = self.unit_factors(base_color, &format!("{what}: baseColorFactor"));
         let mut p = PbrDesc {
             base_color,
             metallic: pbr.metallic_factor(),

@@ -217,10 +217,22 @@ impl Loader<'_> {
     /// clamped into it with a warning when a file strays out (exporters write 1.0000001 now
     /// and then; the renderer refuses such values only from its own scene format).
     pub(super) fn unit_factor(&mut self, value: f32, what: &str) -> f32 {
-        let clamped = value.clamp(0.0, 1.0);
+        self.unit_factors([value], what)[0]
+    }
+
+    /// [`Loader::unit_factor`] for a factor of several channels (`baseColorFactor`): every
+    /// channel clamped to [0, 1], with one warning if any was outside.
+    pub(super) fn unit_factors<const N: usize>(&mut self, value: [f32; N], what: &str) -> [f32; N] {
+        let clamped = value.map(|x| x.clamp(0.0, 1.0));
         if clamped != value {
+            let show = |v: &[f32; N]| match v.as_slice() {
+                [x] => x.to_string(),
+                v => format!("{v:?}"),
+            };
             self.warn(format!(
-                "{what} {value} is outside [0, 1]; {clamped} is used"
+                "{what} {} is outside [0, 1]; {} is used",
+                show(&value),
+                show(&clamped)
             ));
         }
         clamped

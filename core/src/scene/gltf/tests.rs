@@ -369,13 +369,20 @@ fn unit_factors_out_of_range_are_clamped_with_a_warning() {
         json!({"material": 0}),
         json!({"extensionsUsed": ["KHR_materials_transmission"],
             "materials": [{
-                "pbrMetallicRoughness": {"metallicFactor": 1.0000001, "roughnessFactor": -0.2},
+                "pbrMetallicRoughness": {"metallicFactor": 1.0000001, "roughnessFactor": -0.2,
+                    "baseColorFactor": [1.5, 0.5, -0.25, 1]},
                 "extensions": {"KHR_materials_transmission": {"transmissionFactor": 3.0}}}]}),
     ))
     .unwrap();
     let p = pbr(&s.materials[0]);
     assert_eq!((p.metallic, p.roughness, p.transmission), (1.0, 0.0, 1.0));
-    for f in ["metallicFactor", "roughnessFactor", "transmissionFactor"] {
+    assert_eq!(p.base_color, [1.0, 0.5, 0.0, 1.0]);
+    for f in [
+        "metallicFactor",
+        "roughnessFactor",
+        "transmissionFactor",
+        "baseColorFactor",
+    ] {
         assert!(
             s.warnings
                 .iter()
