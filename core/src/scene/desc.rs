@@ -301,6 +301,20 @@ pub enum BsdfDesc {
     Pbr(Box<PbrDesc>),
 }
 
+impl SceneDesc {
+    /// Whether anything in the scene gives light: a light, an environment, or an object whose
+    /// material emits.
+    pub fn is_lit(&self) -> bool {
+        !self.lights.is_empty()
+            || self.environment.is_some()
+            || self.objects.iter().any(|o| {
+                self.materials
+                    .get(o.material)
+                    .is_some_and(|m| m.emission.max_element() > 0.0 || m.emission_texture.is_some())
+            })
+    }
+}
+
 impl BsdfDesc {
     /// The material's reflectance or transmittance colour, with its name in raytile's JSON
     /// format, for [`check_reflectance`]: diffuse albedo, mirror reflectance, glass

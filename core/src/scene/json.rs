@@ -614,7 +614,13 @@ impl Converter<'_> {
             .read(&r, at, super::gltf::MAX_FILE_BYTES)
             .map_err(refused)
             .and_then(|bytes| {
-                super::gltf::load_gltf_bytes(&bytes, &r.named, &Default::default(), self.files)
+                // The including scene states its own light: an unlit model gets no default
+                // environment of its own (which the merge would drop, warning and all).
+                let opts = super::gltf::GltfOptions {
+                    default_light: false,
+                    ..Default::default()
+                };
+                super::gltf::load_gltf_bytes(&bytes, &r.named, &opts, self.files)
                     .map_err(|e| self.err(at, e, &needle))
             });
         self.files.leave();
@@ -1001,6 +1007,9 @@ impl Converter<'_> {
             self.desc
                 .cameras
                 .insert(self.desc.cameras.len().min(i), cam);
+        }
+        if !self.desc.is_lit() {
+            self.desc.warnings.push(UNLIT_WARNING.into());
         }
         Ok(self.desc)
     }
@@ -1422,6 +1431,10 @@ impl Converter<'_> {
     }
 }
 
+/// The warning a JSON scene gets when nothing in it gives light.
+pub const UNLIT_WARNING: &str = "the scene has no light (no light, no environment, no emissive \
+    surface): it renders black unless the render brings an environment (--environment)";
+
 /// Complex indices of refraction (η, k) at roughly 650/550/450 nm for common metals.
 fn metal_preset(name: &str) -> Option<(Rgb, Rgb)> {
     Some(match name {
@@ -1666,6 +1679,47 @@ mod tests {
                 "{e}"
             );
         }
+    }
+
+    #[test]
+    fn an_included_unlit_model_takes_the_scene_s_light() {
+        let d = Dir::new("unlit");
+        let positions: Vec<u8> = [-1.0f32, -1.0, 0.0, 1.0, -1.0, 0.0, 0.0, 1.0, 0.0]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        std::fs::write(d.0.join("scene/tri.bin"), positions).unwrap();
+        std::fs::write(
+            d.0.join("scene/tri.gltf"),
+            r#"{"asset": {"version": "2.0"},
+                "buffers": [{"byteLength": 36, "uri": "tri.bin"}],
+                "bufferViews": [{"buffer": 0, "byteLength": 36}],
+                "accessors": [{"bufferView": 0, "componentType": 5126, "type": "VEC3",
+                    "count": 3, "min": [-1, -1, 0], "max": [1, 1, 0]}],
+                "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+                "nodes": [{"mesh": 0}], "scenes": [{"nodes": [0]}]}"#,
+        )
+        .unwrap();
+        let scene = d.0.join("scene/scene.json");
+        let load = |lights: &str| {
+            std::fs::write(
+                &scene,
+                format!(
+                    r#"{{"objects": [{{"shape": {{"type": "gltf", "path": "tri.gltf"}}}}],
+                        "lights": [{lights}]}}"#
+                ),
+            )
+            .unwrap();
+            load_json(&scene).unwrap()
+        };
+        // Lit by the including scene: no default environment, no warning about one.
+        let lit = load(r#"{"type": "point", "position": [0, 0, 2], "intensity": [1, 1, 1]}"#);
+        assert!(lit.environment.is_none() && !lit.default_environment);
+        assert!(lit.warnings.is_empty(), "{:?}", lit.warnings);
+        // Nothing lights it: one warning that says so, and what to do.
+        let dark = load("");
+        assert!(dark.environment.is_none());
+        assert_eq!(dark.warnings, [UNLIT_WARNING]);
     }
 
     #[test]
