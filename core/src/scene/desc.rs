@@ -53,29 +53,36 @@ pub fn check_unit(what: &str, x: f32) -> Result<(), String> {
 /// Checks a reflectance or transmittance (an albedo, a tint): every channel in [0, 1]. More
 /// than 1 would make light, less than 0 negative light.
 pub fn check_reflectance(what: &str, v: Vec3) -> Result<(), String> {
-    if v.cmpge(Vec3::ZERO).all() && v.cmple(Vec3::ONE).all() {
-        Ok(())
-    } else {
-        Err(format!(
-            "{what} must be between 0 and 1 in every channel, got [{}, {}, {}]",
-            v.x, v.y, v.z
-        ))
-    }
+    check_channels(what, v, "between 0 and 1", |v| {
+        v.cmpge(Vec3::ZERO).all() && v.cmple(Vec3::ONE).all()
+    })
 }
 
 /// Checks a metal's complex index of refraction: η finite and positive, k finite and
 /// non-negative, in every channel. The error is the field (`eta` or `k`) and its message.
 pub fn check_metal(eta: Vec3, k: Vec3) -> Result<(), (&'static str, String)> {
-    if !(eta.is_finite() && eta.min_element() > 0.0) {
-        return Err((
-            "eta",
-            format!(
-                "eta must be finite and positive in every channel, got [{}, {}, {}]",
-                eta.x, eta.y, eta.z
-            ),
-        ));
-    }
+    check_channels("eta", eta, "finite and positive", |v| {
+        v.is_finite() && v.min_element() > 0.0
+    })
+    .map_err(|e| ("eta", e))?;
     check_coefficient("k", k).map_err(|e| ("k", e))
+}
+
+/// `Ok` if `ok(v)`, else "`what` must be `rule` in every channel, got [x, y, z]".
+fn check_channels(
+    what: &str,
+    v: Vec3,
+    rule: &str,
+    ok: impl Fn(Vec3) -> bool,
+) -> Result<(), String> {
+    if ok(v) {
+        Ok(())
+    } else {
+        Err(format!(
+            "{what} must be {rule} in every channel, got [{}, {}, {}]",
+            v.x, v.y, v.z
+        ))
+    }
 }
 
 /// Checks an index of refraction (inside relative to outside): finite and positive.
@@ -89,14 +96,9 @@ pub fn check_ior(ior: f32) -> Result<(), String> {
 
 /// Checks a per-channel coefficient (absorption per metre): finite and non-negative.
 pub fn check_coefficient(what: &str, v: Vec3) -> Result<(), String> {
-    if v.is_finite() && v.min_element() >= 0.0 {
-        Ok(())
-    } else {
-        Err(format!(
-            "{what} must be finite and non-negative in every channel, got [{}, {}, {}]",
-            v.x, v.y, v.z
-        ))
-    }
+    check_channels(what, v, "finite and non-negative", |v| {
+        v.is_finite() && v.min_element() >= 0.0
+    })
 }
 
 /// Checks a spot light's cone (half-angles in degrees): 0 ≤ inner ≤ outer, 0 < outer ≤ 90.
