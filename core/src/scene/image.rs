@@ -43,6 +43,7 @@ fn reader(bytes: &[u8]) -> Result<image::ImageReader<std::io::Cursor<&[u8]>>, St
 
 /// The size of the image in `bytes` without decoding it, within the limits.
 pub fn image_size(bytes: &[u8]) -> Result<(u32, u32), String> {
+    check_exr_windows(bytes)?;
     // Reading the header allocates little: no limits, so that the error below names the size.
     let (w, h) = image::ImageReader::new(std::io::Cursor::new(bytes))
         .with_guessed_format()
@@ -60,6 +61,53 @@ pub fn image_size(bytes: &[u8]) -> Result<(u32, u32), String> {
         ));
     }
     Ok((w, h))
+}
+
+/// The first bytes of an OpenEXR file.
+const EXR_MAGIC: [u8; 4] = [0x76, 0x2f, 0x31, 0x01];
+
+/// Refuses an OpenEXR file whose header gives an inverted data or display window (a maximum
+/// below its minimum): the decoder reads such a file as some other size instead of failing.
+/// Other files, and headers this walk cannot follow, pass (the decoder judges them).
+fn check_exr_windows(bytes: &[u8]) -> Result<(), String> {
+    if !bytes.starts_with(&EXR_MAGIC) {
+        return Ok(());
+    }
+    // After the magic and the version field: attributes (name NUL, type NUL, i32 size, value)
+    // up to an empty name.
+    let mut at = 8;
+    let cstr = |from: usize| -> Option<(&[u8], usize)> {
+        let len = bytes.get(from..)?.iter().position(|&b| b == 0)?;
+        Some((&bytes[from..from + len], from + len + 1))
+    };
+    while let Some((name, next)) = cstr(at) {
+        if name.is_empty() {
+            break;
+        }
+        let Some((kind, next)) = cstr(next) else {
+            break;
+        };
+        let Some(size) = bytes.get(next..next + 4) else {
+            break;
+        };
+        let size = i32::from_le_bytes(size.try_into().expect("four bytes")) as usize;
+        let value = next + 4;
+        let Some(v) = bytes.get(value..value.saturating_add(size)) else {
+            break;
+        };
+        if kind == b"box2i" && size == 16 && (name == b"dataWindow" || name == b"displayWindow") {
+            let i = |k: usize| i32::from_le_bytes(v[4 * k..4 * k + 4].try_into().expect("4"));
+            let (x0, y0, x1, y1) = (i(0), i(1), i(2), i(3));
+            if x1 < x0 || y1 < y0 {
+                return Err(format!(
+                    "corrupt OpenEXR header: {} from ({x0}, {y0}) to ({x1}, {y1}) is inverted",
+                    String::from_utf8_lossy(name)
+                ));
+            }
+        }
+        at = value + size;
+    }
+    Ok(())
 }
 
 /// Decodes the image in `bytes`, within the limits.
@@ -127,6 +175,39 @@ mod tests {
         chunk(b"IDAT", &[]);
         chunk(b"IEND", &[]);
         out
+    }
+
+    #[test]
+    fn an_exr_with_an_inverted_window_is_refused() {
+        let img = image::Rgba32FImage::from_pixel(6, 4, image::Rgba([0.5, 0.25, 1.0, 1.0]));
+        let mut exr = Vec::new();
+        img.write_to(
+            &mut std::io::Cursor::new(&mut exr),
+            image::ImageFormat::OpenExr,
+        )
+        .unwrap();
+        assert_eq!(decode_image(&exr).unwrap().width, 6);
+        for window in ["dataWindow", "displayWindow"] {
+            // The window's box2i follows its name, its type and its size.
+            let name = format!("{window}\0box2i\0");
+            let at = exr
+                .windows(name.len())
+                .position(|w| w == name.as_bytes())
+                .unwrap()
+                + name.len()
+                + 4;
+            let mut bad = exr.clone();
+            for (k, v) in [5i32, 3, 0, 0].into_iter().enumerate() {
+                bad[at + 4 * k..at + 4 * k + 4].copy_from_slice(&v.to_le_bytes());
+            }
+            let e = decode_image(&bad).unwrap_err();
+            assert!(
+                e.contains("corrupt OpenEXR header")
+                    && e.contains(window)
+                    && e.contains("inverted"),
+                "{e}"
+            );
+        }
     }
 
     #[test]
