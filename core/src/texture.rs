@@ -27,13 +27,101 @@ pub struct TextureLookup {
     pub bilinear: bool,
 }
 
-/// A texture ready for lookups: texels are linear (sRGB decoded once at build time).
+/// An image's RGBA texels, row by row from the top, as decoded: colour stays encoded as
+/// stored (sRGB or linear), alpha is linear.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Texels {
+    /// Floating-point values (HDR, EXR and 16-bit images, and images made by programs).
+    F32(Vec<[f32; 4]>),
+    /// The bytes of an 8-bit image (PNG, JPEG): a quarter of the memory of `F32`. Byte `b`
+    /// stands for the value `b / 255`, correctly rounded.
+    Unorm8(Vec<[u8; 4]>),
+}
+
+impl Texels {
+    /// Number of texels.
+    pub fn len(&self) -> usize {
+        match self {
+            Texels::F32(t) => t.len(),
+            Texels::Unorm8(t) => t.len(),
+        }
+    }
+
+    /// Whether there are no texels.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Texel `i` as values.
+    pub fn get(&self, i: usize) -> [f32; 4] {
+        match self {
+            Texels::F32(t) => t[i],
+            Texels::Unorm8(t) => t[i].map(|b| UNORM8[0][b as usize]),
+        }
+    }
+
+    /// Bytes the texels take.
+    pub fn bytes(&self) -> usize {
+        match self {
+            Texels::F32(t) => t.capacity() * std::mem::size_of::<[f32; 4]>(),
+            Texels::Unorm8(t) => t.capacity() * std::mem::size_of::<[u8; 4]>(),
+        }
+    }
+}
+
+impl From<Vec<[f32; 4]>> for Texels {
+    fn from(t: Vec<[f32; 4]>) -> Self {
+        Texels::F32(t)
+    }
+}
+
+impl FromIterator<[f32; 4]> for Texels {
+    fn from_iter<I: IntoIterator<Item = [f32; 4]>>(iter: I) -> Self {
+        Texels::F32(iter.into_iter().collect())
+    }
+}
+
+/// What byte `b` of an 8-bit image stands for: `[0][b]` the value `b / 255` (correctly
+/// rounded, as the image decoder converts RGB bytes to f32), `[1][b]` that value decoded from
+/// sRGB to linear, as [`Texture::from_texels`] decodes f32 texels, so that an 8-bit texture
+/// looks up the same bits whether it keeps its bytes or their values.
+static UNORM8: std::sync::LazyLock<[[f32; 256]; 2]> = std::sync::LazyLock::new(|| {
+    let value = std::array::from_fn(|b| b as f32 / 255.0);
+    [value, value.map(|v| texel_value(srgb_to_linear(v)))]
+});
+
+/// A texel value as textures keep it: NaN and infinities become zero, negative values zero.
+#[inline]
+fn texel_values(v: Vec4) -> Vec4 {
+    if v.is_finite() {
+        v.max(Vec4::ZERO)
+    } else {
+        Vec4::ZERO
+    }
+}
+
+/// [`texel_values`] of one channel.
+fn texel_value(x: f32) -> f32 {
+    texel_values(Vec4::splat(x)).x
+}
+
+/// How a texture holds its texels.
+#[derive(Clone, Debug)]
+enum Store {
+    /// Linear RGBA values (arrays rather than `Vec4`s, so the loader's buffer is reused).
+    F32(Vec<[f32; 4]>),
+    /// The bytes of an 8-bit image, decoded on lookup through [`UNORM8`] (colour from sRGB
+    /// when `srgb`).
+    Unorm8 { texels: Vec<[u8; 4]>, srgb: bool },
+}
+
+/// A texture ready for lookups: texels are linear (sRGB decoded once at build time, or on
+/// lookup through a table for 8-bit images, to the same bits).
 #[derive(Clone, Debug)]
 pub struct Texture {
     width: u32,
     height: u32,
-    /// Linear RGBA, row by row (arrays rather than `Vec4`s, so the loader's buffer is reused).
-    texels: Vec<[f32; 4]>,
+    store: Store,
     wrap_u: WrapMode,
     wrap_v: WrapMode,
     bilinear: bool,
@@ -74,41 +162,46 @@ impl Texture {
         Self::from_texels(width, height, texels.to_vec(), srgb, lookup)
     }
 
-    /// [`Texture::new`] taking the texels by value: they are converted in place, so a large
-    /// image is held once while its texture is made, not twice.
+    /// [`Texture::new`] taking the texels by value: f32 texels are converted in place, so a
+    /// large image is held once while its texture is made, not twice; the bytes of an 8-bit
+    /// image are kept as they are.
     pub fn from_texels(
         width: u32,
         height: u32,
-        mut texels: Vec<[f32; 4]>,
+        texels: impl Into<Texels>,
         srgb: bool,
         lookup: TextureLookup,
     ) -> Self {
+        let texels = texels.into();
         let expected = width as usize * height as usize;
-        for t in &mut texels {
-            let [r, g, b, a] = *t;
-            let v = if srgb {
-                Vec4::new(srgb_to_linear(r), srgb_to_linear(g), srgb_to_linear(b), a)
-            } else {
-                Vec4::new(r, g, b, a)
+        let (width, height, store) = if expected == 0 || texels.len() != expected {
+            (1, 1, Store::F32(vec![[1.0; 4]]))
+        } else {
+            let store = match texels {
+                Texels::F32(mut texels) => {
+                    for t in &mut texels {
+                        let [r, g, b, a] = *t;
+                        let v = if srgb {
+                            Vec4::new(srgb_to_linear(r), srgb_to_linear(g), srgb_to_linear(b), a)
+                        } else {
+                            Vec4::new(r, g, b, a)
+                        };
+                        *t = texel_values(v).to_array();
+                    }
+                    texels.shrink_to_fit();
+                    Store::F32(texels)
+                }
+                Texels::Unorm8(mut texels) => {
+                    texels.shrink_to_fit();
+                    Store::Unorm8 { texels, srgb }
+                }
             };
-            *t = if v.is_finite() {
-                v.max(Vec4::ZERO)
-            } else {
-                Vec4::ZERO
-            }
-            .to_array();
-        }
-        let (mut width, mut height) = (width, height);
-        if expected == 0 || texels.len() != expected {
-            texels = vec![[1.0; 4]];
-            width = 1;
-            height = 1;
-        }
-        texels.shrink_to_fit();
+            (width, height, store)
+        };
         Self {
             width,
             height,
-            texels,
+            store,
             wrap_u: lookup.wrap_u,
             wrap_v: lookup.wrap_v,
             bilinear: lookup.bilinear,
@@ -117,7 +210,29 @@ impl Texture {
 
     /// Bytes of texel memory, for cache budgets.
     pub fn memory_bytes(&self) -> usize {
-        self.texels.capacity() * std::mem::size_of::<[f32; 4]>()
+        match &self.store {
+            Store::F32(t) => t.capacity() * std::mem::size_of::<[f32; 4]>(),
+            Store::Unorm8 { texels, .. } => texels.capacity() * std::mem::size_of::<[u8; 4]>(),
+        }
+    }
+
+    /// Texel `i` (row by row) as linear values.
+    #[inline]
+    fn at(&self, i: usize) -> Vec4 {
+        match &self.store {
+            Store::F32(t) => Vec4::from_array(t[i]),
+            Store::Unorm8 { texels, srgb } => {
+                let [r, g, b, a] = texels[i];
+                let lut = &*UNORM8;
+                let c = &lut[usize::from(*srgb)];
+                Vec4::new(
+                    c[r as usize],
+                    c[g as usize],
+                    c[b as usize],
+                    lut[0][a as usize],
+                )
+            }
+        }
     }
 
     /// Width in texels.
@@ -135,14 +250,14 @@ impl Texture {
     pub fn texel(&self, x: i64, y: i64) -> Vec4 {
         let x = wrap(x, self.width as i64, self.wrap_u);
         let y = wrap(y, self.height as i64, self.wrap_v);
-        Vec4::from_array(self.texels[y as usize * self.width as usize + x as usize])
+        self.at(y as usize * self.width as usize + x as usize)
     }
 
     /// Filtered value at `uv` ((0,0) is the top-left corner of the image, as in glTF).
     #[inline]
     pub fn lookup(&self, uv: Vec2) -> Vec4 {
         if !uv.is_finite() {
-            return Vec4::from_array(self.texels[0]);
+            return self.at(0);
         }
         let x = uv.x * self.width as f32 - 0.5;
         let y = uv.y * self.height as f32 - 0.5;
@@ -258,6 +373,50 @@ mod tests {
         assert_eq!(t.texel(0, 0), Vec4::ZERO);
         assert_eq!(t.texel(1, 0), Vec4::ZERO);
         assert_eq!(t.texel(2, 0), Vec4::new(0.0, 0.5, 2.0, 1.0));
+    }
+
+    /// An 8-bit texture keeps its bytes and looks up exactly what it looked up when the
+    /// decoder's f32 values were kept: every byte, both colour spaces, both filters.
+    #[test]
+    fn eight_bit_textures_look_up_the_bits_of_their_values() {
+        let (w, h) = (17u32, 15u32);
+        let bytes = image::RgbaImage::from_fn(w, h, |x, y| {
+            let i = y * w + x;
+            // Every byte value in some channel, alpha included.
+            image::Rgba([i as u8, (i * 7 + 3) as u8, (255 - i) as u8, (i * 13) as u8])
+        });
+        // The decoder's own conversion of RGBA bytes gives the same values.
+        let values = image::DynamicImage::ImageRgba8(bytes.clone()).into_rgba32f();
+        let unorm8 = Texels::Unorm8(bytes.pixels().map(|p| p.0).collect());
+        let f32s = Texels::F32(values.pixels().map(|p| p.0).collect());
+        for i in 0..unorm8.len() {
+            assert_eq!(
+                unorm8.get(i).map(f32::to_bits),
+                f32s.get(i).map(f32::to_bits)
+            );
+        }
+        for srgb in [false, true] {
+            for bilinear in [false, true] {
+                let lookup = TextureLookup {
+                    wrap_u: WrapMode::Repeat,
+                    wrap_v: WrapMode::MirroredRepeat,
+                    bilinear,
+                };
+                let a = Texture::from_texels(w, h, unorm8.clone(), srgb, lookup);
+                let b = Texture::from_texels(w, h, f32s.clone(), srgb, lookup);
+                assert_eq!(a.memory_bytes() * 4, b.memory_bytes());
+                for k in 0..2000u32 {
+                    let u = crate::sampling::hash_u32(k) as f32 / u32::MAX as f32 * 3.0 - 1.0;
+                    let v = crate::sampling::hash_u32(k ^ 0x5555) as f32 / u32::MAX as f32 * 3.0;
+                    let uv = Vec2::new(u, v);
+                    assert_eq!(
+                        a.lookup(uv).to_array().map(f32::to_bits),
+                        b.lookup(uv).to_array().map(f32::to_bits),
+                        "srgb {srgb}, bilinear {bilinear}, uv {uv}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]

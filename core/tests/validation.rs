@@ -220,7 +220,7 @@ fn descriptions_with_bad_light_values_do_not_build() {
                 name: "sky.exr".into(),
                 width: 2,
                 height: 1,
-                texels: vec![[0.5; 4], texel],
+                texels: vec![[0.5; 4], texel].into(),
                 srgb: false,
                 wrap_u: WrapMode::Repeat,
                 wrap_v: WrapMode::Clamp,

@@ -5,7 +5,7 @@
 
 use crate::sampling::distrib::Distribution2D;
 use crate::sampling::warp::{uniform_sphere, UNIFORM_SPHERE_PDF};
-use crate::texture::Texture;
+use crate::texture::{Texels, Texture};
 use glam::{Vec2, Vec3A};
 use std::f32::consts::PI;
 
@@ -34,12 +34,7 @@ pub enum Environment {
 /// every texel at most [`super::MAX_RADIANCE`] once scaled (the message names the brightest).
 /// NaN, infinite and negative texels are not refused: [`Texture::new`] reads them as zero, as
 /// real EXR skies may hold a few (from colour conversions or stitching).
-pub fn check_map(
-    texels: &[[f32; 4]],
-    width: u32,
-    scale: f32,
-    scale_name: &str,
-) -> Result<(), String> {
+pub fn check_map(texels: &Texels, width: u32, scale: f32, scale_name: &str) -> Result<(), String> {
     use super::{show_number, MAX_RADIANCE};
     if !(scale.is_finite() && scale >= 0.0) {
         return Err(format!(
@@ -52,7 +47,8 @@ pub fn check_map(
         format!("texel ({}, {})", i % w, i / w)
     };
     let mut brightest = (0.0f32, 0);
-    for (i, t) in texels.iter().enumerate() {
+    for i in 0..texels.len() {
+        let t = texels.get(i);
         let c = Vec3A::new(t[0], t[1], t[2]);
         if !c.is_finite() {
             continue;

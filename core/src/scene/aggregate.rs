@@ -677,7 +677,8 @@ mod tests {
                     [1.0, 1.0, 1.0, 0.0],
                     [1.0, 1.0, 1.0, 0.0],
                     [1.0; 4],
-                ],
+                ]
+                .into(),
                 srgb: false,
                 wrap_u: WrapMode::Repeat,
                 wrap_v: WrapMode::Repeat,

@@ -918,9 +918,8 @@ pub fn load_environment_map(
         .read(&r, FIELD, super::image::MAX_IMAGE_FILE)
         .map_err(|e| invalid(format!("environment: {}", e.describe())))?;
     let bad = |e: String| invalid(format!("environment {shown}: {e}"));
-    let (w, h) = super::image::image_size(&bytes).map_err(bad)?;
     files
-        .charge_memory(u64::from(w) * u64::from(h) * 16, &shown)
+        .charge_memory(super::image::image_bytes(&bytes).map_err(bad)?, &shown)
         .map_err(bad)?;
     let img = super::image::decode_image(&bytes).map_err(bad)?;
     check_map(&img.texels, img.width, strength, "environment_strength").map_err(bad)?;

@@ -181,9 +181,10 @@ pub struct TextureDesc {
     pub width: u32,
     /// Height in pixels.
     pub height: u32,
-    /// Texels row by row from the top, RGBA. Colour data stays encoded as stored (see `srgb`);
-    /// alpha is always linear.
-    pub texels: Vec<[f32; 4]>,
+    /// Texels row by row from the top, RGBA (the bytes of an 8-bit image, or values; a
+    /// `Vec<[f32; 4]>` converts with `.into()`). Colour data stays encoded as stored (see
+    /// `srgb`); alpha is always linear.
+    pub texels: crate::texture::Texels,
     /// Whether RGB is sRGB-encoded (base colour and emissive textures) and must be decoded to
     /// linear on lookup, or linear data (normal, metallic-roughness maps).
     pub srgb: bool,

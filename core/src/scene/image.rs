@@ -2,14 +2,18 @@
 //! and environment maps of JSON scenes and the images of glTF files (PNG, JPEG, Radiance HDR,
 //! OpenEXR, the format found from the bytes).
 //!
-//! Limits: at most [`MAX_IMAGE_SIDE`] pixels on a side and [`MAX_IMAGE_PIXELS`] in all (the
-//! texels are kept as f32 RGBA, 16 bytes each: 1 GiB at the limit), the decoder's allocations
-//! capped likewise, files read up to [`MAX_IMAGE_FILE`] (by the scene's resolver,
+//! Limits: at most [`MAX_IMAGE_SIDE`] pixels on a side and [`MAX_IMAGE_PIXELS`] in all (an
+//! 8-bit image keeps its RGBA bytes, 256 MiB at the limit; others are kept as f32 RGBA, 16
+//! bytes a texel, 1 GiB at the limit), the decoder's allocations capped likewise, files read up to [`MAX_IMAGE_FILE`] (by the scene's resolver,
 //! `scene::files`). A larger image is an error, never an allocation failure.
+
+use crate::texture::Texels;
+use image::ImageDecoder;
 
 /// Largest accepted image side, in pixels.
 pub const MAX_IMAGE_SIDE: u32 = 16384;
-/// Largest accepted image area, in pixels (8192², or 16384 × 4096): 1 GiB of f32 RGBA texels.
+/// Largest accepted image area, in pixels (8192², or 16384 × 4096): 1 GiB of f32 RGBA texels,
+/// 256 MiB of 8-bit ones.
 pub const MAX_IMAGE_PIXELS: u64 = 1 << 26;
 /// Largest image file read, in bytes.
 pub const MAX_IMAGE_FILE: u64 = 1 << 30;
@@ -24,8 +28,8 @@ pub struct DecodedImage {
     pub width: u32,
     /// Height in pixels.
     pub height: u32,
-    /// The texels.
-    pub texels: Vec<[f32; 4]>,
+    /// The texels: the bytes of an 8-bit image, values otherwise.
+    pub texels: Texels,
 }
 
 /// A reader of `bytes`, its decoder's allocations limited.
@@ -61,6 +65,26 @@ pub fn image_size(bytes: &[u8]) -> Result<(u32, u32), String> {
         ));
     }
     Ok((w, h))
+}
+
+/// Bytes the texels of the image in `bytes` take once decoded ([`decode_image`]): 4 per texel
+/// for 8-bit images, 16 for others. Read from the header, within the limits, so that a
+/// memory budget is charged before anything is decoded.
+pub fn image_bytes(bytes: &[u8]) -> Result<u64, String> {
+    let (w, h) = image_size(bytes)?;
+    let colour = image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| format!("cannot read: {e}"))?
+        .into_decoder()
+        .map_err(|e| format!("cannot decode: {e}"))?
+        .color_type();
+    let texel = if eight_bit(colour) { 4 } else { 16 };
+    Ok(u64::from(w) * u64::from(h) * texel)
+}
+
+/// Whether images of this colour type have 8 bits per channel (their bytes are kept).
+fn eight_bit(colour: image::ColorType) -> bool {
+    colour.bytes_per_pixel() == colour.channel_count()
 }
 
 /// The first bytes of an OpenEXR file.
@@ -115,21 +139,28 @@ pub fn decode_image(bytes: &[u8]) -> Result<DecodedImage, String> {
     image_size(bytes)?;
     let img = reader(bytes)?
         .decode()
-        .map_err(|e| format!("cannot decode: {e}"))?
-        .into_rgba32f();
+        .map_err(|e| format!("cannot decode: {e}"))?;
     let (width, height) = (img.width(), img.height());
-    // The decoder's buffer becomes the texels (no second copy of the image at its peak),
-    // unless its capacity is no whole number of texels.
-    let texels = bytemuck::allocation::try_cast_vec::<f32, [f32; 4]>(img.into_raw())
-        .unwrap_or_else(|(_, raw)| {
-            raw.chunks_exact(4)
-                .map(|c| [c[0], c[1], c[2], c[3]])
-                .collect()
-        });
+    let texels = if eight_bit(img.color()) {
+        // 8 bits per channel: the bytes are kept (a quarter of the memory of f32 values).
+        Texels::Unorm8(rgba(img.into_rgba8().into_raw()))
+    } else {
+        Texels::F32(rgba(img.into_rgba32f().into_raw()))
+    };
     Ok(DecodedImage {
         width,
         height,
         texels,
+    })
+}
+
+/// The decoder's RGBA buffer as texels: the same allocation (no second copy of the image at
+/// its peak), unless its capacity is no whole number of texels.
+fn rgba<T: bytemuck::Pod>(raw: Vec<T>) -> Vec<[T; 4]> {
+    bytemuck::allocation::try_cast_vec::<T, [T; 4]>(raw).unwrap_or_else(|(_, raw)| {
+        raw.chunks_exact(4)
+            .map(|c| [c[0], c[1], c[2], c[3]])
+            .collect()
     })
 }
 
@@ -214,7 +245,46 @@ mod tests {
     fn decodes_as_stored_and_refuses_what_is_too_big_or_not_an_image() {
         let d = decode_image(&png(2, 1)).unwrap();
         assert_eq!((d.width, d.height), (2, 1));
-        assert_eq!(d.texels, vec![[0.0, 0.0, 0.2, 1.0], [1.0, 0.0, 0.2, 1.0]]);
+        // An 8-bit image keeps its bytes; they stand for what the decoder's f32 gives.
+        assert_eq!(
+            d.texels,
+            Texels::Unorm8(vec![[0, 0, 51, 255], [255, 0, 51, 255]])
+        );
+        assert_eq!(d.texels.get(1), [1.0, 0.0, 0.2, 1.0]);
+        // Grey and grey-alpha images too: byte b is b / 255, in every channel.
+        let grey = image::GrayAlphaImage::from_fn(2, 1, |x, _| image::LumaA([3 + x as u8, 128]));
+        let mut bytes = Vec::new();
+        grey.write_to(
+            &mut std::io::Cursor::new(&mut bytes),
+            image::ImageFormat::Png,
+        )
+        .unwrap();
+        let d = decode_image(&bytes).unwrap();
+        assert_eq!(
+            d.texels,
+            Texels::Unorm8(vec![[3, 3, 3, 128], [4, 4, 4, 128]])
+        );
+        assert_eq!(
+            d.texels.get(0),
+            [3.0 / 255.0, 3.0 / 255.0, 3.0 / 255.0, 128.0 / 255.0]
+        );
+        // Deeper images keep their values.
+        let deep = image::ImageBuffer::<image::Rgba<u16>, _>::from_pixel(
+            1,
+            1,
+            image::Rgba([0, 65535, 32768, 65535]),
+        );
+        let mut bytes = Vec::new();
+        image::DynamicImage::ImageRgba16(deep)
+            .write_to(
+                &mut std::io::Cursor::new(&mut bytes),
+                image::ImageFormat::Png,
+            )
+            .unwrap();
+        assert!(matches!(
+            decode_image(&bytes).unwrap().texels,
+            Texels::F32(_)
+        ));
         assert_eq!(image_size(&png(3, 5)).unwrap(), (3, 5));
         // Sizes are refused from the header, before any texel is decoded.
         assert_eq!(image_size(&png_header(300, 200)).unwrap(), (300, 200));

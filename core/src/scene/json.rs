@@ -582,9 +582,8 @@ impl Converter<'_> {
         let needle = path.to_string_lossy();
         let shown = show(&needle);
         let bad = |e: String| self.err(at, format!("{shown}: {e}"), &needle);
-        let (w, h) = super::image::image_size(&bytes).map_err(bad)?;
         self.files
-            .charge_memory(u64::from(w) * u64::from(h) * 16, &shown)
+            .charge_memory(super::image::image_bytes(&bytes).map_err(bad)?, &shown)
             .map_err(|e| self.err(at, e, &needle))?;
         let img = super::image::decode_image(&bytes).map_err(bad)?;
         Ok(TextureDesc {
@@ -666,7 +665,7 @@ impl Converter<'_> {
                         name: name.clone(),
                         width: 2,
                         height: 2,
-                        texels: vec![e, o, o, e],
+                        texels: vec![e, o, o, e].into(),
                         srgb: false,
                         wrap_u: WrapMode::Repeat,
                         wrap_v: WrapMode::Repeat,
@@ -1732,10 +1731,10 @@ mod tests {
                              "b": {"type": "image", "path": "wood.png"}}}"#,
         )
         .unwrap();
-        // Two 2×2 textures of 16-byte texels: 128 bytes.
-        let files = SceneFiles::trusted().with_memory_limit(128);
+        // Two 2×2 8-bit textures, which keep their bytes: 32 bytes.
+        let files = SceneFiles::trusted().with_memory_limit(32);
         assert!(load_json_files(&scene, &files).is_ok());
-        let files = SceneFiles::trusted().with_memory_limit(127);
+        let files = SceneFiles::trusted().with_memory_limit(31);
         let e = load_json_files(&scene, &files).unwrap_err().to_string();
         assert!(
             e.contains("at textures.b.path") && e.contains("more memory"),

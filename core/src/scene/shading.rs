@@ -239,7 +239,7 @@ mod tests {
             name: "t".into(),
             width: 2,
             height: 1,
-            texels: vec![[1.0, 0.0, 0.0, 1.0], [0.0, 0.0, 1.0, 1.0]],
+            texels: vec![[1.0, 0.0, 0.0, 1.0], [0.0, 0.0, 1.0, 1.0]].into(),
             srgb: false,
             wrap_u: WrapMode::Clamp,
             wrap_v: WrapMode::Clamp,

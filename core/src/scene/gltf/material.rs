@@ -402,10 +402,7 @@ impl Loader<'_> {
             return Ok(Some(i));
         }
         let decoded = self.image(&image)?;
-        self.charge(
-            decoded.texels.len() * 16,
-            &format!("texture {}", tex.index()),
-        )?;
+        self.charge(decoded.texels.bytes(), &format!("texture {}", tex.index()))?;
         let desc = TextureDesc {
             name: image
                 .name()
@@ -439,8 +436,8 @@ impl Loader<'_> {
             }
         };
         // The size first: the memory budget is charged before anything is decoded.
-        let (w, h) = img::image_size(&bytes).map_err(|e| format!("{what}: {e}"))?;
-        self.charge((w as usize) * (h as usize) * 16, &what)?;
+        let size = img::image_bytes(&bytes).map_err(|e| format!("{what}: {e}"))?;
+        self.charge(usize::try_from(size).unwrap_or(usize::MAX), &what)?;
         // Values stay as stored (sRGB-encoded for colour); only scaled to [0, 1].
         let decoded = Rc::new(img::decode_image(&bytes).map_err(|e| format!("{what}: {e}"))?);
         self.image_cache.insert(image.index(), decoded.clone());

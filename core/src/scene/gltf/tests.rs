@@ -252,7 +252,7 @@ fn colour_textures_are_srgb_and_data_textures_linear() {
         "one decoded copy per colour space, whichever texture names the image"
     );
     assert_eq!((base.width, base.height), (2, 2));
-    assert_eq!(base.texels[1], [1.0, 0.0, 128.0 / 255.0, 1.0]);
+    assert_eq!(base.texels.get(1), [1.0, 0.0, 128.0 / 255.0, 1.0]);
     assert_eq!(
         (base.wrap_u, base.wrap_v),
         (WrapMode::Clamp, WrapMode::MirroredRepeat)
