@@ -132,8 +132,10 @@ struct JMaterial {
     two_sided: bool,
 }
 
+/// What a material is; its fields beside `emission` and `two_sided` (which [`JMaterial`] takes
+/// before the rest comes here), so that an unknown one is an error, not a typo ignored.
 #[derive(Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case")]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
 enum JBsdf {
     Diffuse {
         #[serde(default = "grey")]
@@ -506,7 +508,11 @@ fn parse_json_files(
         let path = e.path().to_string();
         let msg = inner.to_string();
         // serde_json appends " at line L column C" itself; keep one copy.
-        let msg = msg.split(" at line ").next().unwrap_or(&msg).to_string();
+        let mut msg = msg.split(" at line ").next().unwrap_or(&msg).to_string();
+        if path.starts_with("materials.") && msg.starts_with("unknown field") {
+            // serde lists only the fields of the material's type.
+            msg.push_str(" (and every material takes `emission` and `two_sided`)");
+        }
         err(format!(
             "at {path} (line {}, column {}): {msg}",
             inner.line(),
@@ -1549,6 +1555,33 @@ mod tests {
         assert!(e.contains("unknown field"), "{e}");
         assert!(parse("{").is_err());
         assert!(parse("{\"objects\": [{\"shape\": {\"type\": \"sphere\", \"radius\": 1e999}, \"material\": \"m\"}]}").is_err());
+    }
+
+    #[test]
+    fn a_misspelt_material_field_is_an_error() {
+        // A typo must not silently give a default (a lamp without its `emission`).
+        for (material, typo) in [
+            (r#"{"type": "diffuse", "albdo": [0.5, 0.5, 0.5]}"#, "albdo"),
+            (r#"{"type": "emitter", "emision": [5, 5, 5]}"#, "emision"),
+            (r#"{"type": "mirror", "roughness": 0.2}"#, "roughness"),
+            (r#"{"type": "glass", "two_side": true}"#, "two_side"),
+        ] {
+            let e = parse(&format!(
+                "{{\"materials\": {{\n\"m\": {material}}},\n\"objects\": [{{\"shape\": {{\"type\": \"sphere\"}}, \"material\": \"m\"}}]}}"
+            ))
+            .unwrap_err();
+            assert!(
+                e.contains("materials.m")
+                    && e.contains("line 2")
+                    && e.contains("unknown field")
+                    && e.contains(typo)
+                    && e.contains("`emission` and `two_sided`"),
+                "{material}: {e}"
+            );
+        }
+        // The fields every material takes are still known.
+        parse(r#"{"materials": {"m": {"type": "diffuse", "emission": [1, 1, 1], "two_sided": true}}}"#)
+            .unwrap();
     }
 
     #[test]
