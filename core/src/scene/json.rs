@@ -860,6 +860,13 @@ impl Converter<'_> {
                         "\"interior\"",
                     ));
                 }
+                if let Some(m) = &o.material {
+                    return Err(self.err(
+                        &format!("{at}.material"),
+                        "a glTF include takes its materials from the file: remove `material`",
+                        &format!("\"{m}\""),
+                    ));
+                }
                 let inc = self.include(&format!("{at}.shape.path"), path)?;
                 self.merge(inc, transform);
                 continue;
@@ -1582,6 +1589,20 @@ mod tests {
         // The fields every material takes are still known.
         parse(r#"{"materials": {"m": {"type": "diffuse", "emission": [1, 1, 1], "two_sided": true}}}"#)
             .unwrap();
+    }
+
+    #[test]
+    fn a_gltf_include_with_a_material_is_an_error() {
+        // The file's own materials are used: a `material` here would be ignored.
+        let e = parse(
+            r#"{"materials": {"red": {"type": "diffuse"}},
+                "objects": [{"shape": {"type": "gltf", "path": "model.gltf"}, "material": "red"}]}"#,
+        )
+        .unwrap_err();
+        assert!(
+            e.contains("objects[0].material") && e.contains("remove `material`"),
+            "{e}"
+        );
     }
 
     #[test]
