@@ -57,9 +57,12 @@ pub fn run(a: ClusterArgs) -> anyhow::Result<()> {
 }
 
 async fn cluster(a: ClusterArgs) -> anyhow::Result<()> {
+    // The scene loader's warnings are said once, by the job's submission (as `raytile render`
+    // says them), not again by the coordinator's check and by every worker's load.
     let _ = tracing_subscriber::fmt()
         .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()),
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| "warn,raytile_core::scene=error".into()),
         )
         .with_writer(std::io::stderr)
         .try_init();

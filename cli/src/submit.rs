@@ -7,6 +7,7 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use raytile_core::film::ImageFormat;
 use raytile_core::scene::files::{self, SceneFiles};
+use raytile_core::scene::gltf::{no_light_warning, NO_LIGHT_WARNING};
 use raytile_proto::client::{reqwest, Bytes, Client, ClientError};
 use raytile_proto::scene::{self as pkg, SceneFormat};
 use raytile_proto::{
@@ -411,6 +412,15 @@ pub async fn submit_and_follow(
         .create_job(&job.request(created.id))
         .await
         .map_err(job_error)?;
+    // What the farm's loader said about the scene, as `raytile render` says it: the default
+    // light's warning names what lights this job in its place.
+    for w in &created.warnings {
+        if w == NO_LIGHT_WARNING {
+            eprintln!("raytile: warning: {}", no_light_warning(&status.settings));
+        } else {
+            eprintln!("raytile: warning: {w}");
+        }
+    }
     if !wait {
         return Ok(status);
     }

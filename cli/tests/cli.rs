@@ -583,9 +583,15 @@ fn the_default_light_warning_says_what_the_render_does() {
     )
     .unwrap();
     let out = dir.join("out.exr");
-    let render = |extra: &[&str]| {
+    // `raytile render`, and a farm's job through `raytile cluster --render` (as `submit`).
+    let render = |command: &str, extra: &[&str]| {
         let o = raytile()
-            .arg("render")
+            .arg(command)
+            .args(if command == "cluster" {
+                &["--workers", "1", "--render"][..]
+            } else {
+                &[]
+            })
             .arg(&model)
             .arg("-o")
             .arg(&out)
@@ -607,27 +613,32 @@ fn the_default_light_warning_says_what_the_render_does() {
         err
     };
     let added = "a constant white environment was added";
-    let err = render(&[]);
-    assert!(err.contains("has no light") && err.contains(added), "{err}");
-    for (flags, says) in [
-        (
-            &["--environment", "none"][..],
-            "environment is none: no light was added",
-        ),
-        (
-            &["--environment", "0.5,0.5,0.5"][..],
-            "environment (0.5,0.5,0.5) lights it",
-        ),
-        (
-            &["--no-default-light"][..],
-            "default light is off: no light was added",
-        ),
-    ] {
-        let err = render(flags);
+    for c in ["render", "cluster"] {
+        let err = render(c, &[]);
         assert!(
-            err.contains("has no light") && err.contains(says) && !err.contains(added),
-            "{flags:?}: {err}"
+            err.contains("has no light") && err.contains(added),
+            "{c}: {err}"
         );
+        for (flags, says) in [
+            (
+                &["--environment", "none"][..],
+                "environment is none: no light was added",
+            ),
+            (
+                &["--environment", "0.5,0.5,0.5"][..],
+                "environment (0.5,0.5,0.5) lights it",
+            ),
+            (
+                &["--no-default-light"][..],
+                "default light is off: no light was added",
+            ),
+        ] {
+            let err = render(c, flags);
+            assert!(
+                err.contains("has no light") && err.contains(says) && !err.contains(added),
+                "{c} {flags:?}: {err}"
+            );
+        }
     }
     std::fs::remove_dir_all(&dir).ok();
 }
