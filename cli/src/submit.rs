@@ -75,7 +75,8 @@ pub fn run(args: SubmitArgs) -> anyhow::Result<()> {
         let wait = args.wait || args.output.is_some();
         let job =
             submit_and_follow(&c, &args.scene, &args.job, wait, args.output.as_deref()).await?;
-        if !wait {
+        // The job's id, to fetch its image later; with --wait, once the job is done.
+        if args.output.is_none() {
             println!("{}", job.id);
         }
         Ok::<(), anyhow::Error>(())

@@ -254,6 +254,70 @@ fn submit_reports_a_camera_the_scene_does_not_have() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// `submit` prints the job's id when it writes no image: at once, or with `--wait` once the
+/// job is done (it used to print nothing then, leaving no way to fetch the frame).
+#[test]
+fn submit_prints_the_job_id_with_or_without_wait() {
+    use std::io::BufRead;
+    let dir = std::env::temp_dir().join(format!("raytile-cli-wait-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    /// Stops the cluster however the test ends (it holds the test's output open).
+    struct Stop(std::process::Child);
+    impl Drop for Stop {
+        fn drop(&mut self) {
+            let _ = Command::new("kill")
+                .args(["-INT", &self.0.id().to_string()])
+                .status();
+            let _ = self.0.wait();
+        }
+    }
+    let mut cluster = raytile()
+        .args([
+            "cluster",
+            "--workers",
+            "1",
+            "--threads",
+            "1",
+            "--listen",
+            "127.0.0.1:0",
+        ])
+        .arg("--data-dir")
+        .arg(dir.join("data"))
+        .env_remove("RAYTILE_TOKEN")
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stderr = cluster.stderr.take().unwrap();
+    let cluster = Stop(cluster);
+    let mut lines = std::io::BufReader::new(stderr).lines();
+    let base = loop {
+        let line = lines.next().expect("the cluster's banner").unwrap();
+        if let Some(rest) = line.split("coordinator on ").nth(1) {
+            break rest.split_whitespace().next().unwrap().to_string();
+        }
+    };
+    for wait in [false, true] {
+        let o = raytile()
+            .args(["submit", &scene("cornell-box.json"), "--coordinator", &base])
+            .args(["--width", "16", "--height", "16", "--spp", "1"])
+            .args(if wait { &["--wait"][..] } else { &[] })
+            .env_remove("RAYTILE_TOKEN")
+            .output()
+            .unwrap();
+        let (out, err) = (
+            String::from_utf8_lossy(&o.stdout),
+            String::from_utf8_lossy(&o.stderr),
+        );
+        assert!(o.status.success(), "--wait {wait}: {err}");
+        assert!(
+            out.lines().count() == 1 && out.starts_with("job-"),
+            "--wait {wait}: {out:?} {err}"
+        );
+    }
+    drop(cluster);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// A scene folder: `scene.json` with a texture (through a link inside the folder) and a glTF
 /// include whose buffer sits beside it, plus files the scene does not use.
 fn scene_folder(dir: &Path) -> std::path::PathBuf {
