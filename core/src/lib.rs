@@ -75,4 +75,7 @@ pub use settings::{
 /// `volpath`, `sppm`; 2026-12-02).
 /// 9: that first number is refined below the Sobol grid by a hashed number before it picks
 /// and is stretched, so a light with a tiny share still gets a continuum of points (2026-12-03).
-pub const RENDER_VERSION: u32 = 9;
+/// 10: 8-bit textures keep their bytes, and every byte b reads b / 255 correctly rounded; grey
+/// 8-bit images had read some bytes one unit in the last place away (2026-12-05). Images of
+/// other scenes unchanged.
+pub const RENDER_VERSION: u32 = 10;
