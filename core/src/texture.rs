@@ -110,9 +110,13 @@ fn texel_value(x: f32) -> f32 {
 enum Store {
     /// Linear RGBA values (arrays rather than `Vec4`s, so the loader's buffer is reused).
     F32(Vec<[f32; 4]>),
-    /// The bytes of an 8-bit image, decoded on lookup through [`UNORM8`] (colour from sRGB
-    /// when `srgb`).
-    Unorm8 { texels: Vec<[u8; 4]>, srgb: bool },
+    /// The bytes of an 8-bit image, read on lookup through the tables of [`UNORM8`] chosen
+    /// when the texture is made: `colour` (decoding sRGB, or not) and `alpha`.
+    Unorm8 {
+        texels: Vec<[u8; 4]>,
+        colour: &'static [f32; 256],
+        alpha: &'static [f32; 256],
+    },
 }
 
 /// A texture ready for lookups: texels are linear (sRGB decoded once at build time, or on
@@ -193,7 +197,12 @@ impl Texture {
                 }
                 Texels::Unorm8(mut texels) => {
                     texels.shrink_to_fit();
-                    Store::Unorm8 { texels, srgb }
+                    let lut: &'static [[f32; 256]; 2] = &UNORM8;
+                    Store::Unorm8 {
+                        texels,
+                        colour: &lut[usize::from(srgb)],
+                        alpha: &lut[0],
+                    }
                 }
             };
             (width, height, store)
@@ -221,15 +230,17 @@ impl Texture {
     fn at(&self, i: usize) -> Vec4 {
         match &self.store {
             Store::F32(t) => Vec4::from_array(t[i]),
-            Store::Unorm8 { texels, srgb } => {
+            Store::Unorm8 {
+                texels,
+                colour,
+                alpha,
+            } => {
                 let [r, g, b, a] = texels[i];
-                let lut = &*UNORM8;
-                let c = &lut[usize::from(*srgb)];
                 Vec4::new(
-                    c[r as usize],
-                    c[g as usize],
-                    c[b as usize],
-                    lut[0][a as usize],
+                    colour[r as usize],
+                    colour[g as usize],
+                    colour[b as usize],
+                    alpha[a as usize],
                 )
             }
         }
