@@ -1,6 +1,7 @@
 //! Image files for the scene front ends: one decoder with one set of limits, for the textures
 //! and environment maps of JSON scenes and the images of glTF files (PNG, JPEG, Radiance HDR,
-//! OpenEXR, the format found from the bytes).
+//! OpenEXR, the format found from the bytes; Radiance files that start `#?RGBE` as well as
+//! `#?RADIANCE`).
 //!
 //! Limits: at most [`MAX_IMAGE_SIDE`] pixels on a side and [`MAX_IMAGE_PIXELS`] in all (an
 //! 8-bit image keeps its RGBA bytes, 256 MiB at the limit; others are kept as f32 RGBA, 16
@@ -32,28 +33,41 @@ pub struct DecodedImage {
     pub texels: Texels,
 }
 
-/// A reader of `bytes`, its decoder's allocations limited.
-fn reader(bytes: &[u8]) -> Result<image::ImageReader<std::io::Cursor<&[u8]>>, String> {
-    let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
-        .with_guessed_format()
-        .map_err(|e| format!("cannot read: {e}"))?;
+/// The signature Radiance HDR files from some writers (Mitsuba among them) start with instead
+/// of `#?RADIANCE`; the format is the same, but the decoder knows only the other.
+const RGBE_SIGNATURE: &[u8] = b"#?RGBE\n";
+
+/// A decoder of the image in `bytes`, its allocations within the limits when `limited` (not
+/// for reading the header alone, which allocates little, so that [`image_size`]'s errors name
+/// the size).
+fn decoder(bytes: &[u8], limited: bool) -> Result<Box<dyn ImageDecoder + '_>, String> {
+    let cannot = |e: image::ImageError| format!("cannot decode: {e}");
     let mut limits = image::Limits::default();
     limits.max_image_width = Some(MAX_IMAGE_SIDE);
     limits.max_image_height = Some(MAX_IMAGE_SIDE);
     limits.max_alloc = Some(MAX_DECODE_ALLOC);
-    reader.limits(limits);
-    Ok(reader)
+    if let Some(rest) = bytes.strip_prefix(RGBE_SIGNATURE) {
+        let header = &b"#?RADIANCE\n"[..];
+        let mut hdr = image::codecs::hdr::HdrDecoder::new(std::io::Read::chain(header, rest))
+            .map_err(cannot)?;
+        if limited {
+            hdr.set_limits(limits).map_err(cannot)?;
+        }
+        return Ok(Box::new(hdr));
+    }
+    let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| format!("cannot read: {e}"))?;
+    if limited {
+        reader.limits(limits);
+    }
+    Ok(Box::new(reader.into_decoder().map_err(cannot)?))
 }
 
 /// The size of the image in `bytes` without decoding it, within the limits.
 pub fn image_size(bytes: &[u8]) -> Result<(u32, u32), String> {
     check_exr_windows(bytes)?;
-    // Reading the header allocates little: no limits, so that the error below names the size.
-    let (w, h) = image::ImageReader::new(std::io::Cursor::new(bytes))
-        .with_guessed_format()
-        .map_err(|e| format!("cannot read: {e}"))?
-        .into_dimensions()
-        .map_err(|e| format!("cannot decode: {e}"))?;
+    let (w, h) = decoder(bytes, false)?.dimensions();
     if w > MAX_IMAGE_SIDE || h > MAX_IMAGE_SIDE {
         return Err(format!(
             "{w}×{h} pixels: more than the {MAX_IMAGE_SIDE} allowed on a side"
@@ -72,13 +86,11 @@ pub fn image_size(bytes: &[u8]) -> Result<(u32, u32), String> {
 /// memory budget is charged before anything is decoded.
 pub fn image_bytes(bytes: &[u8]) -> Result<u64, String> {
     let (w, h) = image_size(bytes)?;
-    let colour = image::ImageReader::new(std::io::Cursor::new(bytes))
-        .with_guessed_format()
-        .map_err(|e| format!("cannot read: {e}"))?
-        .into_decoder()
-        .map_err(|e| format!("cannot decode: {e}"))?
-        .color_type();
-    let texel = if eight_bit(colour) { 4 } else { 16 };
+    let texel = if eight_bit(decoder(bytes, false)?.color_type()) {
+        4
+    } else {
+        16
+    };
     Ok(u64::from(w) * u64::from(h) * texel)
 }
 
@@ -135,23 +147,82 @@ fn check_exr_windows(bytes: &[u8]) -> Result<(), String> {
 }
 
 /// Decodes the image in `bytes`, within the limits.
+///
+/// 8-bit and f32 images are decoded straight into the RGBA buffer they are kept in, their
+/// channels spread in place: an RGB image never holds its RGB and RGBA buffers at once.
 pub fn decode_image(bytes: &[u8]) -> Result<DecodedImage, String> {
-    image_size(bytes)?;
-    let img = reader(bytes)?
-        .decode()
-        .map_err(|e| format!("cannot decode: {e}"))?;
-    let (width, height) = (img.width(), img.height());
-    let texels = if eight_bit(img.color()) {
-        // 8 bits per channel: the bytes are kept (a quarter of the memory of f32 values).
-        Texels::Unorm8(rgba(img.into_rgba8().into_raw()))
-    } else {
-        Texels::F32(rgba(img.into_rgba32f().into_raw()))
+    let (width, height) = image_size(bytes)?;
+    let decoder = decoder(bytes, true)?;
+    if decoder.total_bytes() > MAX_DECODE_ALLOC {
+        return Err(format!(
+            "cannot decode: {} bytes of pixels, more than the {MAX_DECODE_ALLOC} allowed",
+            decoder.total_bytes()
+        ));
+    }
+    let texels = (width as usize) * (height as usize);
+    let colour = decoder.color_type();
+    let channels = usize::from(colour.channel_count());
+    let texels = match colour {
+        image::ColorType::L8
+        | image::ColorType::La8
+        | image::ColorType::Rgb8
+        | image::ColorType::Rgba8 => {
+            // 8 bits per channel: the bytes are kept (a quarter of the memory of f32 values).
+            Texels::Unorm8(decode_rgba(decoder, texels, channels, u8::MAX)?)
+        }
+        image::ColorType::Rgb32F | image::ColorType::Rgba32F => {
+            Texels::F32(decode_rgba(decoder, texels, channels, 1.0f32)?)
+        }
+        // 16-bit images: the decoder's conversion to f32 (each value / 65535).
+        _ => {
+            let img = image::DynamicImage::from_decoder(decoder)
+                .map_err(|e| format!("cannot decode: {e}"))?;
+            Texels::F32(rgba(img.into_rgba32f().into_raw()))
+        }
     };
     Ok(DecodedImage {
         width,
         height,
         texels,
     })
+}
+
+/// Decodes `texels` pixels of `channels` channels of type `T` (grey, grey and alpha, RGB or
+/// RGBA) into RGBA texels: the decoder writes the front of the RGBA buffer, and each pixel is
+/// then spread to its own texel from the last to the first (a texel never overwrites a pixel
+/// not yet moved). Grey fills the three colour channels; a missing alpha is `opaque`.
+fn decode_rgba<T: bytemuck::Pod + Default>(
+    decoder: impl ImageDecoder,
+    texels: usize,
+    channels: usize,
+    opaque: T,
+) -> Result<Vec<[T; 4]>, String> {
+    let mut out = vec![[T::default(); 4]; texels];
+    let values: &mut [T] = bytemuck::cast_slice_mut(&mut out);
+    let stored = texels * channels;
+    let want = std::mem::size_of_val(&values[..stored]) as u64;
+    if decoder.total_bytes() != want {
+        return Err(format!(
+            "cannot decode: {} bytes of pixels where {want} were expected",
+            decoder.total_bytes()
+        ));
+    }
+    decoder
+        .read_image(bytemuck::cast_slice_mut(&mut values[..stored]))
+        .map_err(|e| format!("cannot decode: {e}"))?;
+    if channels == 4 {
+        return Ok(out);
+    }
+    for i in (0..texels).rev() {
+        let p = i * channels;
+        let texel = match channels {
+            1 => [values[p], values[p], values[p], opaque],
+            2 => [values[p], values[p], values[p], values[p + 1]],
+            _ => [values[p], values[p + 1], values[p + 2], opaque],
+        };
+        values[4 * i..4 * i + 4].copy_from_slice(&texel);
+    }
+    Ok(out)
 }
 
 /// The decoder's RGBA buffer as texels: the same allocation (no second copy of the image at
@@ -239,6 +310,75 @@ mod tests {
                 "{e}"
             );
         }
+    }
+
+    #[test]
+    fn every_colour_type_decodes_in_place_to_what_the_decoders_conversion_gives() {
+        let (w, h) = (7u32, 5u32);
+        let value = |x: u32, y: u32, c: u32| ((x * 37 + y * 11 + c * 71) % 256) as u8;
+        let rgba8 = image::RgbaImage::from_fn(w, h, |x, y| {
+            image::Rgba([
+                value(x, y, 0),
+                value(x, y, 1),
+                value(x, y, 2),
+                value(x, y, 3),
+            ])
+        });
+        let rgba32 = image::Rgba32FImage::from_fn(w, h, |x, y| {
+            image::Rgba([0, 1, 2, 3].map(|c| f32::from(value(x, y, c)) / 7.0 + 0.125))
+        });
+        let encode = |img: image::DynamicImage, format| {
+            let mut bytes = Vec::new();
+            img.write_to(&mut std::io::Cursor::new(&mut bytes), format)
+                .unwrap();
+            bytes
+        };
+        let rgba8 = image::DynamicImage::ImageRgba8(rgba8);
+        let rgba32 = image::DynamicImage::ImageRgba32F(rgba32);
+        use image::ImageFormat::{Hdr, OpenExr, Png};
+        let files = [
+            ("grey", encode(rgba8.to_luma8().into(), Png)),
+            ("grey and alpha", encode(rgba8.to_luma_alpha8().into(), Png)),
+            ("RGB", encode(rgba8.to_rgb8().into(), Png)),
+            ("RGBA", encode(rgba8.clone(), Png)),
+            ("RGB f32", encode(rgba32.to_rgb32f().into(), Hdr)),
+            ("RGBA f32", encode(rgba32.clone(), OpenExr)),
+        ];
+        for (what, bytes) in files {
+            let decoded = image::load_from_memory(&bytes).unwrap();
+            let ours = decode_image(&bytes).unwrap();
+            assert_eq!((ours.width, ours.height), (w, h), "{what}");
+            let want = if eight_bit(decoded.color()) {
+                Texels::Unorm8(rgba(decoded.into_rgba8().into_raw()))
+            } else {
+                Texels::F32(rgba(decoded.into_rgba32f().into_raw()))
+            };
+            assert_eq!(ours.texels, want, "{what}");
+        }
+    }
+
+    #[test]
+    fn a_radiance_file_with_the_rgbe_signature_decodes_as_one_with_the_radiance_one() {
+        let img = image::Rgb32FImage::from_fn(5, 3, |x, y| {
+            image::Rgb([x as f32 * 0.75, y as f32 + 0.5, 2.0])
+        });
+        let mut radiance = Vec::new();
+        img.write_to(
+            &mut std::io::Cursor::new(&mut radiance),
+            image::ImageFormat::Hdr,
+        )
+        .unwrap();
+        let rest = radiance.strip_prefix(b"#?RADIANCE\n").unwrap();
+        let rgbe = [RGBE_SIGNATURE, rest].concat();
+        assert_eq!(image_size(&rgbe).unwrap(), (5, 3));
+        assert_eq!(image_bytes(&rgbe).unwrap(), 5 * 3 * 16);
+        assert_eq!(
+            decode_image(&rgbe).unwrap(),
+            decode_image(&radiance).unwrap()
+        );
+        // A truncated one is an error, as with the other signature.
+        assert!(decode_image(&rgbe[..rgbe.len() - 9]).is_err());
+        assert!(decode_image(RGBE_SIGNATURE).is_err());
     }
 
     #[test]
