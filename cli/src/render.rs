@@ -6,6 +6,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use raytile_core::film::{self, OutputOptions, ToneMap};
 use raytile_core::scene::files::SceneFiles;
 use raytile_core::scene::gltf::{no_light_warning, NO_LIGHT_WARNING};
+use raytile_core::scene::job::pick_camera;
 use raytile_core::{load_scene, RenderJob, RenderOverrides, RenderProgress, Scene, SettingsError};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -71,6 +72,11 @@ pub fn run(args: RenderArgs) -> Result<()> {
     film::ImageFormat::from_path(&args.output)?;
     let desc = load_scene(&args.scene)?;
     let settings = desc.render.resolve(&args.overrides).map_err(flag_error)?;
+    if args.overrides.camera.is_some() {
+        // A camera the scene does not have is the flag's error, said before the scene is built.
+        let names: Vec<&str> = desc.cameras.iter().map(|c| c.name.as_str()).collect();
+        pick_camera(&names, settings.camera.as_deref()).map_err(flag_error)?;
+    }
     for w in &desc.warnings {
         // The default light's warning says what this render does in its place.
         if w == NO_LIGHT_WARNING {

@@ -80,6 +80,28 @@ fn errors_are_one_line_and_a_nonzero_exit() {
     }
 }
 
+/// A camera the scene does not have is the `--camera` flag's error, listing the scene's
+/// cameras, as `submit` and `cluster` say it.
+#[test]
+fn render_reports_a_camera_the_scene_does_not_have_as_the_flag() {
+    for camera in ["nope", "1"] {
+        let o = raytile()
+            .args(["render", &scene("cornell-box.json"), "-o", "x.png"])
+            .args(["--camera", camera])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert_eq!(
+            err,
+            format!(
+                "raytile: --camera: the scene has no camera named or numbered '{camera}' \
+                 (its cameras: 0: 'camera 0')\n"
+            )
+        );
+    }
+}
+
 /// Thread and worker counts no machine has are refused by the flag parser, at once, before a
 /// thread is started (rather than spawning four billion of them).
 #[test]

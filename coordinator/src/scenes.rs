@@ -128,32 +128,10 @@ impl SceneMeta {
             // No choice: the scene's first camera, or one framing the scene if it has none.
             return Ok(());
         };
-        if cameras.iter().any(|c| c == sel) {
-            return Ok(());
-        }
-        if sel.parse::<usize>().is_ok_and(|i| i < cameras.len()) {
-            return Ok(());
-        }
-        if cameras.is_empty() {
-            return Err(format!(
-                "the scene has no camera, so there is none named or numbered '{sel}' \
-                 (leave camera out to render from a camera framing the scene)"
-            ));
-        }
-        const SHOWN: usize = 20;
-        let mut list: Vec<String> = cameras
-            .iter()
-            .take(SHOWN)
-            .enumerate()
-            .map(|(i, c)| format!("{i}: '{c}'"))
-            .collect();
-        if cameras.len() > SHOWN {
-            list.push(format!("and {} more", cameras.len() - SHOWN));
-        }
-        Err(format!(
-            "the scene has no camera named or numbered '{sel}' (its cameras: {})",
-            list.join(", ")
-        ))
+        // The renderer's own choice, so that a job the coordinator takes is one a worker renders.
+        raytile_core::scene::job::pick_camera(cameras, Some(sel))
+            .map(drop)
+            .map_err(|e| e.message)
     }
 }
 

@@ -503,10 +503,11 @@ fn bad_scenes_are_errors_not_panics() {
         camera: Some("nope".into()),
         ..Default::default()
     };
-    assert!(RenderJob::new(&scene, &s)
-        .unwrap_err()
-        .to_string()
-        .contains("nope"));
+    let e = RenderJob::new(&scene, &s).unwrap_err().to_string();
+    assert!(
+        e.starts_with("render setting camera: the scene has no camera named or numbered 'nope'"),
+        "{e}"
+    );
     let s = RenderSettings {
         spp: 0,
         ..Default::default()

@@ -9,7 +9,7 @@ use crate::film::FilterSampler;
 use crate::geometry::{Aabb, Interaction};
 use crate::light::{show_number, Environment, Light, LightSample, LightSet, MAX_RADIANCE};
 use crate::settings::EnvironmentChoice;
-use crate::RenderSettings;
+use crate::{RenderSettings, SettingsError};
 use glam::{Mat4, Vec2, Vec3, Vec3A};
 use std::sync::Arc;
 
@@ -90,10 +90,12 @@ impl RenderJob {
         settings
             .validate()
             .map_err(|e| SceneError::Invalid(format!("render setting {e}")))?;
-        let camera = if scene.cameras.is_empty() && settings.camera.is_none() {
-            default_camera(&scene.bounds)
-        } else {
-            select_camera(&scene.cameras, settings.camera.as_deref())?.clone()
+        let names: Vec<&str> = scene.cameras.iter().map(|c| c.name.as_str()).collect();
+        let camera = match pick_camera(&names, settings.camera.as_deref())
+            .map_err(|e| SceneError::Invalid(format!("render setting {e}")))?
+        {
+            Some(i) => scene.cameras[i].clone(),
+            None => default_camera(&scene.bounds),
         };
         let camera = Camera::new(
             camera.transform,
@@ -226,38 +228,49 @@ fn invalid(msg: impl Into<String>) -> SceneError {
     SceneError::Invalid(msg.into())
 }
 
-/// Picks the camera named or numbered `sel` (the first if `None`).
-fn select_camera<'a>(
-    cameras: &'a [SceneCamera],
+/// The camera a render with the `camera` setting `sel` uses, as an index into the scene's cameras
+/// (their `names`, in order): the camera of that name, else the one of that index (a string of
+/// digits is a name first); the first when `sel` is `None`; `None` for a scene without cameras
+/// rendered without a choice (a camera framing the scene). A camera the scene does not have is
+/// an error naming the `camera` setting and listing the cameras.
+pub fn pick_camera(
+    names: &[impl AsRef<str>],
     sel: Option<&str>,
-) -> Result<&'a SceneCamera, SceneError> {
-    let names = || {
-        cameras
-            .iter()
-            .enumerate()
-            .map(|(i, c)| format!("{i}:{}", c.name))
-            .collect::<Vec<_>>()
-            .join(", ")
+) -> Result<Option<usize>, SettingsError> {
+    let Some(sel) = sel else {
+        return Ok((!names.is_empty()).then_some(0));
     };
-    match sel {
-        None => cameras
-            .first()
-            .ok_or_else(|| invalid("the scene has no camera")),
-        Some(s) => {
-            if let Some(c) = cameras.iter().find(|c| c.name == s) {
-                return Ok(c);
-            }
-            if let Ok(i) = s.parse::<usize>() {
-                if let Some(c) = cameras.get(i) {
-                    return Ok(c);
-                }
-            }
-            Err(invalid(format!(
-                "no camera named or numbered '{s}' (cameras: {})",
-                names()
-            )))
-        }
+    if let Some(i) = names.iter().position(|n| n.as_ref() == sel) {
+        return Ok(Some(i));
     }
+    if let Some(i) = sel.parse::<usize>().ok().filter(|&i| i < names.len()) {
+        return Ok(Some(i));
+    }
+    let message = if names.is_empty() {
+        format!(
+            "the scene has no camera, so there is none named or numbered '{sel}' (leave it \
+             out to render from a camera framing the scene)"
+        )
+    } else {
+        const SHOWN: usize = 20;
+        let mut list: Vec<String> = names
+            .iter()
+            .take(SHOWN)
+            .enumerate()
+            .map(|(i, n)| format!("{i}: '{}'", n.as_ref()))
+            .collect();
+        if names.len() > SHOWN {
+            list.push(format!("and {} more", names.len() - SHOWN));
+        }
+        format!(
+            "the scene has no camera named or numbered '{sel}' (its cameras: {})",
+            list.join(", ")
+        )
+    };
+    Err(SettingsError {
+        field: "camera",
+        message,
+    })
 }
 
 /// A default camera framing `bounds` from +Z, for scenes without one.
