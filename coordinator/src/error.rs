@@ -199,32 +199,36 @@ impl<T: serde::Serialize> IntoResponse for Json<T> {
 impl From<JsonRejection> for AppError {
     fn from(r: JsonRejection) -> Self {
         use axum::extract::rejection::JsonRejection as J;
-        let text = r.body_text();
         if r.status() == StatusCode::PAYLOAD_TOO_LARGE {
             return AppError::TooLarge(crate::api::JSON_BODY_LIMIT as u64);
         }
-        // serde's messages start with the JSON path of the offending field ("width: ...").
-        let field = text
-            .split_once(": ")
-            .and_then(|(_, rest)| rest.split_once(": "))
-            .map(|(f, _)| f.to_string())
-            .filter(|f| {
-                f.starts_with(|c: char| c.is_ascii_alphabetic())
-                    && f.chars()
-                        .all(|c| c.is_ascii_alphanumeric() || "_.".contains(c))
-            });
         match r {
-            // A body of the wrong shape altogether (an array, a string) names the body.
-            J::JsonDataError(_) => AppError::Invalid {
-                field: field.or_else(|| Some("body".into())),
-                message: text,
-            },
+            J::JsonDataError(e) => {
+                // serde's own message (the rejection's source), without the preface the
+                // rejection's text puts before it: "width: invalid type: ...", the JSON path of
+                // the offending field first.
+                let message = std::error::Error::source(&e)
+                    .map_or_else(|| e.body_text(), ToString::to_string);
+                let field = message
+                    .split_once(": ")
+                    .map(|(f, _)| f.to_string())
+                    .filter(|f| {
+                        f.starts_with(|c: char| c.is_ascii_alphabetic())
+                            && f.chars()
+                                .all(|c| c.is_ascii_alphanumeric() || "_.".contains(c))
+                    });
+                AppError::Invalid {
+                    // A body of the wrong shape altogether (an array, a string) names the body.
+                    field: field.or_else(|| Some("body".into())),
+                    message,
+                }
+            }
             J::MissingJsonContentType(_) => AppError::UnsupportedMediaType(
                 "expected a JSON body with Content-Type: application/json".into(),
             ),
-            _ => AppError::BadRequest {
+            r => AppError::BadRequest {
                 field: Some("body".into()),
-                message: text,
+                message: r.body_text(),
             },
         }
     }

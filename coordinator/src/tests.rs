@@ -217,6 +217,42 @@ async fn jobs_validate_fields_and_scenes() {
     assert_eq!(code, StatusCode::NOT_FOUND);
 }
 
+/// A JSON body of the wrong shape is answered with serde's own message alone, the offending
+/// field's path first (`width: invalid type: ...`), and names that field.
+#[tokio::test]
+async fn wrong_json_is_answered_with_serdes_message_naming_the_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let st = test_state(dir.path(), None);
+    let (_, scene) = call(&st, post("/v1/scenes", r#"{"objects": []}"#)).await;
+    let id = scene["id"].as_str().unwrap();
+    for (uri, body, field, want) in [
+        (
+            "/v1/jobs",
+            format!(r#"{{"width": "x", "scene": "{id}"}}"#),
+            "width",
+            r#"width: invalid type: string "x", expected u32"#,
+        ),
+        (
+            "/v1/workers",
+            r#"{"name": "w", "threads": "x"}"#.into(),
+            "threads",
+            r#"threads: invalid type: string "x", expected u32 at line 1 column 28"#,
+        ),
+        (
+            "/v1/workers",
+            r#""x""#.into(),
+            "body",
+            r#"body: invalid type: string "x", expected struct RegisterRequest at line 1 column 3"#,
+        ),
+    ] {
+        let (code, b) = call(&st, post(uri, body.clone())).await;
+        assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{body} → {b}");
+        assert_error_body(&body, &b);
+        assert_eq!(b["error"]["field"], field, "{body} → {b}");
+        assert_eq!(b["error"]["message"], want, "{body} → {b}");
+    }
+}
+
 #[tokio::test]
 async fn oversize_and_unknown_uploads_are_refused() {
     let dir = tempfile::tempdir().unwrap();
