@@ -364,7 +364,7 @@ impl Scene {
                 ObjectKind::Analytic(a) => {
                     if a.sample(Vec2::splat(0.5)).is_none() {
                         return Err(invalid(format!(
-                            "object {oi} ('{}'): this shape cannot be an area light (planes and quadrics cannot be sampled); use a mesh, sphere, box, disk, rectangle or polygon",
+                            "object {oi} ('{}'): {NOT_AN_AREA_LIGHT}",
                             o.name
                         )));
                     }
@@ -598,6 +598,19 @@ fn build_mesh(mi: usize, m: MeshDesc) -> Result<Mesh, SceneError> {
             .collect(),
         indices,
     })
+}
+
+/// Why an emissive plane or quadric is refused.
+pub(crate) const NOT_AN_AREA_LIGHT: &str = "this shape cannot be an area light (planes and \
+    quadrics cannot be sampled); use a mesh, sphere, box, disk, rectangle or polygon";
+
+/// Whether an object of this shape can be an area light: not a plane or a quadric, which cannot
+/// be sampled. A shape whose parameters are wrong counts as one: the builder refuses it for them.
+pub(crate) fn can_emit(shape: &ShapeDesc) -> bool {
+    match shape {
+        ShapeDesc::Mesh { .. } => true,
+        s => build_analytic(s).map_or(true, |a| a.sample(Vec2::splat(0.5)).is_some()),
+    }
 }
 
 fn build_analytic(shape: &ShapeDesc) -> Result<Analytic, String> {
@@ -890,8 +903,7 @@ fn build_material(m: &MaterialDesc, n_textures: usize) -> Result<Material, Scene
         model,
         base_color,
         slots,
-        // An interface is no surface: it neither scatters nor emits.
-        emission: (radiance.max_element() > 0.0 && !interface).then_some(emission),
+        emission: m.emits().then_some(emission),
         alpha_mode: m.alpha_mode,
         absorption,
         interface,

@@ -31,6 +31,11 @@ pub fn check_transform(m: &Mat4) -> Result<(), String> {
     if !(det.abs() > 1e-12) || !det.is_finite() {
         return Err("transform is singular (a zero scale)".into());
     }
+    check_affine(m)
+}
+
+/// Checks that a transform is affine: its last row is [0, 0, 0, 1] (no projection).
+pub fn check_affine(m: &Mat4) -> Result<(), String> {
     let row = m.row(3);
     if (row - glam::Vec4::W).abs().max_element() > AFFINE_TOLERANCE {
         return Err(format!(
@@ -250,6 +255,12 @@ impl MaterialDesc {
             alpha_mode: AlphaMode::Opaque,
             normal_texture: None,
         }
+    }
+
+    /// Whether a surface of this material gives light: its emission is above zero, and it is
+    /// not an interface (no surface: it neither scatters nor emits).
+    pub fn emits(&self) -> bool {
+        self.emission.max_element() > 0.0 && !matches!(self.bsdf, BsdfDesc::Interface)
     }
 }
 

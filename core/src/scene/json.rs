@@ -5,6 +5,7 @@
 //! `serde_path_to_error` for the path), semantic ones (an unknown material name, a degenerate
 //! shape) from the conversion below, with the line of the offending value where it can be found.
 
+use super::build::NOT_AN_AREA_LIGHT;
 use super::desc::*;
 use super::files::{folder_of, show, FileError, Resolved, SceneFiles};
 use super::SceneError;
@@ -885,6 +886,17 @@ impl Converter<'_> {
                 }
             };
             let shape = self.shape(&o.shape, &name, &at)?;
+            let m = &self.desc.materials[material];
+            if m.emits() && !super::build::can_emit(&shape) {
+                return Err(self.err(
+                    &at,
+                    format!(
+                        "its material '{}' emits light, but {NOT_AN_AREA_LIGHT}",
+                        m.name
+                    ),
+                    &format!("\"{name}\""),
+                ));
+            }
             let media = if o.interior.is_some() || o.exterior.is_some() {
                 let side = |field: &str, n: &Option<String>| {
                     n.as_deref()
@@ -1773,6 +1785,81 @@ mod tests {
         let dark = load("");
         assert!(dark.environment.is_none());
         assert_eq!(dark.warnings, [UNLIT_WARNING]);
+    }
+
+    /// A projective node matrix in an included glTF file is refused naming the include's JSON
+    /// path, the file and the node.
+    #[test]
+    fn a_projective_node_in_an_included_model_names_the_include_the_file_and_the_node() {
+        let d = Dir::new("projective");
+        let positions: Vec<u8> = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        std::fs::write(d.0.join("scene/tri.bin"), positions).unwrap();
+        std::fs::write(
+            d.0.join("scene/tri.gltf"),
+            r#"{"asset": {"version": "2.0"},
+                "buffers": [{"byteLength": 36, "uri": "tri.bin"}],
+                "bufferViews": [{"buffer": 0, "byteLength": 36}],
+                "accessors": [{"bufferView": 0, "componentType": 5126, "type": "VEC3",
+                    "count": 3, "min": [0, 0, 0], "max": [1, 1, 0]}],
+                "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+                "nodes": [{"children": [1]},
+                          {"name": "tilted", "mesh": 0,
+                           "matrix": [1, 0, 0, 0.5, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]}],
+                "scenes": [{"nodes": [0]}]}"#,
+        )
+        .unwrap();
+        let scene = d.0.join("scene/scene.json");
+        std::fs::write(
+            &scene,
+            "{\"objects\": [\n {\"shape\": {\"type\": \"gltf\", \"path\": \"tri.gltf\"}}\n]}",
+        )
+        .unwrap();
+        assert_eq!(
+            load_json(&scene).unwrap_err().to_string(),
+            format!(
+                "{}: at objects[0].shape.path (line 2): {}: node 1 ('tilted'): the transform's \
+                 last row must be [0, 0, 0, 1] (no projection), got [0.5, 0, 0, 1]",
+                scene.display(),
+                d.0.join("scene/tri.gltf").display()
+            )
+        );
+    }
+
+    /// An object whose material emits light is an area light: a plane or a quadric, which
+    /// cannot be one, is refused when the scene is loaded, naming the object's JSON path.
+    #[test]
+    fn an_emissive_plane_or_quadric_is_refused_naming_the_object() {
+        let scene = |shape: &str, material: &str| {
+            parse(&format!(
+                r#"{{"materials": {{"white": {{"type": "diffuse"}},
+                               "lamp": {{"type": "diffuse", "emission": [1, 1, 1]}},
+                               "dark": {{"type": "diffuse", "emission": [0, 0, 0]}}}},
+                "objects": [
+                  {{"shape": {{"type": "sphere"}}, "material": "lamp"}},
+                  {{"shape": {{"type": "sphere"}}, "material": "white"}},
+                  {{"name": "floor lamp", "shape": {shape}, "material": "{material}"}}
+                ]}}"#
+            ))
+        };
+        for shape in [
+            r#"{"type": "plane"}"#,
+            r#"{"type": "ellipsoid", "radii": [1, 2, 1]}"#,
+        ] {
+            assert_eq!(
+                scene(shape, "lamp").unwrap_err(),
+                "test.json: at objects[2] (line 7): its material 'lamp' emits light, but this \
+                 shape cannot be an area light (planes and quadrics cannot be sampled); use a \
+                 mesh, sphere, box, disk, rectangle or polygon",
+                "{shape}"
+            );
+            // Without emission, the same shape is only a surface.
+            for material in ["white", "dark"] {
+                scene(shape, material).unwrap();
+            }
+        }
     }
 
     #[test]

@@ -20,7 +20,8 @@ mod mesh;
 mod tests;
 
 use super::desc::{
-    CameraDesc, EnvironmentDesc, LightDesc, ObjectDesc, Projection, SceneDesc, ShapeDesc,
+    check_affine, CameraDesc, EnvironmentDesc, LightDesc, ObjectDesc, Projection, SceneDesc,
+    ShapeDesc,
 };
 use super::files::{folder_of, SceneFiles};
 use super::SceneError;
@@ -410,9 +411,14 @@ fn load_inner(
     Ok(loader.desc)
 }
 
-/// The local transform of a node, checked to be finite.
+/// The local transform of a node, checked to be finite and affine (the specification wants a
+/// matrix that decomposes into translation, rotation and scale; every node under it inherits
+/// it).
 fn node_matrix(node: &gltf::Node) -> Result<Mat4, String> {
-    let what = format!("node {}", node.index());
+    let what = match node.name() {
+        Some(name) => format!("node {} ('{name}')", node.index()),
+        None => format!("node {}", node.index()),
+    };
     let m = match node.transform() {
         gltf::scene::Transform::Matrix { matrix } => Mat4::from_cols_array_2d(&matrix),
         gltf::scene::Transform::Decomposed {
@@ -435,6 +441,7 @@ fn node_matrix(node: &gltf::Node) -> Result<Mat4, String> {
     if !m.is_finite() {
         return Err(format!("{what}: transform is not finite"));
     }
+    check_affine(&m).map_err(|e| format!("{what}: {e}"))?;
     Ok(m)
 }
 

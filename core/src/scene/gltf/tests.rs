@@ -180,6 +180,35 @@ fn transforms_compose_through_the_hierarchy() {
     assert_eq!(s.meshes[0].indices, vec![[0, 1, 2]]);
 }
 
+/// A node matrix that is projective (its last row not [0, 0, 0, 1]) is refused when the file is
+/// loaded, naming the node by index and name, and the file.
+#[test]
+fn a_projective_node_matrix_is_refused_naming_the_node() {
+    for (name, node) in [
+        (json!("tilted"), "node 1 ('tilted')"),
+        (Value::Null, "node 1"),
+    ] {
+        let mut d = Doc::default();
+        d.positions(&TRI);
+        let mut tilted = json!({"mesh": 0, "matrix": [1,0,0,0.5, 0,1,0,0, 0,0,1,0, 0,0,0,1]});
+        if !name.is_null() {
+            tilted["name"] = name;
+        }
+        let bytes = d.finish(json!({
+            "scenes": [{"nodes": [0]}],
+            "nodes": [{"name": "root", "children": [1]}, tilted],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        }));
+        assert_eq!(
+            load(&bytes).unwrap_err(),
+            format!(
+                "test.gltf: {node}: the transform's last row must be [0, 0, 0, 1] (no \
+                 projection), got [0.5, 0, 0, 1]"
+            )
+        );
+    }
+}
+
 #[test]
 fn instanced_mesh_is_loaded_once() {
     let mut d = Doc::default();
