@@ -223,6 +223,23 @@ impl From<JsonRejection> for AppError {
                     message,
                 }
             }
+            // The JSON parser's message alone (the innermost source: where the text stops being
+            // JSON), without the rejection's preface or the path of the field it was in.
+            J::JsonSyntaxError(e) => {
+                let mut inner: &dyn std::error::Error = &e;
+                while let Some(next) = inner.source() {
+                    inner = next;
+                }
+                let message =
+                    match inner.downcast_ref::<serde_path_to_error::Error<serde_json::Error>>() {
+                        Some(located) => located.inner().to_string(),
+                        None => inner.to_string(),
+                    };
+                AppError::BadRequest {
+                    field: Some("body".into()),
+                    message: format!("not valid JSON: {message}"),
+                }
+            }
             J::MissingJsonContentType(_) => AppError::UnsupportedMediaType(
                 "expected a JSON body with Content-Type: application/json".into(),
             ),

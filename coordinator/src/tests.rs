@@ -251,6 +251,14 @@ async fn wrong_json_is_answered_with_serdes_message_naming_the_field() {
         assert_eq!(b["error"]["field"], field, "{body} → {b}");
         assert_eq!(b["error"]["message"], want, "{body} → {b}");
     }
+    // A body that is not JSON at all: a 400 with serde's message, no framework preface.
+    let (code, b) = call(&st, post("/v1/workers", r#"{"name": "#)).await;
+    assert_eq!(code, StatusCode::BAD_REQUEST, "{b}");
+    assert_eq!(b["error"]["field"], "body", "{b}");
+    assert_eq!(
+        b["error"]["message"], "body: not valid JSON: EOF while parsing a value at line 1 column 9",
+        "{b}"
+    );
 }
 
 #[tokio::test]
