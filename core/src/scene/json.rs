@@ -1032,6 +1032,13 @@ impl Converter<'_> {
                 .cameras
                 .insert(self.desc.cameras.len().min(i), cam);
         }
+        // `render.camera` names one of the cameras now known (its own and its includes').
+        if let Some(sel) = self.desc.render.camera.as_deref() {
+            let names: Vec<&str> = self.desc.cameras.iter().map(|c| c.name.as_str()).collect();
+            if let Err(e) = super::job::pick_camera(&names, Some(sel)) {
+                return Err(self.err("render.camera", e.message, &format!("\"{sel}\"")));
+            }
+        }
         if !self.desc.is_lit() {
             self.desc.warnings.push(UNLIT_WARNING.into());
         }
@@ -1860,6 +1867,32 @@ mod tests {
                 scene(shape, material).unwrap();
             }
         }
+    }
+
+    /// `render.camera` is checked when the scene is loaded, against its cameras.
+    #[test]
+    fn render_camera_names_one_of_the_scenes_cameras() {
+        let scene = |cameras: &str, camera: &str| {
+            parse(&format!(
+                "{{\"render\": {{\"camera\": {camera}}},\n\"cameras\": [{cameras}]}}"
+            ))
+        };
+        let two = r#"{"name": "front", "position": [0, 0, 5], "look_at": [0, 0, 0]},
+                     {"name": "side", "position": [5, 0, 0], "look_at": [0, 0, 0]}"#;
+        for ok in [r#""side""#, r#""1""#, r#""front""#] {
+            assert_eq!(scene(two, ok).unwrap().cameras.len(), 2, "{ok}");
+        }
+        assert_eq!(
+            scene(two, r#""nope""#).unwrap_err(),
+            "test.json: at render.camera (line 1): the scene has no camera named or numbered \
+             'nope' (its cameras: 0: 'front', 1: 'side')"
+        );
+        assert!(scene(two, r#""2""#).unwrap_err().contains("numbered '2'"));
+        let e = scene("", r#""0""#).unwrap_err();
+        assert!(
+            e.starts_with("test.json: at render.camera (line 1): the scene has no camera"),
+            "{e}"
+        );
     }
 
     #[test]
