@@ -1662,6 +1662,26 @@ mod tests {
     struct Dir(PathBuf);
 
     impl Dir {
+        /// Writes `scene/tri.gltf` and its buffer: one triangle, the nodes `nodes` (a JSON
+        /// array), the scene made of node 0.
+        fn triangle_gltf(&self, nodes: &str) {
+            let positions: Vec<u8> = [-1.0f32, -1.0, 0.0, 1.0, -1.0, 0.0, 0.0, 1.0, 0.0]
+                .iter()
+                .flat_map(|v| v.to_le_bytes())
+                .collect();
+            std::fs::write(self.0.join("scene/tri.bin"), positions).unwrap();
+            let gltf = format!(
+                r#"{{"asset": {{"version": "2.0"}},
+                    "buffers": [{{"byteLength": 36, "uri": "tri.bin"}}],
+                    "bufferViews": [{{"buffer": 0, "byteLength": 36}}],
+                    "accessors": [{{"bufferView": 0, "componentType": 5126, "type": "VEC3",
+                        "count": 3, "min": [-1, -1, 0], "max": [1, 1, 0]}}],
+                    "meshes": [{{"primitives": [{{"attributes": {{"POSITION": 0}}}}]}}],
+                    "nodes": {nodes}, "scenes": [{{"nodes": [0]}}]}}"#
+            );
+            std::fs::write(self.0.join("scene/tri.gltf"), gltf).unwrap();
+        }
+
         fn new(tag: &str) -> Dir {
             let d = std::env::temp_dir().join(format!("raytile-json-{tag}-{}", std::process::id()));
             let _ = std::fs::remove_dir_all(&d);
@@ -1756,22 +1776,7 @@ mod tests {
     #[test]
     fn an_included_unlit_model_takes_the_scene_s_light() {
         let d = Dir::new("unlit");
-        let positions: Vec<u8> = [-1.0f32, -1.0, 0.0, 1.0, -1.0, 0.0, 0.0, 1.0, 0.0]
-            .iter()
-            .flat_map(|v| v.to_le_bytes())
-            .collect();
-        std::fs::write(d.0.join("scene/tri.bin"), positions).unwrap();
-        std::fs::write(
-            d.0.join("scene/tri.gltf"),
-            r#"{"asset": {"version": "2.0"},
-                "buffers": [{"byteLength": 36, "uri": "tri.bin"}],
-                "bufferViews": [{"buffer": 0, "byteLength": 36}],
-                "accessors": [{"bufferView": 0, "componentType": 5126, "type": "VEC3",
-                    "count": 3, "min": [-1, -1, 0], "max": [1, 1, 0]}],
-                "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
-                "nodes": [{"mesh": 0}], "scenes": [{"nodes": [0]}]}"#,
-        )
-        .unwrap();
+        d.triangle_gltf(r#"[{"mesh": 0}]"#);
         let scene = d.0.join("scene/scene.json");
         let load = |lights: &str| {
             std::fs::write(
@@ -1799,25 +1804,11 @@ mod tests {
     #[test]
     fn a_projective_node_in_an_included_model_names_the_include_the_file_and_the_node() {
         let d = Dir::new("projective");
-        let positions: Vec<u8> = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]
-            .iter()
-            .flat_map(|v| v.to_le_bytes())
-            .collect();
-        std::fs::write(d.0.join("scene/tri.bin"), positions).unwrap();
-        std::fs::write(
-            d.0.join("scene/tri.gltf"),
-            r#"{"asset": {"version": "2.0"},
-                "buffers": [{"byteLength": 36, "uri": "tri.bin"}],
-                "bufferViews": [{"buffer": 0, "byteLength": 36}],
-                "accessors": [{"bufferView": 0, "componentType": 5126, "type": "VEC3",
-                    "count": 3, "min": [0, 0, 0], "max": [1, 1, 0]}],
-                "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
-                "nodes": [{"children": [1]},
-                          {"name": "tilted", "mesh": 0,
-                           "matrix": [1, 0, 0, 0.5, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]}],
-                "scenes": [{"nodes": [0]}]}"#,
-        )
-        .unwrap();
+        d.triangle_gltf(
+            r#"[{"children": [1]},
+                {"name": "tilted", "mesh": 0,
+                 "matrix": [1, 0, 0, 0.5, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]}]"#,
+        );
         let scene = d.0.join("scene/scene.json");
         std::fs::write(
             &scene,
