@@ -250,6 +250,13 @@ mod tests {
 
     /// A PNG file claiming `w × h` pixels without their data: enough to read its size.
     fn png_header(w: u32, h: u32) -> Vec<u8> {
+        let ihdr = [&w.to_be_bytes()[..], &h.to_be_bytes(), &[8, 6, 0, 0, 0]].concat();
+        // An empty image data chunk: decoders read the header up to the first one.
+        png_chunks(&[(b"IHDR", &ihdr), (b"IDAT", &[])])
+    }
+
+    /// A PNG file of these chunks (and IEND).
+    fn png_chunks(chunks: &[(&[u8; 4], &[u8])]) -> Vec<u8> {
         fn crc32(bytes: &[u8]) -> u32 {
             let mut c = !0u32;
             for &b in bytes {
@@ -265,17 +272,12 @@ mod tests {
             !c
         }
         let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
-        let mut chunk = |kind: &[u8], data: &[u8]| {
-            let body = [kind, data].concat();
+        for (kind, data) in chunks.iter().copied().chain([(b"IEND", &[][..])]) {
+            let body = [&kind[..], data].concat();
             out.extend((data.len() as u32).to_be_bytes());
             out.extend(&body);
             out.extend(crc32(&body).to_be_bytes());
-        };
-        let ihdr = [&w.to_be_bytes()[..], &h.to_be_bytes(), &[8, 6, 0, 0, 0]].concat();
-        chunk(b"IHDR", &ihdr);
-        // An empty image data chunk: decoders read the header up to the first one.
-        chunk(b"IDAT", &[]);
-        chunk(b"IEND", &[]);
+        }
         out
     }
 
@@ -355,6 +357,181 @@ mod tests {
             };
             assert_eq!(ours.texels, want, "{what}");
         }
+    }
+
+    /// Texels as the image crate's own conversion gives them (what was kept before decoding in
+    /// place).
+    fn converted(bytes: &[u8]) -> Texels {
+        let img = image::load_from_memory(bytes).unwrap();
+        if eight_bit(img.color()) {
+            Texels::Unorm8(rgba(img.into_rgba8().into_raw()))
+        } else {
+            Texels::F32(rgba(img.into_rgba32f().into_raw()))
+        }
+    }
+
+    #[test]
+    fn pngs_whose_decoded_colour_type_is_not_the_stored_one_decode_in_place_alike() {
+        // 7×5 pixels of `depth` bits, `channels` samples each, packed row by row (Adam7 when
+        // `interlaced`), filter type 0.
+        let (w, h) = (7u32, 5u32);
+        let sample = |x: u32, y: u32, c: u32, depth: u8| ((x * 5 + y * 3 + c) % (1 << depth)) as u8;
+        let rows = |depth: u8, channels: u32, interlaced: bool| {
+            let passes: &[(u32, u32, usize, usize)] = if interlaced {
+                &[
+                    (0, 0, 8, 8),
+                    (4, 0, 8, 8),
+                    (0, 4, 4, 8),
+                    (2, 0, 4, 4),
+                    (0, 2, 2, 4),
+                    (1, 0, 2, 2),
+                    (0, 1, 1, 2),
+                ]
+            } else {
+                &[(0, 0, 1, 1)]
+            };
+            let mut raw = Vec::new();
+            for &(x0, y0, dx, dy) in passes {
+                let xs: Vec<u32> = (x0..w).step_by(dx).collect();
+                for y in (y0..h).step_by(dy).filter(|_| !xs.is_empty()) {
+                    raw.push(0);
+                    let (mut bits, mut n) = (0u32, 0);
+                    for (&x, c) in xs.iter().flat_map(|x| (0..channels).map(move |c| (x, c))) {
+                        bits = bits << depth | u32::from(sample(x, y, c, depth));
+                        n += u32::from(depth);
+                        if n == 8 {
+                            raw.push(bits as u8);
+                            (bits, n) = (0, 0);
+                        }
+                    }
+                    if n > 0 {
+                        raw.push((bits << (8 - n)) as u8);
+                    }
+                }
+            }
+            miniz_oxide::deflate::compress_to_vec_zlib(&raw, 6)
+        };
+        let palette: Vec<u8> = (0..16 * 3).map(|i| (i * 53 % 256) as u8).collect();
+        let ihdr = |depth: u8, colour: u8, interlaced: bool| {
+            [
+                &w.to_be_bytes()[..],
+                &h.to_be_bytes(),
+                &[depth, colour, 0, 0, interlaced as u8],
+            ]
+            .concat()
+        };
+        // What, bit depth, PNG colour type, samples a pixel, palette, tRNS, interlaced.
+        type File<'a> = (&'a str, u8, u8, u32, &'a [u8], &'a [u8], bool);
+        let files: [File; 7] = [
+            ("2-bit palette", 2, 3, 1, &palette[..12], &[], false),
+            (
+                "4-bit palette, tRNS",
+                4,
+                3,
+                1,
+                &palette,
+                &[0, 90, 180],
+                false,
+            ),
+            (
+                "8-bit palette, tRNS, Adam7",
+                8,
+                3,
+                1,
+                &palette,
+                &[10, 20],
+                true,
+            ),
+            ("1-bit grey", 1, 0, 1, &[], &[], false),
+            ("2-bit grey, tRNS, Adam7", 2, 0, 1, &[], &[0, 1], true),
+            ("8-bit RGB, tRNS", 8, 2, 3, &[], &[0, 0, 0, 1, 0, 2], false),
+            ("16-bit grey, Adam7", 16, 0, 1, &[], &[], true),
+        ];
+        for (what, depth, colour, channels, plte, trns, interlaced) in files {
+            // A 16-bit sample is two 8-bit ones.
+            let (packed, channels) = if depth == 16 {
+                (8, 2)
+            } else {
+                (depth, channels)
+            };
+            let ihdr = ihdr(depth, colour, interlaced);
+            let idat = rows(packed, channels, interlaced);
+            let mut chunks = vec![(b"IHDR", &ihdr[..])];
+            if !plte.is_empty() {
+                chunks.push((b"PLTE", plte));
+            }
+            if !trns.is_empty() {
+                chunks.push((b"tRNS", trns));
+            }
+            chunks.push((b"IDAT", &idat));
+            let bytes = png_chunks(&chunks);
+            let ours = decode_image(&bytes).unwrap();
+            assert_eq!((ours.width, ours.height), (w, h), "{what}");
+            assert_eq!(ours.texels, converted(&bytes), "{what}");
+        }
+    }
+
+    #[test]
+    fn openexr_half_channels_decode_and_a_lone_luminance_channel_is_refused() {
+        // Uncompressed scanlines of 3×2 pixels: each channel's row in turn, names sorted.
+        let (w, h) = (3i32, 2i32);
+        let file = |channels: &[&str]| {
+            let mut b = EXR_MAGIC.to_vec();
+            b.extend([2, 0, 0, 0]);
+            let mut attribute = |name: &str, kind: &str, value: &[u8]| {
+                b.extend([name.as_bytes(), &[0], kind.as_bytes(), &[0]].concat());
+                b.extend((value.len() as i32).to_le_bytes());
+                b.extend(value);
+            };
+            // Half (1), linear 0, reserved, sampled 1 × 1.
+            let list = channels.iter().flat_map(|n| {
+                [
+                    n.as_bytes(),
+                    &[0, 1, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0],
+                ]
+                .concat()
+            });
+            attribute("channels", "chlist", &list.chain([0]).collect::<Vec<_>>());
+            attribute("compression", "compression", &[0]);
+            let window: Vec<u8> = [0, 0, w - 1, h - 1]
+                .iter()
+                .flat_map(|v: &i32| v.to_le_bytes())
+                .collect();
+            attribute("dataWindow", "box2i", &window);
+            attribute("displayWindow", "box2i", &window);
+            attribute("lineOrder", "lineOrder", &[0]);
+            attribute("pixelAspectRatio", "float", &1f32.to_le_bytes());
+            attribute("screenWindowCenter", "v2f", &[0; 8]);
+            attribute("screenWindowWidth", "float", &1f32.to_le_bytes());
+            b.push(0);
+            let line = 2 * w as usize * channels.len();
+            let first = b.len() + 8 * h as usize;
+            for y in 0..h as usize {
+                b.extend(((first + y * (8 + line)) as u64).to_le_bytes());
+            }
+            for y in 0..h {
+                b.extend(y.to_le_bytes());
+                b.extend((line as i32).to_le_bytes());
+                for name in channels {
+                    for x in 0..w as u16 {
+                        // Halves 1 + k / 8 (sign 0, exponent 15, mantissa k << 7).
+                        let k = (x + 3 * y as u16 + u16::from(name.as_bytes()[0])) % 8;
+                        b.extend((0x3c00u16 | k << 7).to_le_bytes());
+                    }
+                }
+            }
+            b
+        };
+        for channels in [&["B", "G", "R"][..], &["A", "B", "G", "R"]] {
+            let bytes = file(channels);
+            let ours = decode_image(&bytes).unwrap();
+            assert_eq!((ours.width, ours.height), (3, 2), "{channels:?}");
+            assert_eq!(ours.texels, converted(&bytes), "{channels:?}");
+            // The last pixel's red: k = (2 + 3 + 'R') % 8 = 7.
+            assert_eq!(ours.texels.get(5)[0], 1.0 + 7.0 / 8.0, "{channels:?}");
+        }
+        let e = decode_image(&file(&["Y"])).unwrap_err();
+        assert!(e.contains("rgb channels"), "{e}");
     }
 
     #[test]
