@@ -551,8 +551,9 @@ pub struct RenderOverrides {
 }
 
 /// Reads a camera choice: a name (string), an index (integer ≥ 0, kept as its decimal
-/// string, which the renderer reads as an index), or null for none.
-fn camera_name_or_index<'de, D: serde::Deserializer<'de>>(
+/// string, which the renderer reads as an index), or null for none. The scene format's
+/// `render.camera` reads it the same way.
+pub fn camera_name_or_index<'de, D: serde::Deserializer<'de>>(
     d: D,
 ) -> Result<Option<String>, D::Error> {
     struct Camera;

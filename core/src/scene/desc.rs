@@ -626,7 +626,12 @@ pub struct RenderDefaults {
     pub integrator: Option<IntegratorKind>,
     /// Random seed.
     pub seed: Option<u32>,
-    /// Camera name or index.
+    /// Camera name or index: a string, or an integer index (`"camera": 1` is `"camera": "1"`),
+    /// as a job's `camera` and `--camera` take either.
+    #[serde(
+        default,
+        deserialize_with = "raytile_proto::settings::camera_name_or_index"
+    )]
     pub camera: Option<String>,
     /// Reconstruction filter.
     pub filter: Option<FilterKind>,

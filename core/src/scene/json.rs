@@ -1870,7 +1870,7 @@ mod tests {
         };
         let two = r#"{"name": "front", "position": [0, 0, 5], "look_at": [0, 0, 0]},
                      {"name": "side", "position": [5, 0, 0], "look_at": [0, 0, 0]}"#;
-        for ok in [r#""side""#, r#""1""#, r#""front""#] {
+        for ok in [r#""side""#, r#""1""#, "1", r#""front""#] {
             assert_eq!(scene(two, ok).unwrap().cameras.len(), 2, "{ok}");
         }
         assert_eq!(
@@ -1879,6 +1879,12 @@ mod tests {
              'nope' (its cameras: 0: 'front', 1: 'side')"
         );
         assert!(scene(two, r#""2""#).unwrap_err().contains("numbered '2'"));
+        assert!(scene(two, "2").unwrap_err().contains("numbered '2'"));
+        let e = scene(two, "-1").unwrap_err();
+        assert!(
+            e.contains("render.camera") && e.contains("index (integer ≥ 0)"),
+            "{e}"
+        );
         let e = scene("", r#""0""#).unwrap_err();
         assert!(
             e.starts_with("test.json: at render.camera (line 1): the scene has no camera"),
