@@ -148,8 +148,9 @@ fn check_exr_windows(bytes: &[u8]) -> Result<(), String> {
 
 /// Decodes the image in `bytes`, within the limits.
 ///
-/// 8-bit and f32 images are decoded straight into the RGBA buffer they are kept in, their
-/// channels spread in place: an RGB image never holds its RGB and RGBA buffers at once.
+/// Images other than 16-bit grey ones are decoded straight into the RGBA buffer they are kept
+/// in, their channels spread (and 16-bit values converted) in place: an RGB image never holds
+/// its RGB and RGBA buffers at once.
 pub fn decode_image(bytes: &[u8]) -> Result<DecodedImage, String> {
     let (width, height) = image_size(bytes)?;
     let decoder = decoder(bytes, true)?;
@@ -168,12 +169,18 @@ pub fn decode_image(bytes: &[u8]) -> Result<DecodedImage, String> {
         | image::ColorType::Rgb8
         | image::ColorType::Rgba8 => {
             // 8 bits per channel: the bytes are kept (a quarter of the memory of f32 values).
-            Texels::Unorm8(decode_rgba(decoder, texels, channels, u8::MAX)?)
+            Texels::Unorm8(decode_rgba(decoder, texels, channels, |v: u8| v, u8::MAX)?)
+        }
+        image::ColorType::Rgb16 | image::ColorType::Rgba16 => {
+            // The image crate's conversion of 16-bit values, to the bit.
+            let unit = |v: u16| (f32::from(v) / f32::from(u16::MAX)).clamp(0.0, 1.0);
+            Texels::F32(decode_rgba(decoder, texels, channels, unit, 1.0)?)
         }
         image::ColorType::Rgb32F | image::ColorType::Rgba32F => {
-            Texels::F32(decode_rgba(decoder, texels, channels, 1.0f32)?)
+            Texels::F32(decode_rgba(decoder, texels, channels, |v: f32| v, 1.0)?)
         }
-        // 16-bit images: the decoder's conversion to f32 (each value / 65535).
+        // 16-bit grey: the image crate's conversion, whose values for grey differ from its
+        // conversion of colour channels by a unit in the last place (images keep their bits).
         _ => {
             let img = image::DynamicImage::from_decoder(decoder)
                 .map_err(|e| format!("cannot decode: {e}"))?;
@@ -187,40 +194,48 @@ pub fn decode_image(bytes: &[u8]) -> Result<DecodedImage, String> {
     })
 }
 
-/// Decodes `texels` pixels of `channels` channels of type `T` (grey, grey and alpha, RGB or
-/// RGBA) into RGBA texels: the decoder writes the front of the RGBA buffer, and each pixel is
-/// then spread to its own texel from the last to the first (a texel never overwrites a pixel
-/// not yet moved). Grey fills the three colour channels; a missing alpha is `opaque`.
-fn decode_rgba<T: bytemuck::Pod + Default>(
+/// Decodes `texels` pixels of `channels` channels of type `S` (grey, grey and alpha, RGB or
+/// RGBA) into RGBA texels of type `T`: the decoder writes the front of the RGBA buffer, and
+/// each pixel is then converted and spread to its own texel from the last to the first (a
+/// texel, at least as large as a pixel, never overwrites a pixel not yet moved). Grey fills the
+/// three colour channels; a missing alpha is `opaque`. When `S` and `T` are the same size,
+/// `convert` must be the identity (an RGBA image is then kept as the decoder wrote it).
+fn decode_rgba<S: bytemuck::Pod, T: bytemuck::Pod + Default>(
     decoder: impl ImageDecoder,
     texels: usize,
     channels: usize,
+    convert: impl Fn(S) -> T,
     opaque: T,
 ) -> Result<Vec<[T; 4]>, String> {
     let mut out = vec![[T::default(); 4]; texels];
-    let values: &mut [T] = bytemuck::cast_slice_mut(&mut out);
-    let stored = texels * channels;
-    let want = std::mem::size_of_val(&values[..stored]) as u64;
-    if decoder.total_bytes() != want {
+    let bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut out);
+    let (from, to) = (std::mem::size_of::<S>(), std::mem::size_of::<[T; 4]>());
+    let stored = texels * channels * from;
+    if decoder.total_bytes() != stored as u64 {
         return Err(format!(
-            "cannot decode: {} bytes of pixels where {want} were expected",
+            "cannot decode: {} bytes of pixels where {stored} were expected",
             decoder.total_bytes()
         ));
     }
     decoder
-        .read_image(bytemuck::cast_slice_mut(&mut values[..stored]))
+        .read_image(&mut bytes[..stored])
         .map_err(|e| format!("cannot decode: {e}"))?;
-    if channels == 4 {
+    if channels == 4 && 4 * from == to {
         return Ok(out);
     }
     for i in (0..texels).rev() {
-        let p = i * channels;
-        let texel = match channels {
-            1 => [values[p], values[p], values[p], opaque],
-            2 => [values[p], values[p], values[p], values[p + 1]],
-            _ => [values[p], values[p + 1], values[p + 2], opaque],
+        let at = i * channels * from;
+        let value = |k: usize| {
+            let v = &bytes[at + k * from..at + (k + 1) * from];
+            convert(bytemuck::pod_read_unaligned(v))
         };
-        values[4 * i..4 * i + 4].copy_from_slice(&texel);
+        let texel = match channels {
+            1 => [value(0), value(0), value(0), opaque],
+            2 => [value(0), value(0), value(0), value(1)],
+            3 => [value(0), value(1), value(2), opaque],
+            _ => [value(0), value(1), value(2), value(3)],
+        };
+        bytes[i * to..(i + 1) * to].copy_from_slice(bytemuck::bytes_of(&texel));
     }
     Ok(out)
 }
@@ -238,6 +253,47 @@ fn rgba<T: bytemuck::Pod>(raw: Vec<T>) -> Vec<[T; 4]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every 16-bit value of a colour image converts as the image crate converts it.
+    #[test]
+    fn sixteen_bit_images_decode_in_place_to_the_decoders_values() {
+        let value = |x: u32, y: u32, c: u32| ((y * 256 + x) as u16).wrapping_add(c as u16 * 7919);
+        let rgba16 = image::ImageBuffer::<image::Rgba<u16>, _>::from_fn(256, 256, |x, y| {
+            image::Rgba([
+                value(x, y, 0),
+                value(x, y, 1),
+                value(x, y, 2),
+                value(x, y, 3),
+            ])
+        });
+        let rgba16 = image::DynamicImage::ImageRgba16(rgba16);
+        let images: [(&str, image::DynamicImage); 2] =
+            [("RGB", rgba16.to_rgb16().into()), ("RGBA", rgba16.clone())];
+        for (what, img) in images {
+            let mut bytes = Vec::new();
+            img.write_to(
+                &mut std::io::Cursor::new(&mut bytes),
+                image::ImageFormat::Png,
+            )
+            .unwrap();
+            let want = image::load_from_memory(&bytes).unwrap().into_rgba32f();
+            let Texels::F32(got) = decode_image(&bytes).unwrap().texels else {
+                panic!("{what}: a 16-bit image is kept as f32");
+            };
+            let bits = |t: &[[f32; 4]]| -> Vec<[u32; 4]> {
+                t.iter().map(|p| p.map(f32::to_bits)).collect()
+            };
+            let (got, want) = (bits(&got), bits(&rgba(want.into_raw())));
+            let first = got.iter().zip(&want).position(|(g, w)| g != w);
+            assert_eq!(
+                first,
+                None,
+                "{what}: texel {first:?}, {:?} against {:?}",
+                first.map(|i| got[i].map(f32::from_bits)),
+                first.map(|i| want[i].map(f32::from_bits))
+            );
+        }
+    }
 
     fn png(w: u32, h: u32) -> Vec<u8> {
         let img =
