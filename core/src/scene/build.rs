@@ -11,9 +11,9 @@
 
 use super::aggregate::{Aggregate, MeshBlas, Prim, Run, TopLevel};
 use super::desc::{
-    check_coefficient, check_ior, check_metal, check_reflectance, check_spot_angles,
-    check_transform, check_unit, BsdfDesc, EnvironmentDesc, MaterialDesc, MediumDesc, MeshDesc,
-    SceneDesc, ShapeDesc, TextureRef, WrapMode,
+    check_camera_transform, check_coefficient, check_ior, check_metal, check_reflectance,
+    check_spot_angles, check_transform, check_unit, BsdfDesc, EnvironmentDesc, MaterialDesc,
+    MediumDesc, MeshDesc, SceneDesc, ShapeDesc, TextureRef, WrapMode,
 };
 use super::files::SceneFiles;
 use super::{Object, ObjectKind, RenderJob, Scene, SceneCamera, SceneError, SceneStats};
@@ -423,7 +423,7 @@ impl Scene {
             .enumerate()
             .map(|(ci, c)| {
                 let bad = |e: String| invalid(format!("camera {ci} ('{}'): {e}", c.name));
-                check_transform(&c.transform).map_err(bad)?;
+                check_camera_transform(&c.transform).map_err(bad)?;
                 c.projection.check().map_err(|(_, e)| bad(e))?;
                 Ok(SceneCamera {
                     name: c.name.clone(),

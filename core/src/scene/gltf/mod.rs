@@ -20,8 +20,8 @@ mod mesh;
 mod tests;
 
 use super::desc::{
-    check_affine, CameraDesc, EnvironmentDesc, LightDesc, ObjectDesc, Projection, SceneDesc,
-    ShapeDesc,
+    check_affine, check_camera_transform, CameraDesc, Degenerate, EnvironmentDesc, LightDesc,
+    ObjectDesc, Projection, SceneDesc, ShapeDesc,
 };
 use super::files::{folder_of, SceneFiles};
 use super::SceneError;
@@ -556,13 +556,17 @@ impl<'a> Loader<'a> {
         node_name: &str,
         world: Mat4,
     ) -> Result<(), String> {
-        let singular = world.determinant().abs() < 1e-30;
-        if singular {
-            self.warn(format!(
-                "node {}: transform is singular (zero scale); its mesh is not shown",
-                node.index()
-            ));
-            return Ok(());
+        match Degenerate::of(&world) {
+            None => {}
+            // A mesh scaled to nothing, flattened or too small to invert (glTF hides nodes
+            // with a zero scale) cannot show: leave it out.
+            Some(d @ (Degenerate::ZeroAxis | Degenerate::Flat | Degenerate::TooSmall)) => {
+                self.warn(format!("node {}: {d}; its mesh is not shown", node.index()));
+                return Ok(());
+            }
+            Some(d @ Degenerate::TooLarge) => {
+                return Err(format!("node {} ('{node_name}'): {d}", node.index()));
+            }
         }
         let nprims = mesh.primitives().len();
         for prim in mesh.primitives() {
@@ -614,12 +618,11 @@ impl<'a> Loader<'a> {
         world: Mat4,
     ) -> Result<(), String> {
         let what = format!("camera {}", cam.index());
-        // Only the rotation and the position are used, but a zero scale leaves neither.
-        let det = glam::Mat3::from_mat4(world).determinant();
-        if !(det.abs() > 1e-12) {
+        // Only the rotation and the position are used (any scale will do), but a zero or
+        // flattening scale leaves no direction.
+        if let Err(e) = check_camera_transform(&world) {
             return Err(format!(
-                "{what} (node {}): the node's transform is singular (a zero scale), so the \
-                 camera has no direction",
+                "{what} (node {}): the node's {e}, so the camera has no direction",
                 node.index()
             ));
         }

@@ -209,6 +209,58 @@ fn a_projective_node_matrix_is_refused_naming_the_node() {
     }
 }
 
+/// A scene of one triangle under `parent_scale` twice (a model in centimetres under a
+/// centimetre-to-metre node, nested) and a camera under a node of `camera_scale`.
+fn scaled_scene(parent_scale: f32, camera_scale: f32) -> Vec<u8> {
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    d.finish(json!({
+        "scenes": [{"nodes": [0, 3]}],
+        "nodes": [
+            {"name": "outer", "scale": [parent_scale, parent_scale, parent_scale], "children": [1]},
+            {"scale": [parent_scale, parent_scale, parent_scale], "children": [2]},
+            {"name": "model", "mesh": 0},
+            {"scale": [camera_scale, camera_scale, camera_scale], "children": [4]},
+            {"translation": [0, 0, 5], "camera": 0},
+        ],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "cameras": [{"type": "perspective", "perspective": {"yfov": 0.7, "znear": 0.1}}],
+    }))
+}
+
+#[test]
+fn small_and_large_scales_load_and_build_whatever_their_determinant() {
+    // Scales of 10⁻² twice (a determinant of 10⁻¹²) and 10⁻⁵ under the camera used to be
+    // refused as "a zero scale". A camera's scale is divided out: 10⁻¹⁵ will do.
+    for (parent, camera) in [(1e-2, 1e-5), (1e-4, 1e-15), (1e3, 1e9)] {
+        let desc = load(&scaled_scene(parent, camera)).unwrap();
+        assert_eq!(desc.objects.len(), 1, "scale {parent}");
+        assert!(
+            desc.warnings.iter().all(|w| w == NO_LIGHT_WARNING),
+            "{:?}",
+            desc.warnings
+        );
+        let scene = crate::Scene::build(&desc).unwrap_or_else(|e| panic!("scale {parent}: {e}"));
+        assert_eq!(scene.cameras().len(), 1);
+    }
+    // A mesh too small to invert in f32 cannot show: left out with a warning, as at a zero
+    // scale; one too large is refused, naming the node.
+    let desc = load(&scaled_scene(1e-8, 1.0)).unwrap();
+    assert!(desc.objects.is_empty());
+    assert!(
+        desc.warnings
+            .iter()
+            .any(|w| w.contains("node 2") && w.contains("too small")),
+        "{:?}",
+        desc.warnings
+    );
+    assert_eq!(
+        load(&scaled_scene(1e8, 1.0)).unwrap_err(),
+        "test.gltf: node 2 ('model'): transform's scale is too large (raytile takes scales \
+         from about 1e-12 to 1e12)"
+    );
+}
+
 #[test]
 fn instanced_mesh_is_loaded_once() {
     let mut d = Doc::default();
