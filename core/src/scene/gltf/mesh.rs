@@ -56,6 +56,43 @@ fn to_vecs<const N: usize, T>(v: Vec<[f32; N]>, f: impl Fn([f32; N]) -> T) -> Ve
 }
 
 impl Loader<'_> {
+    /// Warns when `prim` stores positions, normals, tangents or texture coordinates as
+    /// integers (`KHR_mesh_quantization`, as gltfpack writes) in a file that does not declare
+    /// the extension: such a file is not valid glTF. Its attributes read the same either way
+    /// (the accessor's normalisation rules), as glTF viewers read them.
+    fn check_quantization(&mut self, prim: &gltf::Primitive, label: &str) {
+        use gltf::accessor::DataType;
+        let quantized: Vec<String> = prim
+            .attributes()
+            .filter(|(semantic, acc)| {
+                let dt = acc.data_type();
+                match semantic {
+                    Semantic::Positions | Semantic::Normals | Semantic::Tangents => {
+                        dt != DataType::F32
+                    }
+                    // The core specification allows normalised unsigned bytes and shorts.
+                    Semantic::TexCoords(_) => {
+                        dt != DataType::F32
+                            && !(acc.normalized() && matches!(dt, DataType::U8 | DataType::U16))
+                    }
+                    _ => false,
+                }
+            })
+            .map(|(semantic, _)| semantic.to_string())
+            .collect();
+        let declared = self
+            .doc
+            .extensions_used()
+            .any(|e| e == "KHR_mesh_quantization");
+        if !quantized.is_empty() && !declared {
+            self.warn(format!(
+                "{label}: {} stored as integers, which needs KHR_mesh_quantization, but the file \
+                 does not declare it; read as that extension says",
+                quantized.join(", ")
+            ));
+        }
+    }
+
     /// Loads one primitive. `None` (with a warning) when it is not made of triangles or has no
     /// positions. `tangent_uv` asks for tangents from that UV set when TANGENT is absent.
     pub(super) fn load_primitive(
@@ -138,6 +175,7 @@ impl Loader<'_> {
         if prim.morph_targets().next().is_some() {
             self.warn(format!("{label}: morph targets are ignored (rest pose)"));
         }
+        self.check_quantization(prim, &label);
 
         let raw_indices = match prim.indices() {
             Some(acc) => {

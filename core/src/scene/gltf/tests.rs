@@ -657,11 +657,7 @@ fn points_and_lines_are_skipped_with_a_warning() {
 
 #[test]
 fn required_extensions_are_checked() {
-    for ext in [
-        "KHR_draco_mesh_compression",
-        "KHR_mesh_quantization",
-        "EXT_made_up",
-    ] {
+    for ext in ["KHR_draco_mesh_compression", "EXT_made_up"] {
         expect_err(
             &tri_scene(
                 json!({}),
@@ -675,6 +671,7 @@ fn required_extensions_are_checked() {
         "KHR_materials_specular",
         "KHR_texture_transform",
         "KHR_materials_clearcoat",
+        "KHR_mesh_quantization",
     ] {
         load(&tri_scene(
             json!({}),
@@ -792,6 +789,75 @@ fn glb(json: &[u8], bin: &[u8]) -> Vec<u8> {
         out.extend_from_slice(bin);
     }
     out
+}
+
+/// `KHR_mesh_quantization` as gltfpack writes it: integer positions placed by the node's
+/// scale, normalised byte normals, integer texture coordinates.
+#[test]
+fn quantized_attributes_read_by_the_accessor_rules() {
+    let quantized = |declared: bool| {
+        let mut d = Doc::default();
+        // i16 positions (each element padded to 8 bytes, as the specification aligns them).
+        let pos: Vec<u8> = [[0i16, 0, 0, 0], [1000, 0, 0, 0], [0, -1000, 0, 0]]
+            .iter()
+            .flat_map(|e| e.iter().flat_map(|x| x.to_le_bytes()))
+            .collect();
+        let p = d.accessor(&pos, 5122, "VEC3", 3);
+        d.views[p]["byteStride"] = json!(8);
+        // Normalised i8 normals: 127 is 1, -128 is clamped to -1.
+        let n = d.accessor(
+            &[0, 0, 127, 0, 0, 0, 127, 0, 0, 0, 0x80, 0],
+            5120,
+            "VEC3",
+            3,
+        );
+        d.views[n]["byteStride"] = json!(4);
+        d.accessors[n]["normalized"] = json!(true);
+        // u16 texture coordinates, not normalised (a texture transform scales them).
+        let uv: Vec<u8> = [0u16, 0, 4, 0, 0, 2]
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
+        let t = d.accessor(&uv, 5123, "VEC2", 3);
+        let ext = match declared {
+            true => json!({"extensionsUsed": ["KHR_mesh_quantization"],
+                           "extensionsRequired": ["KHR_mesh_quantization"]}),
+            false => json!({}),
+        };
+        let mut root = json!({
+            "scenes": [{"nodes": [0]}],
+            "nodes": [{"mesh": 0, "scale": [0.001, 0.001, 0.001]}],
+            "meshes": [{"primitives": [{"attributes":
+                {"POSITION": p, "NORMAL": n, "TEXCOORD_0": t}}]}],
+        });
+        root.as_object_mut()
+            .unwrap()
+            .extend(ext.as_object().unwrap().clone());
+        load(&d.finish(root)).unwrap()
+    };
+    let s = quantized(true);
+    assert!(
+        s.warnings.iter().all(|w| w == NO_LIGHT_WARNING),
+        "{:?}",
+        s.warnings
+    );
+    let m = &s.meshes[0];
+    assert_eq!(m.positions[1], Vec3::new(1000.0, 0.0, 0.0));
+    assert_eq!(m.positions[2], Vec3::new(0.0, -1000.0, 0.0));
+    assert_eq!(m.normals[0], Vec3::Z);
+    assert_eq!(m.normals[2], Vec3::NEG_Z);
+    assert_eq!(m.uvs[0][1], glam::Vec2::new(4.0, 0.0));
+    assert_eq!(s.objects[0].transform, Mat4::from_scale(Vec3::splat(0.001)));
+    // Without the declaration the file is not valid glTF: read the same, with a warning.
+    let s = quantized(false);
+    assert_eq!(s.meshes[0].positions[1], Vec3::new(1000.0, 0.0, 0.0));
+    assert!(
+        s.warnings.iter().any(|w| w.contains("mesh 0 primitive 0")
+            && w.contains("KHR_mesh_quantization")
+            && w.contains("POSITION, NORMAL, TEXCOORD_0")),
+        "{:?}",
+        s.warnings
+    );
 }
 
 #[test]
