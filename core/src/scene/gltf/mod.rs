@@ -282,6 +282,47 @@ fn check_extensions(raw: &Value, warnings: &mut Vec<String>) -> Result<(), Strin
     Ok(())
 }
 
+/// Gives every scene without `nodes` an empty list: the field is optional in glTF 2.0 (an
+/// empty scene), but the gltf crate requires it. Whether anything was added (the document is
+/// then parsed from `raw`, and its errors have no line numbers).
+fn add_scene_nodes(raw: &mut Value) -> bool {
+    let mut added = false;
+    if let Some(scenes) = raw.get_mut("scenes").and_then(Value::as_array_mut) {
+        for scene in scenes.iter_mut().filter_map(Value::as_object_mut) {
+            if !scene.contains_key("nodes") {
+                scene.insert("nodes".into(), Value::Array(Vec::new()));
+                added = true;
+            }
+        }
+    }
+    added
+}
+
+/// A gltf crate path with the extensions named as the file names them: the crate writes
+/// its own field names (`nodes[1].extensions.khrLightsPunctual.light`), the file has
+/// `KHR_lights_punctual`.
+fn extension_names(path: &str) -> String {
+    let mut out = String::with_capacity(path.len() + 8);
+    let mut rest = path;
+    while let Some(at) = rest.find(".khr") {
+        out.push_str(&rest[..at]);
+        let name = &rest[at + 4..];
+        let end = name
+            .find(|c: char| !c.is_ascii_alphanumeric())
+            .unwrap_or(name.len());
+        out.push_str(".KHR");
+        for c in name[..end].chars() {
+            if c.is_ascii_uppercase() {
+                out.push('_');
+            }
+            out.push(c.to_ascii_lowercase());
+        }
+        rest = &name[end..];
+    }
+    out.push_str(rest);
+    out
+}
+
 /// The gltf crate's validation (every index in range, every enum known), except for the
 /// POSITION `min`/`max` it requires: many exporters omit them and raytile computes bounds itself.
 fn validate(root: &gltf::json::Root) -> Result<(), String> {
@@ -317,7 +358,7 @@ fn validate(root: &gltf::json::Root) -> Result<(), String> {
     }
     let mut errs: Vec<(String, Error)> = Vec::new();
     root.validate(root, gltf::json::Path::new, &mut |path, err| {
-        let path = path().to_string();
+        let path = extension_names(&path().to_string());
         let bounds = path.ends_with("[\"POSITION\"].min") || path.ends_with("[\"POSITION\"].max");
         // A primitive without POSITION is skipped with a warning rather than refused.
         let no_position =
@@ -377,14 +418,17 @@ fn load_inner(
         .json
         .strip_prefix(b"\xEF\xBB\xBF".as_slice())
         .unwrap_or(container.json);
-    let raw: Value = serde_json::from_slice(json).map_err(|e| format!("invalid JSON: {e}"))?;
+    let mut raw: Value = serde_json::from_slice(json).map_err(|e| format!("invalid JSON: {e}"))?;
     if !raw.is_object() {
         return Err("invalid glTF: the JSON is not an object".into());
     }
     let mut warnings = Vec::new();
     check_extensions(&raw, &mut warnings)?;
-    let mut root: gltf::json::Root =
-        serde_json::from_slice(json).map_err(|e| format!("invalid glTF: {e}"))?;
+    let mut root: gltf::json::Root = if add_scene_nodes(&mut raw) {
+        serde::Deserialize::deserialize(&raw).map_err(|e| format!("invalid glTF: {e}"))?
+    } else {
+        serde_json::from_slice(json).map_err(|e| format!("invalid glTF: {e}"))?
+    };
     // Already checked against raytile's own list; the gltf crate's list lacks some we support.
     root.extensions_required.clear();
     validate(&root)?;

@@ -1049,6 +1049,23 @@ fn lights_cameras_and_units() {
     );
     expect_err(&bad, &["light 0", "cone"]);
 
+    // A light index out of range is named by the file's own extension name.
+    let bad = tri_scene(
+        json!({}),
+        json!({
+            "extensionsUsed": ["KHR_lights_punctual"],
+            "extensions": {"KHR_lights_punctual": {"lights": [{"type": "point"}]}},
+            "nodes": [{"mesh": 0, "extensions": {"KHR_lights_punctual": {"light": 3}}}],
+        }),
+    );
+    expect_err(&bad, &["nodes[0].extensions.KHR_lights_punctual.light"]);
+    assert_eq!(
+        extension_names(
+            "materials[2].extensions.khrMaterialsEmissiveStrength.x.khrTextureTransform"
+        ),
+        "materials[2].extensions.KHR_materials_emissive_strength.x.KHR_texture_transform"
+    );
+
     // A camera on a node of zero scale has no direction: refused, not rendered black.
     let flat = tri_scene(
         json!({}),
@@ -1103,6 +1120,28 @@ fn position_accessor_out_of_range_is_refused() {
     let s = load(&tri_scene(json!({"attributes": {}}), json!({}))).unwrap();
     assert!(s.objects.is_empty());
     assert!(s.warnings.iter().any(|w| w.contains("no POSITION")));
+}
+
+#[test]
+fn a_scene_may_leave_out_its_nodes() {
+    // `scene.nodes` is optional: an empty scene. The default scene is the second one here.
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    let root = json!({
+        "scene": 1,
+        "scenes": [{"name": "empty"}, {"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+    });
+    assert_eq!(load(&d.finish(root)).unwrap().objects.len(), 1);
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    let root = json!({
+        "scenes": [{}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+    });
+    assert!(load(&d.finish(root)).unwrap().objects.is_empty());
 }
 
 #[test]
