@@ -179,6 +179,7 @@ impl Loader<'_> {
                 ],
                 &format!("{what}: KHR_materials_specular"),
             )?;
+            p.specular = self.unit_factor(p.specular, &format!("{what}: specularFactor"));
             let raw_spec = raw_ext("KHR_materials_specular");
             if let Some(info) = spec.specular_texture() {
                 p.specular_texture = self.texture_ref(
@@ -253,8 +254,11 @@ impl Loader<'_> {
         }
         if let Some(cc) = raw_ext("KHR_materials_clearcoat") {
             let w = format!("{what}: KHR_materials_clearcoat");
-            p.clearcoat = num(Some(cc), "clearcoatFactor", 0.0, &w)?;
-            p.clearcoat_roughness = num(Some(cc), "clearcoatRoughnessFactor", 0.0, &w)?;
+            let coat = num(Some(cc), "clearcoatFactor", 0.0, &w)?;
+            p.clearcoat = self.unit_factor(coat, &format!("{w}: clearcoatFactor"));
+            let rough = num(Some(cc), "clearcoatRoughnessFactor", 0.0, &w)?;
+            p.clearcoat_roughness =
+                self.unit_factor(rough, &format!("{w}: clearcoatRoughnessFactor"));
             p.clearcoat_texture =
                 self.raw_texture_ref(cc.get("clearcoatTexture"), &format!("{w}.clearcoatTexture"))?;
             p.clearcoat_roughness_texture = self.raw_texture_ref(

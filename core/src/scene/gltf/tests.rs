@@ -448,21 +448,32 @@ fn thin_walled_and_solid_transmission() {
 fn unit_factors_out_of_range_are_clamped_with_a_warning() {
     let s = load(&tri_scene(
         json!({"material": 0}),
-        json!({"extensionsUsed": ["KHR_materials_transmission"],
+        json!({"extensionsUsed": ["KHR_materials_transmission", "KHR_materials_clearcoat",
+                "KHR_materials_specular"],
             "materials": [{
                 "pbrMetallicRoughness": {"metallicFactor": 1.0000001, "roughnessFactor": -0.2,
                     "baseColorFactor": [1.5, 0.5, -0.25, 1]},
-                "extensions": {"KHR_materials_transmission": {"transmissionFactor": 3.0}}}]}),
+                "extensions": {"KHR_materials_transmission": {"transmissionFactor": 3.0},
+                    "KHR_materials_clearcoat": {"clearcoatFactor": 5,
+                        "clearcoatRoughnessFactor": -1},
+                    "KHR_materials_specular": {"specularFactor": 7}}}]}),
     ))
     .unwrap();
     let p = pbr(&s.materials[0]);
     assert_eq!((p.metallic, p.roughness, p.transmission), (1.0, 0.0, 1.0));
     assert_eq!(p.base_color, [1.0, 0.5, 0.0, 1.0]);
+    assert_eq!(
+        (p.clearcoat, p.clearcoat_roughness, p.specular),
+        (1.0, 0.0, 1.0)
+    );
     for f in [
         "metallicFactor",
         "roughnessFactor",
         "transmissionFactor",
         "baseColorFactor",
+        "clearcoatFactor",
+        "clearcoatRoughnessFactor",
+        "specularFactor",
     ] {
         assert!(
             s.warnings
