@@ -346,6 +346,30 @@ impl MaterialDesc {
     pub fn emits(&self) -> bool {
         self.emission.max_element() > 0.0 && !matches!(self.bsdf, BsdfDesc::Interface)
     }
+
+    /// Every texture the material looks up, with the name of its slot.
+    pub fn texture_refs(&self) -> Vec<(&'static str, TextureRef)> {
+        let mut refs = vec![
+            ("emissive", self.emission_texture),
+            ("normal", self.normal_texture.map(|(t, _)| t)),
+        ];
+        match &self.bsdf {
+            BsdfDesc::Diffuse { texture, .. } => refs.push(("albedo", *texture)),
+            BsdfDesc::Pbr(p) => refs.extend([
+                ("base colour", p.base_color_texture),
+                ("metallic-roughness", p.metallic_roughness_texture),
+                ("specular", p.specular_texture),
+                ("specular colour", p.specular_color_texture),
+                ("transmission", p.transmission_texture),
+                ("clearcoat", p.clearcoat_texture),
+                ("clearcoat roughness", p.clearcoat_roughness_texture),
+            ]),
+            _ => {}
+        }
+        refs.into_iter()
+            .filter_map(|(slot, t)| Some((slot, t?)))
+            .collect()
+    }
 }
 
 /// The scattering model of a material.

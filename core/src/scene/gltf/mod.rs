@@ -636,6 +636,7 @@ impl<'a> Loader<'a> {
                 continue;
             };
             let material = self.material(&mat)?;
+            self.fill_missing_uvs(mesh_index, material)?;
             self.charge(
                 std::mem::size_of::<ObjectDesc>() + node_name.len() + 16,
                 &format!("node {}", node.index()),
@@ -652,6 +653,29 @@ impl<'a> Loader<'a> {
                 transform: world,
                 media: None,
             });
+        }
+        Ok(())
+    }
+
+    /// A texture of material `material` that reads a texture coordinate set mesh
+    /// `mesh_index` lacks is looked up at (0, 0) over the whole primitive, as glTF viewers
+    /// do, with a warning (the specification leaves it undefined).
+    fn fill_missing_uvs(&mut self, mesh_index: usize, material: usize) -> Result<(), String> {
+        for (slot, t) in self.desc.materials[material].texture_refs() {
+            let set = usize::from(t.texcoord.min(1));
+            let mesh = &self.desc.meshes[mesh_index];
+            if !mesh.uvs[set].is_empty() {
+                continue;
+            }
+            let (n, name) = (mesh.positions.len(), mesh.name.clone());
+            let warning = format!(
+                "{name}: the material '{}' reads TEXCOORD_{set} for its {slot} texture, which \
+                 the primitive does not have; that texture is read at (0, 0) on it",
+                self.desc.materials[material].name
+            );
+            self.warn(warning);
+            self.charge(n * std::mem::size_of::<glam::Vec2>(), &name)?;
+            self.desc.meshes[mesh_index].uvs[set] = vec![glam::Vec2::ZERO; n];
         }
         Ok(())
     }

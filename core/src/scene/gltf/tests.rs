@@ -293,6 +293,30 @@ fn png_data_uri() -> String {
 }
 
 #[test]
+fn a_texture_without_its_coordinates_is_read_at_the_origin() {
+    let s = load(&tri_scene(
+        json!({"material": 0}),
+        json!({
+            "images": [{"uri": png_data_uri()}],
+            "textures": [{"source": 0}],
+            "materials": [{"name": "painted",
+                "pbrMetallicRoughness": {"baseColorTexture": {"index": 0, "texCoord": 1}}}],
+        }),
+    ))
+    .unwrap();
+    assert_eq!(s.meshes[0].uvs[1], vec![glam::Vec2::ZERO; 3]);
+    assert!(s.meshes[0].uvs[0].is_empty());
+    assert!(
+        s.warnings.iter().any(|w| w.contains("mesh 0 primitive 0")
+            && w.contains("'painted'")
+            && w.contains("TEXCOORD_1")
+            && w.contains("base colour")),
+        "{:?}",
+        s.warnings
+    );
+}
+
+#[test]
 fn colour_textures_are_srgb_and_data_textures_linear() {
     let mut d = Doc::default();
     d.positions(&TRI);
