@@ -369,7 +369,7 @@ async fn hostile_scenes_are_refused_at_once_and_the_farm_keeps_serving() {
     let started = Instant::now();
 
     // Paths out of the scene's folder, in a JSON scene.
-    let absolute = ["absolute paths are not allowed in a scene sent to a farm"];
+    let absolute = ["absolute paths are refused: a scene names its files relative to its folder, so that it renders the same on any machine"];
     for (what, path) in [
         ("a host image", secret_png),
         ("/etc/passwd", "/etc/passwd"),
@@ -748,7 +748,7 @@ async fn a_worker_handed_a_hostile_scene_fails_the_task() {
     let outside = dir.path().join("outside.png");
     std::fs::write(&outside, png_header(2, 2)).unwrap();
     for (path, want) in [
-        (outside.to_str().unwrap(), "absolute paths are not allowed"),
+        (outside.to_str().unwrap(), "absolute paths are refused"),
         (
             "../../../outside.png",
             "'..' leads out of the scene's folder",

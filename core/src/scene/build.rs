@@ -613,13 +613,23 @@ pub(crate) fn can_emit(shape: &ShapeDesc) -> bool {
     }
 }
 
+/// Checks an analytic shape's parameters as the build does: the build's own message.
+pub(crate) fn check_shape(shape: &ShapeDesc) -> Result<(), String> {
+    build_analytic(shape).map(|_| ())
+}
+
+/// Checks a light's parameters as the build does: the build's own message.
+pub(crate) fn check_light(light: &super::desc::LightDesc) -> Result<(), String> {
+    build_light(light).map(|_| ())
+}
+
 fn build_analytic(shape: &ShapeDesc) -> Result<Analytic, String> {
     let v = |x: Vec3| Vec3A::from(x);
     let finite = |ok: bool| {
         if ok {
             Ok(())
         } else {
-            Err("shape parameters must be finite".to_string())
+            Err("shape parameters must be finite (at most about 3.4e38 in size)".to_string())
         }
     };
     Ok(match shape {
@@ -703,7 +713,7 @@ fn build_light(l: &super::desc::LightDesc) -> Result<Light, String> {
         if v.is_finite() {
             Ok(Vec3A::from(v))
         } else {
-            Err("light parameters must be finite".to_string())
+            Err("light parameters must be finite (at most about 3.4e38 in size)".to_string())
         }
     };
     let dir = |v: Vec3| {

@@ -113,9 +113,10 @@ pub enum Refusal {
 impl std::fmt::Display for Refusal {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Refusal::Absolute => {
-                f.write_str("absolute paths are not allowed in a scene sent to a farm")
-            }
+            Refusal::Absolute => f.write_str(
+                "absolute paths are refused: a scene names its files relative to its \
+                     folder, so that it renders the same on any machine",
+            ),
             Refusal::LeavesRoot => f.write_str("'..' leads out of the scene's folder"),
             Refusal::OutsideRoot => f.write_str(
                 "it resolves outside the scene's folder (a symbolic link leads out of it)",

@@ -19,6 +19,39 @@ use std::path::{Path, PathBuf};
 
 type Rgb = [f32; 3];
 
+/// A map of named entries (textures, materials, media) that refuses a name given twice: JSON
+/// parsers differ on which one wins, and the scene's author meant one of them.
+fn unique_keys<'de, D, V>(d: D) -> Result<BTreeMap<String, V>, D::Error>
+where
+    D: serde::Deserializer<'de>,
+    V: Deserialize<'de>,
+{
+    struct Unique<V>(std::marker::PhantomData<V>);
+    impl<'de, V: Deserialize<'de>> serde::de::Visitor<'de> for Unique<V> {
+        type Value = BTreeMap<String, V>;
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str("an object of named entries")
+        }
+        fn visit_map<A: serde::de::MapAccess<'de>>(
+            self,
+            mut map: A,
+        ) -> Result<Self::Value, A::Error> {
+            let mut out = BTreeMap::new();
+            while let Some(key) = map.next_key::<String>()? {
+                if out.contains_key(&key) {
+                    return Err(serde::de::Error::custom(format!(
+                        "the name '{key}' is given twice"
+                    )));
+                }
+                let value = map.next_value()?;
+                out.insert(key, value);
+            }
+            Ok(out)
+        }
+    }
+    d.deserialize_map(Unique(std::marker::PhantomData))
+}
+
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct File {
@@ -28,9 +61,9 @@ struct File {
     camera: Option<JCamera>,
     #[serde(default)]
     cameras: Vec<JCamera>,
-    #[serde(default)]
+    #[serde(default, deserialize_with = "unique_keys")]
     textures: BTreeMap<String, JTexture>,
-    #[serde(default)]
+    #[serde(default, deserialize_with = "unique_keys")]
     materials: BTreeMap<String, JMaterial>,
     #[serde(default)]
     objects: Vec<JObject>,
@@ -38,7 +71,7 @@ struct File {
     lights: Vec<JLight>,
     #[serde(default)]
     environment: Option<JEnvironment>,
-    #[serde(default)]
+    #[serde(default, deserialize_with = "unique_keys")]
     media: BTreeMap<String, JMedium>,
     /// The medium outside every object (global fog), where the camera stands.
     #[serde(default)]
@@ -503,6 +536,8 @@ fn parse_json_files(
         path: name.to_path_buf(),
         message,
     };
+    // Some editors start a UTF-8 file with a byte order mark, which JSON parsers refuse.
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut de = serde_json::Deserializer::from_str(text);
     let file: File = serde_path_to_error::deserialize(&mut de).map_err(|e| {
         let inner = e.inner();
@@ -527,10 +562,12 @@ fn parse_json_files(
             e.column()
         ))
     })?;
-    let line_of = |needle: &str| -> String {
-        text.find(needle).map_or(String::new(), |pos| {
-            format!(" (line {})", text[..pos].matches('\n').count() + 1)
-        })
+    let line_of = |at: &str, needle: &str| -> String {
+        value_at(text, at)
+            .or_else(|| text.find(needle))
+            .map_or(String::new(), |pos| {
+                format!(" (line {})", text[..pos].matches('\n').count() + 1)
+            })
     };
     Converter {
         base,
@@ -547,8 +584,131 @@ struct Converter<'a> {
     name: &'a Path,
     /// Reads every file the scene names.
     files: &'a SceneFiles,
-    line_of: &'a dyn Fn(&str) -> String,
+    /// The line of the value at a JSON path, else of the first `needle`, as " (line N)".
+    line_of: &'a dyn Fn(&str, &str) -> String,
     desc: SceneDesc,
+}
+
+/// Where in the JSON `text` the value at `path` starts (`objects[1].transform`,
+/// `materials.wood.ior`: members joined by dots, elements as `[i]`, as the loader and
+/// `serde_path_to_error` write paths), or the deepest value on the way to it that exists
+/// (an object that lacks the member); `None` when not even the first step exists. Only used
+/// to point at an error, so it walks the text again rather than keep positions of every value.
+fn value_at(text: &str, path: &str) -> Option<usize> {
+    /// Walks the value at `*i`, whose path `here` leads to `path`; returns the position of
+    /// the deepest value on the way that exists, and the length of its path.
+    fn walk(b: &[u8], i: &mut usize, here: &str, path: &str, depth: u32) -> (usize, usize) {
+        skip_ws(b, i);
+        let start = (*i, here.len());
+        if here == path || depth > 200 {
+            return start;
+        }
+        let mut deepest = start;
+        let mut child = |i: &mut usize, sub: String| {
+            let leads = path.starts_with(&sub)
+                && matches!(path.as_bytes().get(sub.len()), None | Some(b'.' | b'['));
+            if leads {
+                let d = walk(b, i, &sub, path, depth + 1);
+                if d.1 > deepest.1 {
+                    deepest = d;
+                }
+            } else {
+                skip_value(b, i);
+            }
+        };
+        match b.get(*i) {
+            Some(b'{') => {
+                *i += 1;
+                loop {
+                    skip_ws(b, i);
+                    match b.get(*i) {
+                        Some(b'}') | None => break,
+                        Some(b',') => *i += 1,
+                        _ => {
+                            let key_start = *i + 1;
+                            skip_string(b, i);
+                            let key_end = i.saturating_sub(1).max(key_start);
+                            let key = String::from_utf8_lossy(&b[key_start..key_end]);
+                            skip_ws(b, i);
+                            if b.get(*i) == Some(&b':') {
+                                *i += 1;
+                            }
+                            let sub = match here.is_empty() {
+                                true => key.into_owned(),
+                                false => format!("{here}.{key}"),
+                            };
+                            child(i, sub);
+                        }
+                    }
+                }
+                *i += 1;
+            }
+            Some(b'[') => {
+                *i += 1;
+                let mut n = 0;
+                loop {
+                    skip_ws(b, i);
+                    match b.get(*i) {
+                        Some(b']') | None => break,
+                        Some(b',') => *i += 1,
+                        _ => {
+                            child(i, format!("{here}[{n}]"));
+                            n += 1;
+                        }
+                    }
+                }
+                *i += 1;
+            }
+            _ => skip_value(b, i),
+        }
+        deepest
+    }
+    /// Skips the value at `*i` (after white space), however deep, without recursion.
+    fn skip_value(b: &[u8], i: &mut usize) {
+        skip_ws(b, i);
+        let mut depth = 0usize;
+        loop {
+            match b.get(*i) {
+                None => return,
+                Some(b'"') => skip_string(b, i),
+                Some(b'{' | b'[') => {
+                    depth += 1;
+                    *i += 1;
+                }
+                Some(b'}' | b']') => {
+                    if depth == 0 {
+                        return;
+                    }
+                    depth -= 1;
+                    *i += 1;
+                }
+                Some(b',') if depth == 0 => return,
+                Some(_) => *i += 1,
+            }
+            if depth == 0 && matches!(b.get(*i), None | Some(b',' | b'}' | b']')) {
+                return;
+            }
+        }
+    }
+    fn skip_ws(b: &[u8], i: &mut usize) {
+        while b.get(*i).is_some_and(u8::is_ascii_whitespace) {
+            *i += 1;
+        }
+    }
+    /// Skips the string at `*i` (its opening quote) and its closing quote.
+    fn skip_string(b: &[u8], i: &mut usize) {
+        *i += 1;
+        while let Some(&c) = b.get(*i) {
+            *i += 1;
+            match c {
+                b'\\' => *i += 1,
+                b'"' => return,
+                _ => {}
+            }
+        }
+    }
+    let (pos, len) = walk(text.as_bytes(), &mut 0, "", path, 0);
+    (len > 0).then_some(pos)
 }
 
 fn v3(a: [f32; 3]) -> Vec3 {
@@ -559,7 +719,7 @@ impl Converter<'_> {
     fn err(&self, at: &str, msg: impl std::fmt::Display, needle: &str) -> SceneError {
         SceneError::Json {
             path: self.name.to_path_buf(),
-            message: format!("at {at}{}: {msg}", (self.line_of)(needle)),
+            message: format!("at {at}{}: {msg}", (self.line_of)(at, needle)),
         }
     }
 
@@ -983,6 +1143,7 @@ impl Converter<'_> {
                     irradiance: v3(*irradiance),
                 },
             };
+            super::build::check_light(&light).map_err(|e| self.err(&at, e, "\"lights\""))?;
             self.desc.lights.push(light);
         }
         // Environment.
@@ -1207,10 +1368,16 @@ impl Converter<'_> {
         let at = format!("cameras[{i}]");
         let (pos, target, up) = (v3(c.position), v3(c.look_at), v3(c.up));
         let fwd = target - pos;
-        if fwd.length_squared() <= 0.0
-            || fwd.cross(up).length_squared() <= 1e-12
-            || !fwd.is_finite()
-        {
+        if !(pos.is_finite() && target.is_finite() && up.is_finite() && fwd.is_finite()) {
+            return Err(self.err(
+                &at,
+                "camera position, look_at and up must be finite (at most about 3.4e38 in size)",
+                "\"look_at\"",
+            ));
+        }
+        // Collinear whatever the scene's scale: the directions are compared, not the vectors.
+        let (f, u) = (fwd.normalize_or_zero(), up.normalize_or_zero());
+        if f == Vec3::ZERO || u == Vec3::ZERO || f.cross(u).length_squared() <= 1e-12 {
             return Err(self.err(
                 &at,
                 "camera position, look_at and up must be distinct and not collinear",
@@ -1268,7 +1435,50 @@ impl Converter<'_> {
             })
             .map_err(|e| this.err(&format!("{at}.shape"), e, &format!("\"{kind}\"")))
         };
-        Ok(match s {
+        // The named quadrics' parameters, checked in the scene's own terms (the geometry's
+        // constructors speak of slopes and clip boxes).
+        let check = |field: &str, ok: bool, msg: String| match ok {
+            true => Ok(()),
+            false => Err(self.err(&format!("{at}.shape.{field}"), msg, &format!("\"{field}\""))),
+        };
+        let heights = |y_min: f32, y_max: f32| {
+            check(
+                "y_max",
+                y_min.is_finite() && y_max.is_finite() && y_min < y_max,
+                format!("y_max must be above y_min, got y_min {y_min}, y_max {y_max}"),
+            )
+        };
+        match s {
+            JShape::Cylinder { y_min, y_max, .. } | JShape::Hyperboloid { y_min, y_max, .. } => {
+                heights(*y_min, *y_max)?
+            }
+            JShape::Cone {
+                angle,
+                y_min,
+                y_max,
+            } => {
+                check(
+                    "angle",
+                    *angle > 0.0 && *angle < 90.0,
+                    format!("cone angle must be between 0 and 90 degrees, got {angle}"),
+                )?;
+                heights(*y_min, *y_max)?
+            }
+            JShape::Paraboloid { a, y_max } => {
+                check(
+                    "a",
+                    *a > 0.0 && a.is_finite(),
+                    format!("paraboloid a must be positive and finite, got {a}"),
+                )?;
+                check(
+                    "y_max",
+                    *y_max > 0.0 && y_max.is_finite(),
+                    format!("paraboloid y_max must be positive and finite, got {y_max}"),
+                )?
+            }
+            _ => {}
+        }
+        let shape = match s {
             JShape::Sphere { center, radius } => ShapeDesc::Sphere {
                 center: v3(*center),
                 radius: *radius,
@@ -1374,7 +1584,14 @@ impl Converter<'_> {
                 }
             }
             JShape::Gltf { .. } => unreachable!("handled by the caller"),
-        })
+        };
+        // Analytic shapes' parameters, checked now so that the error names the JSON path
+        // (the build checks them again for scenes made in code).
+        if !matches!(shape, ShapeDesc::Mesh { .. }) {
+            super::build::check_shape(&shape)
+                .map_err(|e| self.err(&format!("{at}.shape"), e, &format!("\"{name}\"")))?;
+        }
+        Ok(shape)
     }
 
     /// Appends an included glTF scene under `transform`.
@@ -1611,6 +1828,115 @@ mod tests {
     }
 
     #[test]
+    fn errors_point_at_the_line_of_their_path_not_at_the_first_match() {
+        let at = |text: &str| parse(text).unwrap_err();
+        // The first `"transform"` and the texture named like the material come earlier.
+        let e = at(r#"{
+  "camera": {"position": [0, 1, 5], "look_at": [0, 0, 0]},
+  "materials": {"white": {"type": "diffuse"}},
+  "objects": [
+    {"name": "a", "shape": {"type": "sphere"}, "material": "white",
+     "transform": {"translate": [1, 0, 0]}},
+    {"name": "b", "shape": {"type": "sphere"}, "material": "white",
+     "transform": {"scale": 0}}
+  ]
+}"#);
+        assert!(e.contains("at objects[1].transform (line 8)"), "{e}");
+        let e = at(r#"{
+  "textures": {"wood": {"type": "checker"}},
+  "materials": {
+    "wood": {"type": "pbr", "texture": "wood",
+             "ior": -2}
+  }
+}"#);
+        assert!(e.contains("at materials.wood.ior (line 5)"), "{e}");
+        // A member that is missing: the line of the object that lacks it.
+        let e = at("{\n\"objects\": [\n {\"shape\": {\"type\": \"sphere\"}},\n {\"shape\": {\"type\": \"sphere\"}}]}");
+        assert!(e.contains("at objects[0] (line 3)"), "{e}");
+        // Dotted names: the longest path that exists wins.
+        assert_eq!(
+            value_at(r#"{"a": {"b": 1}, "a.b": {"c": 2}}"#, "a.b.c"),
+            Some(29)
+        );
+        assert_eq!(value_at(r#"{"a": [1, {"b": "x,]}"}]}"#, "a[1].b"), Some(16));
+        assert_eq!(value_at(r#"{"a": 1}"#, "b"), None);
+    }
+
+    #[test]
+    fn shapes_lights_and_cameras_are_checked_at_their_path() {
+        let scene = |objects: &str, lights: &str| {
+            parse(&format!(
+                "{{\"materials\": {{\"w\": {{\"type\": \"diffuse\"}}}},\n\"objects\": [{objects}],\n\"lights\": [{lights}]}}"
+            ))
+            .unwrap_err()
+        };
+        let e = scene(
+            r#"{"shape": {"type": "box", "min": [1, 1, 1], "max": [0, 0, 0]}, "material": "w"}"#,
+            "",
+        );
+        assert!(
+            e.contains("at objects[0].shape (line 2): box min must be below max"),
+            "{e}"
+        );
+        let e = scene(
+            "",
+            r#"{"type": "point", "position": [0, 3, 3], "intensity": [1, 1, 1], "range": -1}"#,
+        );
+        assert!(
+            e.contains("at lights[0] (line 3): light range must be positive, got -1"),
+            "{e}"
+        );
+        let e = scene(
+            "",
+            r#"{"type": "point", "position": [0, 1e39, 3], "intensity": [1, 1, 1]}"#,
+        );
+        assert!(e.contains("at lights[0]") && e.contains("3.4e38"), "{e}");
+        // Named quadrics in the scene's own terms.
+        for (shape, want) in [
+            (
+                r#"{"type": "cone", "angle": 90, "y_min": 0, "y_max": 1}"#,
+                "at objects[0].shape.angle (line 2): cone angle must be between 0 and 90 degrees, got 90",
+            ),
+            (
+                r#"{"type": "cylinder", "radius": 1, "y_min": 1, "y_max": -1}"#,
+                "at objects[0].shape.y_max (line 2): y_max must be above y_min, got y_min 1, y_max -1",
+            ),
+            (
+                r#"{"type": "paraboloid", "a": -1, "y_max": 1}"#,
+                "at objects[0].shape.a (line 2): paraboloid a must be positive and finite, got -1",
+            ),
+        ] {
+            let e = scene(&format!(r#"{{"shape": {shape}, "material": "w"}}"#), "");
+            assert!(e.contains(want), "{e}");
+        }
+        let e = parse(r#"{"cameras": [{"position": [0, 1e39, 5], "look_at": [0, 0, 0]}]}"#)
+            .unwrap_err();
+        assert!(e.contains("at cameras[0]") && e.contains("finite"), "{e}");
+        // A tiny scene: a camera a micrometre from what it looks at is fine.
+        let d =
+            parse(r#"{"cameras": [{"position": [0, 0, 1e-6], "look_at": [0, 0, 0]}]}"#).unwrap();
+        assert_eq!(d.cameras.len(), 1);
+    }
+
+    #[test]
+    fn a_name_given_twice_is_an_error() {
+        let e = parse(
+            "{\"materials\": {\n\"m\": {\"type\": \"diffuse\"},\n\"m\": {\"type\": \"mirror\"}}}",
+        )
+        .unwrap_err();
+        assert!(
+            e.contains("at materials") && e.contains("the name 'm' is given twice"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_byte_order_mark_is_tolerated() {
+        let d = parse("\u{feff}{\"render\": {\"spp\": 3}}").unwrap();
+        assert_eq!(d.render.spp, Some(3));
+    }
+
+    #[test]
     fn a_gltf_include_with_a_material_is_an_error() {
         // The file's own materials are used: a `material` here would be ignored.
         let e = parse(
@@ -1723,9 +2049,9 @@ mod tests {
         // Outside, however it is named: refused, naming the JSON path and the path.
         let outside = d.0.join("outside.png");
         for (path, why) in [
-            (outside.to_str().unwrap(), "absolute paths are not allowed"),
+            (outside.to_str().unwrap(), "absolute paths are refused"),
             ("../outside.png", "'..' leads out"),
-            ("/dev/zero", "absolute paths are not allowed"),
+            ("/dev/zero", "absolute paths are refused"),
         ] {
             let (r, files) = load(&texture(path));
             let e = r.unwrap_err();
