@@ -2,6 +2,7 @@
 
 use glam::{Mat3, Vec2, Vec3, Vec4};
 use serde::{Deserialize, Serialize};
+use std::sync::Arc;
 
 /// Texture addressing outside [0, 1].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -28,14 +29,15 @@ pub struct TextureLookup {
 }
 
 /// An image's RGBA texels, row by row from the top, as decoded: colour stays encoded as
-/// stored (sRGB or linear), alpha is linear.
+/// stored (sRGB or linear), alpha is linear. Shared, not copied, by the textures that sample
+/// one image in different ways (wrap modes, filters, colour or data).
 #[derive(Clone, Debug, PartialEq)]
 pub enum Texels {
     /// Floating-point values (HDR, EXR and 16-bit images, and images made by programs).
-    F32(Vec<[f32; 4]>),
+    F32(Arc<Vec<[f32; 4]>>),
     /// The bytes of an 8-bit image (PNG, JPEG): a quarter of the memory of `F32`. Byte `b`
     /// stands for the value `b / 255`, correctly rounded.
-    Unorm8(Vec<[u8; 4]>),
+    Unorm8(Arc<Vec<[u8; 4]>>),
 }
 
 impl Texels {
@@ -60,24 +62,39 @@ impl Texels {
         }
     }
 
-    /// Bytes the texels take.
+    /// Bytes the texels take (once, however many share them).
     pub fn bytes(&self) -> usize {
         match self {
             Texels::F32(t) => t.capacity() * std::mem::size_of::<[f32; 4]>(),
             Texels::Unorm8(t) => t.capacity() * std::mem::size_of::<[u8; 4]>(),
         }
     }
+
+    /// Whether `self` and `other` are the same texels in memory (one decoded image).
+    pub fn shares(&self, other: &Texels) -> bool {
+        match (self, other) {
+            (Texels::F32(a), Texels::F32(b)) => Arc::ptr_eq(a, b),
+            (Texels::Unorm8(a), Texels::Unorm8(b)) => Arc::ptr_eq(a, b),
+            _ => false,
+        }
+    }
 }
 
 impl From<Vec<[f32; 4]>> for Texels {
     fn from(t: Vec<[f32; 4]>) -> Self {
-        Texels::F32(t)
+        Texels::F32(Arc::new(t))
+    }
+}
+
+impl From<Vec<[u8; 4]>> for Texels {
+    fn from(t: Vec<[u8; 4]>) -> Self {
+        Texels::Unorm8(Arc::new(t))
     }
 }
 
 impl FromIterator<[f32; 4]> for Texels {
     fn from_iter<I: IntoIterator<Item = [f32; 4]>>(iter: I) -> Self {
-        Texels::F32(iter.into_iter().collect())
+        Texels::from(iter.into_iter().collect::<Vec<_>>())
     }
 }
 
@@ -105,15 +122,16 @@ fn texel_value(x: f32) -> f32 {
     texel_values(Vec4::splat(x)).x
 }
 
-/// How a texture holds its texels.
+/// How a texture holds its texels: shared with the textures that read the same image the
+/// same way (colour or data) and only sample it differently.
 #[derive(Clone, Debug)]
 enum Store {
     /// Linear RGBA values (arrays rather than `Vec4`s, so the loader's buffer is reused).
-    F32(Vec<[f32; 4]>),
+    F32(Arc<Vec<[f32; 4]>>),
     /// The bytes of an 8-bit image, read on lookup through the tables of [`UNORM8`] chosen
     /// when the texture is made: `colour` (decoding sRGB, or not) and `alpha`.
     Unorm8 {
-        texels: Vec<[u8; 4]>,
+        texels: Arc<Vec<[u8; 4]>>,
         colour: &'static [f32; 256],
         alpha: &'static [f32; 256],
     },
@@ -166,9 +184,10 @@ impl Texture {
         Self::from_texels(width, height, texels.to_vec(), srgb, lookup)
     }
 
-    /// [`Texture::new`] taking the texels by value: f32 texels are converted in place, so a
-    /// large image is held once while its texture is made, not twice; the bytes of an 8-bit
-    /// image are kept as they are.
+    /// [`Texture::new`] taking the texels by value: f32 texels are converted in place (unless
+    /// other textures share them: then a converted copy is made), so a large image is held
+    /// once while its texture is made, not twice; the bytes of an 8-bit image are kept as
+    /// they are, shared with whatever else holds them.
     pub fn from_texels(
         width: u32,
         height: u32,
@@ -179,10 +198,11 @@ impl Texture {
         let texels = texels.into();
         let expected = width as usize * height as usize;
         let (width, height, store) = if expected == 0 || texels.len() != expected {
-            (1, 1, Store::F32(vec![[1.0; 4]]))
+            (1, 1, Store::F32(Arc::new(vec![[1.0; 4]])))
         } else {
             let store = match texels {
-                Texels::F32(mut texels) => {
+                Texels::F32(texels) => {
+                    let mut texels = Arc::unwrap_or_clone(texels);
                     for t in &mut texels {
                         let [r, g, b, a] = *t;
                         let v = if srgb {
@@ -193,10 +213,12 @@ impl Texture {
                         *t = texel_values(v).to_array();
                     }
                     texels.shrink_to_fit();
-                    Store::F32(texels)
+                    Store::F32(Arc::new(texels))
                 }
                 Texels::Unorm8(mut texels) => {
-                    texels.shrink_to_fit();
+                    if let Some(t) = Arc::get_mut(&mut texels) {
+                        t.shrink_to_fit();
+                    }
                     let lut: &'static [[f32; 256]; 2] = &UNORM8;
                     Store::Unorm8 {
                         texels,
@@ -217,7 +239,27 @@ impl Texture {
         }
     }
 
-    /// Bytes of texel memory, for cache budgets.
+    /// The same texels (shared, not copied) looked up with `lookup`.
+    pub fn with_lookup(&self, lookup: TextureLookup) -> Texture {
+        Texture {
+            wrap_u: lookup.wrap_u,
+            wrap_v: lookup.wrap_v,
+            bilinear: lookup.bilinear,
+            ..self.clone()
+        }
+    }
+
+    /// An address that identifies the texels in memory: textures that share their texels
+    /// give the same one (so that memory is counted once).
+    pub fn texels_id(&self) -> usize {
+        match &self.store {
+            Store::F32(t) => Arc::as_ptr(t) as usize,
+            Store::Unorm8 { texels, .. } => Arc::as_ptr(texels) as usize,
+        }
+    }
+
+    /// Bytes of texel memory, for cache budgets (shared texels count in full for each
+    /// texture that holds them: see [`Texture::texels_id`]).
     pub fn memory_bytes(&self) -> usize {
         match &self.store {
             Store::F32(t) => t.capacity() * std::mem::size_of::<[f32; 4]>(),
@@ -398,8 +440,8 @@ mod tests {
         });
         // The decoder's own conversion of RGBA bytes gives the same values.
         let values = image::DynamicImage::ImageRgba8(bytes.clone()).into_rgba32f();
-        let unorm8 = Texels::Unorm8(bytes.pixels().map(|p| p.0).collect());
-        let f32s = Texels::F32(values.pixels().map(|p| p.0).collect());
+        let unorm8 = Texels::from(bytes.pixels().map(|p| p.0).collect::<Vec<_>>());
+        let f32s = Texels::from(values.pixels().map(|p| p.0).collect::<Vec<_>>());
         for i in 0..unorm8.len() {
             assert_eq!(
                 unorm8.get(i).map(f32::to_bits),

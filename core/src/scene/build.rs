@@ -26,9 +26,10 @@ use crate::light::{check_radiance, AreaLight, Environment, Light};
 use crate::material::{AlphaMode, Emission, Material, MaterialSlots, Model, PbrParams};
 use crate::medium::{GridMedium, HomogeneousMedium, Medium};
 use crate::settings::{EnvironmentChoice, RenderSettings};
-use crate::texture::{TexSlot, Texture, TextureLookup};
+use crate::texture::{TexSlot, Texels, Texture, TextureLookup};
 use glam::{Affine3A, Vec2, Vec3, Vec3A, Vec4};
 use rayon::prelude::*;
+use std::collections::HashMap;
 use std::f32::consts::PI;
 use std::path::Path;
 use std::sync::Arc;
@@ -55,19 +56,42 @@ impl Scene {
     /// built (on rayon's pool, in parallel where it pays: bounds, corners, validation).
     pub fn build_owned(mut desc: SceneDesc) -> Result<Scene, SceneError> {
         // Each texture's description is freed once its texture is made, so a scene's texels
-        // are held about once, not twice, while it builds.
+        // are held about once, not twice, while it builds. Textures of one image share its
+        // texels: 8-bit ones its bytes, f32 ones its values converted once for each of colour
+        // and data. Only the first texture of an f32 image in each colour space keeps the
+        // image (the others are made from its texture), so that the last to convert it does
+        // so in place.
         let n_textures = desc.textures.len();
-        let textures: Vec<Texture> = std::mem::take(&mut desc.textures)
-            .into_iter()
-            .map(|t| {
-                let lookup = TextureLookup {
-                    wrap_u: t.wrap_u,
-                    wrap_v: t.wrap_v,
-                    bilinear: t.bilinear,
-                };
-                Texture::from_texels(t.width, t.height, t.texels, t.srgb, lookup)
-            })
-            .collect();
+        let mut descs = std::mem::take(&mut desc.textures);
+        let mut first: HashMap<(usize, bool), usize> = HashMap::new();
+        let mut follows = vec![None; descs.len()];
+        for (i, t) in descs.iter_mut().enumerate() {
+            if let Texels::F32(values) = &t.texels {
+                let key = (Arc::as_ptr(values) as usize, t.srgb);
+                match first.get(&key) {
+                    Some(&maker) => {
+                        follows[i] = Some(maker);
+                        t.texels = Texels::from(Vec::<[f32; 4]>::new());
+                    }
+                    None => {
+                        first.insert(key, i);
+                    }
+                }
+            }
+        }
+        drop(first);
+        let mut textures: Vec<Texture> = Vec::with_capacity(descs.len());
+        for (t, follows) in descs.into_iter().zip(follows) {
+            let lookup = TextureLookup {
+                wrap_u: t.wrap_u,
+                wrap_v: t.wrap_v,
+                bilinear: t.bilinear,
+            };
+            textures.push(match follows {
+                Some(maker) => textures[maker].with_lookup(lookup),
+                None => Texture::from_texels(t.width, t.height, t.texels, t.srgb, lookup),
+            });
+        }
         let materials = desc
             .materials
             .iter()

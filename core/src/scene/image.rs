@@ -169,22 +169,22 @@ pub fn decode_image(bytes: &[u8]) -> Result<DecodedImage, String> {
         | image::ColorType::Rgb8
         | image::ColorType::Rgba8 => {
             // 8 bits per channel: the bytes are kept (a quarter of the memory of f32 values).
-            Texels::Unorm8(decode_rgba(decoder, texels, channels, |v: u8| v, u8::MAX)?)
+            Texels::from(decode_rgba(decoder, texels, channels, |v: u8| v, u8::MAX)?)
         }
         image::ColorType::Rgb16 | image::ColorType::Rgba16 => {
             // The image crate's conversion of 16-bit values, to the bit.
             let unit = |v: u16| (f32::from(v) / f32::from(u16::MAX)).clamp(0.0, 1.0);
-            Texels::F32(decode_rgba(decoder, texels, channels, unit, 1.0)?)
+            Texels::from(decode_rgba(decoder, texels, channels, unit, 1.0)?)
         }
         image::ColorType::Rgb32F | image::ColorType::Rgba32F => {
-            Texels::F32(decode_rgba(decoder, texels, channels, |v: f32| v, 1.0)?)
+            Texels::from(decode_rgba(decoder, texels, channels, |v: f32| v, 1.0)?)
         }
         // 16-bit grey: the image crate's conversion, whose values for grey differ from its
         // conversion of colour channels by a unit in the last place (images keep their bits).
         _ => {
             let img = image::DynamicImage::from_decoder(decoder)
                 .map_err(|e| format!("cannot decode: {e}"))?;
-            Texels::F32(rgba(img.into_rgba32f().into_raw()))
+            Texels::from(rgba(img.into_rgba32f().into_raw()))
         }
     };
     Ok(DecodedImage {
@@ -407,9 +407,9 @@ mod tests {
             let ours = decode_image(&bytes).unwrap();
             assert_eq!((ours.width, ours.height), (w, h), "{what}");
             let want = if eight_bit(decoded.color()) {
-                Texels::Unorm8(rgba(decoded.into_rgba8().into_raw()))
+                Texels::from(rgba(decoded.into_rgba8().into_raw()))
             } else {
-                Texels::F32(rgba(decoded.into_rgba32f().into_raw()))
+                Texels::from(rgba(decoded.into_rgba32f().into_raw()))
             };
             assert_eq!(ours.texels, want, "{what}");
         }
@@ -420,9 +420,9 @@ mod tests {
     fn converted(bytes: &[u8]) -> Texels {
         let img = image::load_from_memory(bytes).unwrap();
         if eight_bit(img.color()) {
-            Texels::Unorm8(rgba(img.into_rgba8().into_raw()))
+            Texels::from(rgba(img.into_rgba8().into_raw()))
         } else {
-            Texels::F32(rgba(img.into_rgba32f().into_raw()))
+            Texels::from(rgba(img.into_rgba32f().into_raw()))
         }
     }
 
@@ -621,7 +621,7 @@ mod tests {
         // An 8-bit image keeps its bytes; they stand for what the decoder's f32 gives.
         assert_eq!(
             d.texels,
-            Texels::Unorm8(vec![[0, 0, 51, 255], [255, 0, 51, 255]])
+            Texels::from(vec![[0, 0, 51, 255], [255, 0, 51, 255]])
         );
         assert_eq!(d.texels.get(1), [1.0, 0.0, 0.2, 1.0]);
         // Grey and grey-alpha images too: byte b is b / 255, in every channel.
@@ -633,10 +633,7 @@ mod tests {
         )
         .unwrap();
         let d = decode_image(&bytes).unwrap();
-        assert_eq!(
-            d.texels,
-            Texels::Unorm8(vec![[3, 3, 3, 128], [4, 4, 4, 128]])
-        );
+        assert_eq!(d.texels, Texels::from(vec![[3, 3, 3, 128], [4, 4, 4, 128]]));
         assert_eq!(
             d.texels.get(0),
             [3.0 / 255.0, 3.0 / 255.0, 3.0 / 255.0, 128.0 / 255.0]

@@ -12,9 +12,11 @@ use super::SceneError;
 use crate::geometry::quadric::Quadric;
 use crate::light::check_radiance;
 use crate::light::environment::check_map;
+use crate::texture::Texels;
 use glam::{EulerRot, Mat3, Mat4, Quat, Vec2, Vec3, Vec3A};
 use serde::Deserialize;
-use std::collections::BTreeMap;
+use std::cell::RefCell;
+use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
 type Rgb = [f32; 3];
@@ -574,6 +576,7 @@ fn parse_json_files(
         name,
         files,
         line_of: &line_of,
+        images: RefCell::default(),
         desc: SceneDesc::default(),
     }
     .convert(file)
@@ -586,6 +589,8 @@ struct Converter<'a> {
     files: &'a SceneFiles,
     /// The line of the value at a JSON path, else of the first `needle`, as " (line N)".
     line_of: &'a dyn Fn(&str, &str) -> String,
+    /// Images decoded so far, by canonical path: (width, height, texels).
+    images: RefCell<HashMap<PathBuf, (u32, u32, Texels)>>,
     desc: SceneDesc,
 }
 
@@ -745,24 +750,36 @@ impl Converter<'_> {
     /// [`super::image`] for the limits) into a texture: sRGB colour, repeated, bilinear. Its
     /// texels are charged to the scene's memory budget before they are decoded.
     fn image(&self, at: &str, path: &Path) -> Result<TextureDesc, SceneError> {
-        let (_, bytes) = self.read_file(at, path, super::image::MAX_IMAGE_FILE)?;
         let needle = path.to_string_lossy();
+        let texture = |width, height, texels| TextureDesc {
+            name: path.display().to_string(),
+            width,
+            height,
+            texels,
+            srgb: true,
+            wrap_u: WrapMode::Repeat,
+            wrap_v: WrapMode::Repeat,
+            bilinear: true,
+        };
+        // An image several textures name is read and decoded once; they share its texels.
+        let r = self
+            .files
+            .resolve_path(self.base, path, at)
+            .map_err(|e| self.err(at, e.describe(), &needle))?;
+        if let Some((w, h, texels)) = self.images.borrow().get(&r.canonical) {
+            return Ok(texture(*w, *h, texels.clone()));
+        }
+        let (r, bytes) = self.read_file(at, path, super::image::MAX_IMAGE_FILE)?;
         let shown = show(&needle);
         let bad = |e: String| self.err(at, format!("{shown}: {e}"), &needle);
         self.files
             .charge_memory(super::image::image_bytes(&bytes).map_err(bad)?, &shown)
             .map_err(|e| self.err(at, e, &needle))?;
         let img = super::image::decode_image(&bytes).map_err(bad)?;
-        Ok(TextureDesc {
-            name: path.display().to_string(),
-            width: img.width,
-            height: img.height,
-            texels: img.texels,
-            srgb: true,
-            wrap_u: WrapMode::Repeat,
-            wrap_v: WrapMode::Repeat,
-            bilinear: true,
-        })
+        self.images
+            .borrow_mut()
+            .insert(r.canonical, (img.width, img.height, img.texels.clone()));
+        Ok(texture(img.width, img.height, img.texels))
     }
 
     /// Loads the glTF file the scene includes at `at`; a file that is already being loaded
@@ -1801,33 +1818,6 @@ mod tests {
     }
 
     #[test]
-    fn a_misspelt_material_field_is_an_error() {
-        // A typo must not silently give a default (a lamp without its `emission`).
-        for (material, typo) in [
-            (r#"{"type": "diffuse", "albdo": [0.5, 0.5, 0.5]}"#, "albdo"),
-            (r#"{"type": "emitter", "emision": [5, 5, 5]}"#, "emision"),
-            (r#"{"type": "mirror", "roughness": 0.2}"#, "roughness"),
-            (r#"{"type": "glass", "two_side": true}"#, "two_side"),
-        ] {
-            let e = parse(&format!(
-                "{{\"materials\": {{\n\"m\": {material}}},\n\"objects\": [{{\"shape\": {{\"type\": \"sphere\"}}, \"material\": \"m\"}}]}}"
-            ))
-            .unwrap_err();
-            assert!(
-                e.contains("materials.m")
-                    && e.contains("line 2")
-                    && e.contains("unknown field")
-                    && e.contains(typo)
-                    && e.contains("`emission` and `two_sided`"),
-                "{material}: {e}"
-            );
-        }
-        // The fields every material takes are still known.
-        parse(r#"{"materials": {"m": {"type": "diffuse", "emission": [1, 1, 1], "two_sided": true}}}"#)
-            .unwrap();
-    }
-
-    #[test]
     fn errors_point_at_the_line_of_their_path_not_at_the_first_match() {
         let at = |text: &str| parse(text).unwrap_err();
         // The first `"transform"` and the texture named like the material come earlier.
@@ -1934,6 +1924,33 @@ mod tests {
     fn a_byte_order_mark_is_tolerated() {
         let d = parse("\u{feff}{\"render\": {\"spp\": 3}}").unwrap();
         assert_eq!(d.render.spp, Some(3));
+    }
+
+    #[test]
+    fn a_misspelt_material_field_is_an_error() {
+        // A typo must not silently give a default (a lamp without its `emission`).
+        for (material, typo) in [
+            (r#"{"type": "diffuse", "albdo": [0.5, 0.5, 0.5]}"#, "albdo"),
+            (r#"{"type": "emitter", "emision": [5, 5, 5]}"#, "emision"),
+            (r#"{"type": "mirror", "roughness": 0.2}"#, "roughness"),
+            (r#"{"type": "glass", "two_side": true}"#, "two_side"),
+        ] {
+            let e = parse(&format!(
+                "{{\"materials\": {{\n\"m\": {material}}},\n\"objects\": [{{\"shape\": {{\"type\": \"sphere\"}}, \"material\": \"m\"}}]}}"
+            ))
+            .unwrap_err();
+            assert!(
+                e.contains("materials.m")
+                    && e.contains("line 2")
+                    && e.contains("unknown field")
+                    && e.contains(typo)
+                    && e.contains("`emission` and `two_sided`"),
+                "{material}: {e}"
+            );
+        }
+        // The fields every material takes are still known.
+        parse(r#"{"materials": {"m": {"type": "diffuse", "emission": [1, 1, 1], "two_sided": true}}}"#)
+            .unwrap();
     }
 
     #[test]
@@ -2228,13 +2245,15 @@ mod tests {
                              "b": {"type": "image", "path": "wood.png"}}}"#,
         )
         .unwrap();
-        // Two 2×2 8-bit textures, which keep their bytes: 32 bytes.
-        let files = SceneFiles::trusted().with_memory_limit(32);
-        assert!(load_json_files(&scene, &files).is_ok());
-        let files = SceneFiles::trusted().with_memory_limit(31);
+        // Two textures of one 2×2 8-bit image, which keeps its bytes: decoded once, shared,
+        // 16 bytes.
+        let files = SceneFiles::trusted().with_memory_limit(16);
+        let desc = load_json_files(&scene, &files).unwrap();
+        assert!(desc.textures[0].texels.shares(&desc.textures[1].texels));
+        let files = SceneFiles::trusted().with_memory_limit(15);
         let e = load_json_files(&scene, &files).unwrap_err().to_string();
         assert!(
-            e.contains("at textures.b.path") && e.contains("more memory"),
+            e.contains("at textures.a.path") && e.contains("more memory"),
             "{e}"
         );
     }

@@ -160,9 +160,12 @@ impl Scene {
                         + vec(&m.indices)
                 })
                 .sum::<usize>();
+        // Textures that share their texels (one image sampled two ways) count them once.
+        let mut seen = std::collections::HashSet::new();
         let textures = self
             .textures
             .iter()
+            .filter(|t| seen.insert(t.texels_id()))
             .map(Texture::memory_bytes)
             .sum::<usize>();
         let lights = vec(&self.lights)

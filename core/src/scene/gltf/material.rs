@@ -9,6 +9,7 @@ use serde_json::Value;
 use std::rc::Rc;
 
 use crate::scene::image::{self as img, DecodedImage};
+use crate::texture::Texels;
 
 /// A number from raw extension JSON, or `default` when absent.
 fn num(obj: Option<&Value>, key: &str, default: f32, what: &str) -> Result<f32, String> {
@@ -406,7 +407,16 @@ impl Loader<'_> {
             return Ok(Some(i));
         }
         let decoded = self.image(&image)?;
-        self.charge(decoded.texels.bytes(), &format!("texture {}", tex.index()))?;
+        // The texture shares the image's texels (charged when decoded). f32 texels are
+        // converted once for colour and once for data when the scene is built: a copy each.
+        let converts = matches!(decoded.texels, Texels::F32(_))
+            && !self
+                .texture_cache
+                .keys()
+                .any(|&(i, s, ..)| i == image.index() && s == srgb);
+        if converts {
+            self.charge(decoded.texels.bytes(), &format!("texture {}", tex.index()))?;
+        }
         let desc = TextureDesc {
             name: image
                 .name()

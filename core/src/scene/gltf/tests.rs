@@ -316,6 +316,84 @@ fn a_texture_without_its_coordinates_is_read_at_the_origin() {
     );
 }
 
+/// A 2×2 16-bit RGBA PNG as a data URI: an image kept as f32 texels.
+fn png16_data_uri() -> String {
+    let img = image::ImageBuffer::<image::Rgba<u16>, _>::from_fn(2, 2, |x, y| {
+        image::Rgba([x as u16 * 65535, y as u16 * 30000, 1000, 65535])
+    });
+    let mut png = Vec::new();
+    image::DynamicImage::from(img)
+        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .unwrap();
+    format!(
+        "data:image/png;base64,{}",
+        base64::engine::general_purpose::STANDARD.encode(png)
+    )
+}
+
+#[test]
+fn textures_of_one_image_share_its_texels() {
+    for (uri, eight_bit) in [(png_data_uri(), true), (png16_data_uri(), false)] {
+        let mut d = Doc::default();
+        d.positions(&TRI);
+        d.floats(&[0.0, 0.0, 1.0, 0.0, 0.0, 1.0], "VEC2", 2);
+        // One image, two samplers, colour and data: three textures.
+        let bytes = one_prim(
+            d,
+            json!({"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "material": 0}),
+            json!({
+                "images": [{"uri": uri}],
+                "samplers": [{"wrapS": 33071}, {"wrapS": 33648}],
+                "textures": [{"source": 0, "sampler": 0}, {"source": 0, "sampler": 1}],
+                "materials": [{
+                    "pbrMetallicRoughness": {
+                        "baseColorTexture": {"index": 0},
+                        "metallicRoughnessTexture": {"index": 1},
+                    },
+                    "emissiveTexture": {"index": 1},
+                    "emissiveFactor": [1, 1, 1],
+                }],
+            }),
+        );
+        let desc = load(&bytes).unwrap();
+        assert_eq!(desc.textures.len(), 3);
+        let first = &desc.textures[0].texels;
+        assert!(desc.textures.iter().all(|t| t.texels.shares(first)));
+        let p = pbr(&desc.materials[0]);
+        let index = [
+            p.base_color_texture.unwrap().texture,
+            desc.materials[0].emission_texture.unwrap().texture,
+            p.metallic_roughness_texture.unwrap().texture,
+        ];
+        let scene = crate::Scene::build(&desc).unwrap();
+        let [base, emissive, data] = index.map(|i| scene.textures[i].texels_id());
+        // 8-bit texels are shared as they are; f32 ones converted once per colour space.
+        assert_eq!(base, emissive);
+        assert_eq!(base == data, eight_bit, "8-bit: {eight_bit}");
+        // The lookups are those of separate copies.
+        let alone = |i: usize| {
+            let mut one = desc.clone();
+            one.textures = vec![desc.textures[i].clone()];
+            one.textures[0].texels = match &desc.textures[i].texels {
+                crate::texture::Texels::F32(t) => t.to_vec().into(),
+                crate::texture::Texels::Unorm8(t) => t.to_vec().into(),
+            };
+            one.materials.clear();
+            one.objects.clear();
+            crate::Scene::build(&one).unwrap().textures[0].clone()
+        };
+        for &i in &index {
+            for uv in [glam::Vec2::new(0.3, 0.6), glam::Vec2::new(-0.4, 1.7)] {
+                assert_eq!(
+                    scene.textures[i].lookup(uv).to_array(),
+                    alone(i).lookup(uv).to_array(),
+                    "texture {i} at {uv}"
+                );
+            }
+        }
+    }
+}
+
 #[test]
 fn colour_textures_are_srgb_and_data_textures_linear() {
     let mut d = Doc::default();
@@ -680,6 +758,75 @@ fn sparse_normalized_and_interleaved_accessors() {
     );
 }
 
+/// `KHR_mesh_quantization` as gltfpack writes it: integer positions placed by the node's
+/// scale, normalised byte normals, integer texture coordinates.
+#[test]
+fn quantized_attributes_read_by_the_accessor_rules() {
+    let quantized = |declared: bool| {
+        let mut d = Doc::default();
+        // i16 positions (each element padded to 8 bytes, as the specification aligns them).
+        let pos: Vec<u8> = [[0i16, 0, 0, 0], [1000, 0, 0, 0], [0, -1000, 0, 0]]
+            .iter()
+            .flat_map(|e| e.iter().flat_map(|x| x.to_le_bytes()))
+            .collect();
+        let p = d.accessor(&pos, 5122, "VEC3", 3);
+        d.views[p]["byteStride"] = json!(8);
+        // Normalised i8 normals: 127 is 1, -128 is clamped to -1.
+        let n = d.accessor(
+            &[0, 0, 127, 0, 0, 0, 127, 0, 0, 0, 0x80, 0],
+            5120,
+            "VEC3",
+            3,
+        );
+        d.views[n]["byteStride"] = json!(4);
+        d.accessors[n]["normalized"] = json!(true);
+        // u16 texture coordinates, not normalised (a texture transform scales them).
+        let uv: Vec<u8> = [0u16, 0, 4, 0, 0, 2]
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
+        let t = d.accessor(&uv, 5123, "VEC2", 3);
+        let ext = match declared {
+            true => json!({"extensionsUsed": ["KHR_mesh_quantization"],
+                           "extensionsRequired": ["KHR_mesh_quantization"]}),
+            false => json!({}),
+        };
+        let mut root = json!({
+            "scenes": [{"nodes": [0]}],
+            "nodes": [{"mesh": 0, "scale": [0.001, 0.001, 0.001]}],
+            "meshes": [{"primitives": [{"attributes":
+                {"POSITION": p, "NORMAL": n, "TEXCOORD_0": t}}]}],
+        });
+        root.as_object_mut()
+            .unwrap()
+            .extend(ext.as_object().unwrap().clone());
+        load(&d.finish(root)).unwrap()
+    };
+    let s = quantized(true);
+    assert!(
+        s.warnings.iter().all(|w| w == NO_LIGHT_WARNING),
+        "{:?}",
+        s.warnings
+    );
+    let m = &s.meshes[0];
+    assert_eq!(m.positions[1], Vec3::new(1000.0, 0.0, 0.0));
+    assert_eq!(m.positions[2], Vec3::new(0.0, -1000.0, 0.0));
+    assert_eq!(m.normals[0], Vec3::Z);
+    assert_eq!(m.normals[2], Vec3::NEG_Z);
+    assert_eq!(m.uvs[0][1], glam::Vec2::new(4.0, 0.0));
+    assert_eq!(s.objects[0].transform, Mat4::from_scale(Vec3::splat(0.001)));
+    // Without the declaration the file is not valid glTF: read the same, with a warning.
+    let s = quantized(false);
+    assert_eq!(s.meshes[0].positions[1], Vec3::new(1000.0, 0.0, 0.0));
+    assert!(
+        s.warnings.iter().any(|w| w.contains("mesh 0 primitive 0")
+            && w.contains("KHR_mesh_quantization")
+            && w.contains("POSITION, NORMAL, TEXCOORD_0")),
+        "{:?}",
+        s.warnings
+    );
+}
+
 #[test]
 fn points_and_lines_are_skipped_with_a_warning() {
     let s = load(&tri_scene(json!({"mode": 0}), json!({}))).unwrap();
@@ -824,75 +971,6 @@ fn glb(json: &[u8], bin: &[u8]) -> Vec<u8> {
         out.extend_from_slice(bin);
     }
     out
-}
-
-/// `KHR_mesh_quantization` as gltfpack writes it: integer positions placed by the node's
-/// scale, normalised byte normals, integer texture coordinates.
-#[test]
-fn quantized_attributes_read_by_the_accessor_rules() {
-    let quantized = |declared: bool| {
-        let mut d = Doc::default();
-        // i16 positions (each element padded to 8 bytes, as the specification aligns them).
-        let pos: Vec<u8> = [[0i16, 0, 0, 0], [1000, 0, 0, 0], [0, -1000, 0, 0]]
-            .iter()
-            .flat_map(|e| e.iter().flat_map(|x| x.to_le_bytes()))
-            .collect();
-        let p = d.accessor(&pos, 5122, "VEC3", 3);
-        d.views[p]["byteStride"] = json!(8);
-        // Normalised i8 normals: 127 is 1, -128 is clamped to -1.
-        let n = d.accessor(
-            &[0, 0, 127, 0, 0, 0, 127, 0, 0, 0, 0x80, 0],
-            5120,
-            "VEC3",
-            3,
-        );
-        d.views[n]["byteStride"] = json!(4);
-        d.accessors[n]["normalized"] = json!(true);
-        // u16 texture coordinates, not normalised (a texture transform scales them).
-        let uv: Vec<u8> = [0u16, 0, 4, 0, 0, 2]
-            .iter()
-            .flat_map(|x| x.to_le_bytes())
-            .collect();
-        let t = d.accessor(&uv, 5123, "VEC2", 3);
-        let ext = match declared {
-            true => json!({"extensionsUsed": ["KHR_mesh_quantization"],
-                           "extensionsRequired": ["KHR_mesh_quantization"]}),
-            false => json!({}),
-        };
-        let mut root = json!({
-            "scenes": [{"nodes": [0]}],
-            "nodes": [{"mesh": 0, "scale": [0.001, 0.001, 0.001]}],
-            "meshes": [{"primitives": [{"attributes":
-                {"POSITION": p, "NORMAL": n, "TEXCOORD_0": t}}]}],
-        });
-        root.as_object_mut()
-            .unwrap()
-            .extend(ext.as_object().unwrap().clone());
-        load(&d.finish(root)).unwrap()
-    };
-    let s = quantized(true);
-    assert!(
-        s.warnings.iter().all(|w| w == NO_LIGHT_WARNING),
-        "{:?}",
-        s.warnings
-    );
-    let m = &s.meshes[0];
-    assert_eq!(m.positions[1], Vec3::new(1000.0, 0.0, 0.0));
-    assert_eq!(m.positions[2], Vec3::new(0.0, -1000.0, 0.0));
-    assert_eq!(m.normals[0], Vec3::Z);
-    assert_eq!(m.normals[2], Vec3::NEG_Z);
-    assert_eq!(m.uvs[0][1], glam::Vec2::new(4.0, 0.0));
-    assert_eq!(s.objects[0].transform, Mat4::from_scale(Vec3::splat(0.001)));
-    // Without the declaration the file is not valid glTF: read the same, with a warning.
-    let s = quantized(false);
-    assert_eq!(s.meshes[0].positions[1], Vec3::new(1000.0, 0.0, 0.0));
-    assert!(
-        s.warnings.iter().any(|w| w.contains("mesh 0 primitive 0")
-            && w.contains("KHR_mesh_quantization")
-            && w.contains("POSITION, NORMAL, TEXCOORD_0")),
-        "{:?}",
-        s.warnings
-    );
 }
 
 #[test]
@@ -1124,6 +1202,28 @@ fn memory_limit_is_enforced() {
 }
 
 #[test]
+fn a_scene_may_leave_out_its_nodes() {
+    // `scene.nodes` is optional: an empty scene. The default scene is the second one here.
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    let root = json!({
+        "scene": 1,
+        "scenes": [{"name": "empty"}, {"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+    });
+    assert_eq!(load(&d.finish(root)).unwrap().objects.len(), 1);
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    let root = json!({
+        "scenes": [{}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+    });
+    assert!(load(&d.finish(root)).unwrap().objects.is_empty());
+}
+
+#[test]
 fn byte_order_mark_is_tolerated() {
     let mut bytes = b"\xEF\xBB\xBF".to_vec();
     bytes.extend(tri_scene(json!({}), json!({})));
@@ -1155,28 +1255,6 @@ fn position_accessor_out_of_range_is_refused() {
     let s = load(&tri_scene(json!({"attributes": {}}), json!({}))).unwrap();
     assert!(s.objects.is_empty());
     assert!(s.warnings.iter().any(|w| w.contains("no POSITION")));
-}
-
-#[test]
-fn a_scene_may_leave_out_its_nodes() {
-    // `scene.nodes` is optional: an empty scene. The default scene is the second one here.
-    let mut d = Doc::default();
-    d.positions(&TRI);
-    let root = json!({
-        "scene": 1,
-        "scenes": [{"name": "empty"}, {"nodes": [0]}],
-        "nodes": [{"mesh": 0}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
-    });
-    assert_eq!(load(&d.finish(root)).unwrap().objects.len(), 1);
-    let mut d = Doc::default();
-    d.positions(&TRI);
-    let root = json!({
-        "scenes": [{}],
-        "nodes": [{"mesh": 0}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
-    });
-    assert!(load(&d.finish(root)).unwrap().objects.is_empty());
 }
 
 #[test]
