@@ -661,8 +661,19 @@ fn check_splats(splats: &[(u32, [i64; 3])], splat_pixels: Option<u64>) -> Result
 /// the frame, when it is composed), a weight (the samples kept) from 0 to `samples`, and
 /// colour sums at most the weight times the largest sample value the film takes (so that
 /// adding passes never overflows). (Splats are integers, always finite.) The error names the
-/// first pixel, in frame coordinates, and the value.
+/// first pixel, in frame coordinates, and the value. The samples dropped as NaN or infinite
+/// are at most the tile's pixels times `samples`, as each pixel's weight is at most `samples`:
+/// they count into the frame's samples per pixel, by which a `bdpt` frame's splats are divided.
 pub(crate) fn check_sums(acc: &proto::tile::TileAccum, samples: u32) -> Result<(), String> {
+    let most_dropped = (acc.tile.pixel_count() as u64).saturating_mul(u64::from(samples));
+    if acc.bad_samples > most_dropped {
+        return Err(format!(
+            "{} samples dropped as NaN or infinite: the pass has {samples} samples for each of \
+             the tile's {} pixels, {most_dropped} in all",
+            acc.bad_samples,
+            acc.tile.pixel_count()
+        ));
+    }
     let w = acc.tile.width().max(1) as usize;
     let limit = f64::from(raytile_core::film::MAX_SAMPLE);
     for (i, p) in acc.pixels.iter().enumerate() {

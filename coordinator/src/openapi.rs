@@ -258,7 +258,7 @@ pub fn document() -> Value {
                     {"name": "worker", "in": "query", "schema": {"type": "string"}}]),
                 Inputs { params: true, writes: true, ..none },
                 json!({"200": ok_json("Accepted, or ignored as duplicate/late (duplicate: true) or for a finished job (job_finished: true)", "ResultReply"),
-                    "404": err("Unknown job or task"), "413": err("Larger than the tile"), "422": err("Malformed result, wrong tile/pass, or a pixel sum that is NaN, infinite or out of what the pass can make (then the task is queued again, counting a failure of the worker holding its lease)")})))},
+                    "404": err("Unknown job or task"), "413": err("Larger than the tile"), "422": err("Malformed result, wrong tile/pass, or a pixel sum that is NaN, infinite or out of what the pass can make, or more dropped samples than the tile's pixels times the pass's samples (then the task is queued again, counting a failure of the worker holding its lease)")})))},
             "/v1/workers": {
                 "post": with_body(json_body("RegisterRequest"), op("Register a worker", json!([]), Inputs { json: true, writes: true, ..none },
                     json!({"200": ok_json("Registered", "Registered"), "409": err("Another renderer version: run one release on the whole farm")}))),

@@ -981,6 +981,76 @@ async fn results_with_non_finite_sums_are_refused_and_the_task_is_queued_again()
     assert_eq!(status["state"], "done", "{status}");
 }
 
+/// A result's count of samples dropped as NaN or infinite counts into the frame's samples per
+/// pixel (a `bdpt` frame's splats are divided by it): a count above the tile's pixels times the
+/// pass's samples is refused like a bad pixel sum, counting a failure of the lease holder, so a
+/// result cannot wipe the splat light out of the frame, nor two of them wrap the frame's count.
+#[tokio::test]
+async fn results_claiming_more_dropped_samples_than_the_pass_has_are_refused() {
+    use raytile_proto::tile::{encode, TileAccum};
+    let dir = tempfile::tempdir().unwrap();
+    let st = test_state(dir.path(), None);
+    let (_, scene) = call(&st, post("/v1/scenes", r#"{"objects": []}"#)).await;
+    let body = format!(
+        r#"{{"scene": "{}", "width": 4, "height": 2, "spp": 3, "passes": 1, "tile_size": 16}}"#,
+        scene["id"].as_str().unwrap()
+    );
+    let (_, job) = call(&st, post("/v1/jobs", body)).await;
+    let job = job["id"].as_str().unwrap().to_string();
+    let reg = format!(
+        r#"{{"name": "w", "threads": 1, "render_version": {}}}"#,
+        raytile_core::RENDER_VERSION
+    );
+    let (_, w) = call(&st, post("/v1/workers", reg)).await;
+    let worker = w["worker_id"].as_str().unwrap().to_string();
+    let lease_uri = format!("/v1/workers/{worker}/lease");
+    let upload = |bad_samples: u64| {
+        let acc = TileAccum {
+            tile: raytile_proto::Tile {
+                x0: 0,
+                y0: 0,
+                x1: 4,
+                y1: 2,
+            },
+            pixels: vec![[0.0; 4]; 8],
+            bad_samples,
+            splats: Vec::new(),
+        };
+        Request::put(format!("/v1/jobs/{job}/tasks/0/result?worker={worker}"))
+            .body(Body::from(encode(&acc, 0)))
+            .unwrap()
+    };
+    for bad in [1 << 60, u64::MAX] {
+        let (code, lease) = call(&st, post(&lease_uri, "")).await;
+        assert_eq!(code, StatusCode::OK, "{lease}");
+        let (code, body) = call(&st, upload(bad)).await;
+        assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+        assert_error_body("too many dropped samples", &body);
+        assert_eq!(body["error"]["field"], "body");
+        let message = body["error"]["message"].as_str().unwrap();
+        assert!(
+            message.contains(&format!("{bad} samples dropped"))
+                && message.contains("3 samples for each of the tile's 8 pixels, 24 in all"),
+            "{message}"
+        );
+        let (_, status) = call(&st, get(&format!("/v1/jobs/{job}"))).await;
+        assert_eq!(
+            (&status["tasks_leased"], &status["tasks_done"]),
+            (&0.into(), &0.into()),
+            "the refusal counts a failure and queues the task again: {status}"
+        );
+    }
+    // Every sample of the pass dropped is a result the pass can make.
+    let (code, _) = call(&st, post(&lease_uri, "")).await;
+    assert_eq!(code, StatusCode::OK);
+    let (code, body) = call(&st, upload(24)).await;
+    assert_eq!(
+        (code, &body["accepted"]),
+        (StatusCode::OK, &true.into()),
+        "{body}"
+    );
+}
+
 /// A result's sums must be ones a pass of its samples can make: finite, weights from 0 to the
 /// pass's samples, colour sums at most the weight times the film's largest sample value.
 #[test]

@@ -147,7 +147,9 @@ impl Film {
                 }
             }
         }
-        self.bad_samples += t.bad_samples;
+        // Saturating: a count no renderer makes (a stored result from before the coordinator
+        // checked it) must not wrap around, nor stop a debug build.
+        self.bad_samples = self.bad_samples.saturating_add(t.bad_samples);
         Ok(())
     }
 
@@ -252,5 +254,24 @@ mod tests {
             .to_string()
             .contains("3 pixels, expected 4"));
         assert_eq!(f, before);
+    }
+
+    #[test]
+    fn dropped_sample_counts_saturate_rather_than_wrap() {
+        let mut f = Film::new(1, 1);
+        let t = TileAccum {
+            tile: Tile {
+                x0: 0,
+                y0: 0,
+                x1: 1,
+                y1: 1,
+            },
+            pixels: vec![[0.0; 4]],
+            bad_samples: u64::MAX,
+            splats: Vec::new(),
+        };
+        f.add_tile(&t).unwrap();
+        f.add_tile(&t).unwrap();
+        assert_eq!(f.bad_samples, u64::MAX);
     }
 }
