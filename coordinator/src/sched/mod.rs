@@ -174,6 +174,30 @@ fn job_state_event(id: &str, life: &JobLife) -> Event {
     }
 }
 
+/// The tasks of job `job_id` still out on a lease in `leases`, each as it is once its lease
+/// ends with the job (queued again, no failure counted), in task order: a job that ends
+/// (cancelled or failed) holds no leases, so no tile of it shows a worker any more. The
+/// workers learn it at their next heartbeat, which the lease ids in `leases` still answer.
+fn leases_ending_with(
+    leases: &HashMap<String, (String, usize)>,
+    job_id: &str,
+    job: &Job,
+) -> Vec<(usize, state::Task)> {
+    let mut ended: Vec<(usize, state::Task)> = leases
+        .iter()
+        .filter(|(_, (j, _))| j == job_id)
+        .filter_map(|(lease, &(_, idx))| {
+            let ev = TaskEvent::Release {
+                lease: lease.clone(),
+            };
+            let (out, task) = job.next_task(idx, ev);
+            (out == Outcome::Changed).then_some((idx, task))
+        })
+        .collect();
+    ended.sort_by_key(|(i, _)| *i);
+    ended
+}
+
 impl Sched {
     /// Opens the scheduler over `store` at `now` (the coordinator's start), restoring every
     /// job. Leases that were out get `grace` from `now` for their workers to report back.
@@ -219,9 +243,27 @@ impl Sched {
             };
             let tasks = s.store.tasks(&row.id)?;
             let failures = s.store.blocked(&row.id)?.into_iter().collect();
-            let (job, leases) = Job::restore(row, settings, tasks, failures, now.instant + grace);
-            for (lease, idx) in leases {
-                s.leases.insert(lease, (job.id.clone(), idx));
+            let (mut job, leases) =
+                Job::restore(row, settings, tasks, failures, now.instant + grace);
+            let leases: HashMap<String, (String, usize)> = leases
+                .into_iter()
+                .map(|(lease, idx)| (lease, (job.id.clone(), idx)))
+                .collect();
+            if job.is_final() {
+                // A final job holds no leases; a database written before that was so may
+                // still have some: they end now, and are stored as ended.
+                let ended = leases_ending_with(&leases, &job.id, &job);
+                let rows: Vec<TaskRow> = ended.iter().map(|(i, t)| Job::task_row(*i, t)).collect();
+                let writes: Vec<Write> = rows
+                    .iter()
+                    .map(|row| Write::Task { job: &job.id, row })
+                    .collect();
+                s.store.write(&writes)?;
+                for (i, t) in ended {
+                    job.set_task(i, t);
+                }
+            } else {
+                s.leases.extend(leases);
             }
             s.jobs.insert(job.id.clone(), job);
         }
@@ -604,7 +646,16 @@ impl Sched {
             None
         };
         let failed = error.and_then(|error| job.next_life(JobEvent::Fail { error }, now.wall_ms));
+        // The job failing ends the other leases out on it.
+        let ended: Vec<(usize, state::Task)> = match failed {
+            Some(_) => leases_ending_with(&self.leases, &job_id, job)
+                .into_iter()
+                .filter(|(i, _)| *i != idx)
+                .collect(),
+            None => Vec::new(),
+        };
         let row = Job::task_row(idx, &task);
+        let ended_rows: Vec<TaskRow> = ended.iter().map(|(i, t)| Job::task_row(*i, t)).collect();
         let mut writes = vec![
             Write::Task {
                 job: &job_id,
@@ -617,9 +668,17 @@ impl Sched {
             },
         ];
         writes.extend(failed.as_ref().map(|l| life_write(&job_id, l)));
+        writes.extend(
+            ended_rows
+                .iter()
+                .map(|row| Write::Task { job: &job_id, row }),
+        );
         self.store.write(&writes)?;
         self.leases.remove(lease);
         job.set_task(idx, task);
+        for (i, t) in ended {
+            job.set_task(i, t);
+        }
         job.worker_failures.insert(worker.clone(), wf);
         if job.recent_failures.len() == 20 {
             job.recent_failures.pop_front();
@@ -745,7 +804,8 @@ impl Sched {
         let error = format!(
             "every live worker failed this job {block} times, so none may take it any more"
         );
-        let stuck: Vec<(String, JobLife)> = self
+        #[allow(clippy::type_complexity)]
+        let stuck: Vec<(String, JobLife, Vec<(usize, state::Task)>)> = self
             .jobs
             .values()
             .filter(|j| !j.is_final() && !j.worker_failures.is_empty())
@@ -757,16 +817,33 @@ impl Sched {
                 let ev = JobEvent::Fail {
                     error: error.clone(),
                 };
-                Some((j.id.clone(), j.next_life(ev, now.wall_ms)?))
+                let life = j.next_life(ev, now.wall_ms)?;
+                Some((
+                    j.id.clone(),
+                    life,
+                    leases_ending_with(&self.leases, &j.id, j),
+                ))
             })
             .collect();
-        let writes: Vec<Write> = stuck.iter().map(|(id, l)| life_write(id, l)).collect();
+        let rows: Vec<(&str, TaskRow)> = stuck
+            .iter()
+            .flat_map(|(id, _, ended)| {
+                ended
+                    .iter()
+                    .map(|(i, t)| (id.as_str(), Job::task_row(*i, t)))
+            })
+            .collect();
+        let mut writes: Vec<Write> = stuck.iter().map(|(id, l, _)| life_write(id, l)).collect();
+        writes.extend(rows.iter().map(|(job, row)| Write::Task { job, row }));
         self.store.write(&writes)?;
-        for (id, life) in stuck {
+        for (id, life, ended) in stuck {
             tracing::warn!(job = %id, "failed: every live worker is blocked from it");
             self.events.emit(|| job_state_event(&id, &life));
             if let Some(job) = self.jobs.get_mut(&id) {
                 job.set_life(life);
+                for (i, t) in ended {
+                    job.set_task(i, t);
+                }
             }
         }
         // Workers that went quiet, or came back.
@@ -792,9 +869,16 @@ impl Sched {
             return Ok(None);
         };
         if let Some(life) = job.next_life(JobEvent::Cancel, now.wall_ms) {
-            self.store.write(&[life_write(job_id, &life)])?;
+            let ended = leases_ending_with(&self.leases, job_id, job);
+            let rows: Vec<TaskRow> = ended.iter().map(|(i, t)| Job::task_row(*i, t)).collect();
+            let mut writes = vec![life_write(job_id, &life)];
+            writes.extend(rows.iter().map(|row| Write::Task { job: job_id, row }));
+            self.store.write(&writes)?;
             self.events.emit(|| job_state_event(job_id, &life));
             job.set_life(life);
+            for (i, t) in ended {
+                job.set_task(i, t);
+            }
         }
         Ok(Some(job.status()))
     }

@@ -752,3 +752,124 @@ fn progress_counters_agree_with_the_status_and_events_are_numbered() {
     let s = open(dir.path(), now);
     assert_eq!(s.jobs[&job].progress(), (4, 3));
 }
+
+/// What job `id` shows of its leases: the status's count, and the workers its tiles list.
+fn leases_shown(s: &Sched, id: &str) -> (u64, usize) {
+    let leased = s.job_status(id).unwrap().tasks_leased;
+    let holders = s
+        .tile_list(id)
+        .unwrap()
+        .tiles
+        .iter()
+        .map(|t| t.workers.len())
+        .sum();
+    (leased, holders)
+}
+
+/// A job that ends while workers hold leases on it (cancelled, or failed by another task's
+/// failures, or by every live worker being blocked) holds none any more, as its status and
+/// tiles show, also after a restart; the workers are told to stop at their next heartbeat.
+#[test]
+fn a_job_that_ends_holds_no_leases() {
+    let dir = tempfile::tempdir().unwrap();
+    let now = t0();
+    // One task failing three times fails its job; no worker is blocked before that.
+    let cfg = SchedConfig {
+        block_worker_after: 10,
+        ..cfg()
+    };
+    let mut s = open_with(dir.path(), cfg, now, secs(5));
+    let a = s.register("a", 1, now).unwrap();
+    let b = s.register("b", 1, now).unwrap();
+    // Cancelled with two leases out.
+    let cancelled = s.new_job("s".into(), small(1), 0, now).unwrap().id;
+    let ga = s.lease(&a, now).unwrap().unwrap();
+    s.lease(&b, now).unwrap().unwrap();
+    assert_eq!(leases_shown(&s, &cancelled), (2, 2));
+    let st = s.cancel(&cancelled, now).unwrap().unwrap();
+    assert_eq!((st.state, st.tasks_leased), (JobState::Cancelled, 0));
+    assert_eq!(leases_shown(&s, &cancelled), (0, 0));
+    assert_eq!(
+        s.heartbeat(&ga.lease, now),
+        Heartbeat::Stop {
+            reason: "job cancelled".into()
+        }
+    );
+    // Failed by one task's failures while another worker holds a lease.
+    let failed = s.new_job("s".into(), small(1), 0, now).unwrap().id;
+    s.lease(&b, now).unwrap().unwrap();
+    for _ in 0..3 {
+        let g = s.lease(&a, now).unwrap().unwrap();
+        assert!(s.fail(&g.lease, "boom", now).unwrap());
+    }
+    assert_eq!(state_of(&s, &failed), JobState::Failed);
+    assert_eq!(leases_shown(&s, &failed), (0, 0));
+    assert!(s.worker_list(now).iter().all(|w| w.leased == 0));
+    drop(s);
+    let s = open(dir.path(), now.after(secs(1)));
+    assert_eq!(leases_shown(&s, &cancelled), (0, 0), "after a restart");
+    assert_eq!(leases_shown(&s, &failed), (0, 0), "after a restart");
+}
+
+/// A job that every live worker is blocked from fails at the expiry tick, ending the leases
+/// still out on it.
+#[test]
+fn a_job_failed_at_the_expiry_tick_holds_no_leases() {
+    let dir = tempfile::tempdir().unwrap();
+    let start = t0();
+    let cfg = SchedConfig {
+        max_task_failures: 10,
+        ..cfg()
+    };
+    let mut s = open_with(dir.path(), cfg, start, secs(5));
+    let a = s.register("a", 1, start).unwrap();
+    s.register("b", 1, start).unwrap();
+    let job = s.new_job("s".into(), small(1), 0, start).unwrap().id;
+    // `a` holds one task and fails another twice: blocked from the job, but `b` is live.
+    let held = s.lease(&a, start).unwrap().unwrap();
+    for _ in 0..2 {
+        let g = s.lease(&a, start).unwrap().unwrap();
+        assert!(s.fail(&g.lease, "boom", start).unwrap());
+    }
+    assert_eq!(state_of(&s, &job), JobState::Running);
+    // Later `b` is gone (no contact) while `a` renews its lease: every live worker is blocked.
+    let later = start.after(secs(61));
+    assert_eq!(s.heartbeat(&held.lease, later), Heartbeat::Renewed);
+    s.expire(later).unwrap();
+    assert_eq!(state_of(&s, &job), JobState::Failed);
+    assert_eq!(leases_shown(&s, &job), (0, 0));
+}
+
+/// A database written when ended jobs could keep leases opens without them, and stores that.
+#[test]
+fn leases_of_an_ended_job_in_an_older_database_end_at_the_restart() {
+    let dir = tempfile::tempdir().unwrap();
+    let now = t0();
+    let mut s = open(dir.path(), now);
+    let w = s.register("w", 1, now).unwrap();
+    let job = s.new_job("s".into(), small(1), 0, now).unwrap().id;
+    s.lease(&w, now).unwrap().unwrap();
+    // Cancelled as an older coordinator did: the job's row only.
+    s.store
+        .write(&[Write::Job {
+            id: &job,
+            state: JobState::Cancelled,
+            error: None,
+            started_ms: Some(now.wall_ms),
+            finished_ms: Some(now.wall_ms),
+        }])
+        .unwrap();
+    drop(s);
+    let s = open(dir.path(), now.after(secs(1)));
+    assert_eq!(state_of(&s, &job), JobState::Cancelled);
+    assert_eq!(leases_shown(&s, &job), (0, 0));
+    assert!(s.leases.is_empty());
+    drop(s);
+    let stored = Store::open(dir.path()).unwrap().tasks(&job).unwrap();
+    assert!(
+        stored
+            .iter()
+            .all(|t| !matches!(t.state, crate::store::StoredTask::Leased { .. })),
+        "{stored:?}"
+    );
+}
