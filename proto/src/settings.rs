@@ -228,6 +228,13 @@ impl Tile {
     }
 }
 
+/// `[x0, x1) × [y0, y1)`, as messages and docs name tiles.
+impl std::fmt::Display for Tile {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "[{}, {}) × [{}, {})", self.x0, self.x1, self.y0, self.y1)
+    }
+}
+
 /// Settings of one render. `Default` gives raytile's defaults; a scene's own settings and then
 /// [`RenderOverrides`] (command-line flags or job fields) override them.
 ///

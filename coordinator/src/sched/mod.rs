@@ -513,7 +513,7 @@ impl Sched {
             .ok_or_else(|| SchedError::NoTask(job_id.into(), idx))?;
         if d.tile != work.tile || d.pass != work.pass {
             return Err(SchedError::Mismatch(format!(
-                "result is for tile {:?} pass {}, task {idx} is tile {:?} pass {}",
+                "result is for tile {} pass {}, task {idx} is tile {} pass {}",
                 d.tile, d.pass, work.tile, work.pass
             )));
         }

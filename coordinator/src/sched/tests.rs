@@ -217,10 +217,16 @@ fn expired_leases_are_requeued_and_late_results_are_duplicates() {
         pass,
         bytes: &[],
     };
-    assert!(matches!(
-        s.complete(&job, g.task, d, now),
-        Err(SchedError::Mismatch(_))
-    ));
+    let Err(SchedError::Mismatch(m)) = s.complete(&job, g.task, d, now) else {
+        panic!("a result for other pixels must be refused");
+    };
+    // Tiles named as everywhere else: `[x0, x1) × [y0, y1)`.
+    let (tile, _) = s.task_for_upload(&job, g.task).unwrap();
+    let want = format!(
+        "result is for tile [{}, {}) × [{}, {}) pass {pass}, task {} is tile [{}, {}) × [{}, {})",
+        other.x0, other.x1, other.y0, other.y1, g.task, tile.x0, tile.x1, tile.y0, tile.y1
+    );
+    assert!(m.starts_with(&want), "{m}");
 }
 
 #[test]
