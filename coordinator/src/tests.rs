@@ -892,6 +892,31 @@ async fn archives_whose_paths_clash_are_refused_naming_the_member() {
     assert_eq!(code, StatusCode::CREATED, "{body}");
 }
 
+/// `?entry=` naming a path no archive member may have is refused as the entry's fault, as an
+/// entry the archive lacks is.
+#[tokio::test]
+async fn a_bad_entry_is_refused_naming_entry() {
+    let dir = tempfile::tempdir().unwrap();
+    let st = test_state(dir.path(), None);
+    let s: &[u8] = br#"{"objects": []}"#;
+    for (entry, says) in [
+        ("../a.json", "entry '../a.json' refused: contains '..'"),
+        ("/a.json", "entry '/a.json' refused: absolute path"),
+        ("b.json", "entry 'b.json' is not in the archive"),
+    ] {
+        let blob = raw_tar(&[("a.json", s)]);
+        let uri = format!("/v1/scenes?format=tar&entry={}", entry.replace('/', "%2F"));
+        let (code, e) = call(&st, post(&uri, blob)).await;
+        assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{entry}: {e}");
+        assert_error_body(entry, &e);
+        assert_eq!(
+            (&e["error"]["field"], &e["error"]["message"]),
+            (&"entry".into(), &says.into()),
+            "{entry}"
+        );
+    }
+}
+
 /// A result whose sums hold a NaN or an infinity is refused with a 422 naming the pixel: the
 /// task counts a failure of the worker holding its lease and is queued again at once, so
 /// another result (a good one) completes it and no frame shows a corrupted tile.

@@ -395,7 +395,13 @@ fn is_scene_file(p: &Path) -> bool {
 
 fn pick_entry(files: &[PathBuf], entry: Option<&str>) -> Result<PathBuf, PackageError> {
     if let Some(e) = entry {
-        let want = safe_relative(e)?;
+        // A name no member may have is the entry's fault, not the archive's.
+        let want = safe_relative(e).map_err(|err| match err {
+            PackageError::UnsafeMember(_, why) => {
+                PackageError::Entry(format!("entry '{e}' refused: {why}"))
+            }
+            other => other,
+        })?;
         return files
             .iter()
             .find(|f| **f == want)
