@@ -244,6 +244,9 @@ pub struct Inner {
     pub started: Now,
     /// Scene metadata cache.
     pub scene_meta: Mutex<HashMap<String, Arc<scenes::SceneMeta>>>,
+    /// The scenes being checked, by id: an identical upload waits for the check under way
+    /// rather than run its own (see [`scenes::upload`]).
+    pub scene_checks: scenes::Checks,
     /// One permit per scene parse that may run ([`SceneLimits::max_parallel_parses`]).
     pub parse_slots: Arc<tokio::sync::Semaphore>,
     /// One permit per job image that may be composed and encoded at once
@@ -295,6 +298,7 @@ impl AppState {
             notify: Notify::new(),
             started: now,
             scene_meta: Mutex::new(HashMap::new()),
+            scene_checks: Default::default(),
             parse_slots,
             image_slots,
             shutdown_tx,

@@ -223,7 +223,7 @@ pub fn document() -> Value {
                     {"name": "entry", "in": "query", "schema": {"type": "string"}, "description": "Scene file inside an archive."}]),
                 params,
                 json!({"201": ok_json("Stored", "SceneCreated"), "200": ok_json("Already stored", "SceneCreated"),
-                    "413": err("Over the upload limit"), "422": err("Not a valid scene, or a file it names is refused (message names the JSON path or glTF field), or an archive member is refused: a link, a path out of the folder, or a path that clashes with another member's (the same path twice, a file that is also a folder; message names the member)"),
+                    "413": err("Over the upload limit"), "422": err("Not a valid scene, or a file it names is refused (message names the JSON path or glTF field), or an archive member is refused: a link, a path out of the folder, or a path that clashes with another member's (the same path twice, a file that is also a folder; message names the member), or an entry that is absolute, holds '..' or is not in the archive (field entry), or a format that is not the stored bytes' (field format)"),
                     "503": err("Every scene check stayed busy (code busy): retry after Retry-After seconds")})))},
             "/v1/scenes/{id}": {"get": op("Download a scene blob (workers)", json!([path_param("id", "Scene id")]), params,
                 json!({"200": {"description": "The bytes as uploaded; headers x-raytile-sha256, x-raytile-format, x-raytile-entry", "content": {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}},

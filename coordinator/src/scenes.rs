@@ -12,8 +12,9 @@ use raytile_core::scene::files;
 use raytile_proto::scene::{self as pkg, SceneFormat, UnpackLimits};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::sync::{Arc, Weak};
 use std::time::Duration;
 use tokio::io::AsyncWriteExt;
 
@@ -144,6 +145,52 @@ pub struct UploadQuery {
     pub entry: Option<String>,
 }
 
+/// The scenes being checked, by id, each with a lock its check holds (dropped when no upload
+/// holds or waits for it any more).
+pub type Checks = std::sync::Mutex<HashMap<String, Weak<tokio::sync::Mutex<()>>>>;
+
+/// The lock of scene `id`'s check, shared by every upload of the same scene now.
+fn check_lock(state: &AppState, id: &str) -> Arc<tokio::sync::Mutex<()>> {
+    let mut checks = state.scene_checks.lock().unwrap_or_else(|p| p.into_inner());
+    checks.retain(|_, w| w.strong_count() > 0);
+    if let Some(lock) = checks.get(id).and_then(Weak::upgrade) {
+        return lock;
+    }
+    let lock = Arc::new(tokio::sync::Mutex::new(()));
+    checks.insert(id.to_string(), Arc::downgrade(&lock));
+    lock
+}
+
+/// The answer to an upload of a scene already stored as `m`. A format the request gives
+/// (`?format=`, or a `Content-Type` naming one) must be the stored one: the same request with
+/// bytes not yet stored would have been read as that format, and refused.
+fn stored_answer(
+    m: &SceneMeta,
+    hinted: Option<(SceneFormat, &'static str)>,
+) -> Result<(bool, raytile_proto::SceneCreated), AppError> {
+    if let Some((format, source)) = hinted.filter(|(f, _)| f.name() != m.format) {
+        return Err(AppError::invalid(
+            "format",
+            format!(
+                "these bytes are stored as a {} scene ({}), not {} as {source} says",
+                m.format,
+                m.id,
+                format.name(),
+            ),
+        ));
+    }
+    Ok((
+        false,
+        raytile_proto::SceneCreated {
+            id: m.id.clone(),
+            format: m.format.clone(),
+            entry: m.entry.clone(),
+            existed: true,
+            warnings: m.warnings.clone(),
+        },
+    ))
+}
+
 /// Folder of a stored scene.
 pub fn scene_dir(state: &AppState, id: &str) -> PathBuf {
     state.cfg.data_dir.join("scenes").join(id)
@@ -214,21 +261,27 @@ pub async fn upload(
     if content_length.is_some_and(|n| n > limit) {
         return Err(AppError::TooLarge(limit));
     }
+    // The format the request gives, and where: `?format=`, else the Content-Type.
     let hinted = match q.format.as_deref() {
-        Some(f) => Some(SceneFormat::from_name(f).ok_or_else(|| {
-            AppError::invalid(
-                "format",
-                format!("unknown format '{f}' (expected gltf, glb, json, tar or zip)"),
-            )
-        })?),
-        None => content_type.and_then(SceneFormat::from_content_type),
+        Some(f) => Some((
+            SceneFormat::from_name(f).ok_or_else(|| {
+                AppError::invalid(
+                    "format",
+                    format!("unknown format '{f}' (expected gltf, glb, json, tar or zip)"),
+                )
+            })?,
+            "?format=",
+        )),
+        None => content_type
+            .and_then(SceneFormat::from_content_type)
+            .map(|f| (f, "the Content-Type")),
     };
     let tmp_dir = state.cfg.data_dir.join("tmp");
     let (tmp, sha, head) = stream_to_temp(body, &tmp_dir, limit).await?;
     if head.is_empty() {
         return Err(AppError::invalid("body", "empty scene upload"));
     }
-    let format = match hinted.or_else(|| pkg::sniff(&head)) {
+    let format = match hinted.map(|(f, _)| f).or_else(|| pkg::sniff(&head)) {
         Some(f) => f,
         None => {
             return Err(AppError::invalid(
@@ -240,20 +293,28 @@ pub async fn upload(
     let entry = q.entry.filter(|_| format.is_archive());
     let id = pkg::scene_id(&sha, entry.as_deref());
     if let Some(m) = meta(state, &id) {
-        return Ok((
-            false,
-            raytile_proto::SceneCreated {
-                id,
-                format: m.format.clone(),
-                entry: m.entry.clone(),
-                existed: true,
-                warnings: m.warnings.clone(),
-            },
-        ));
+        return stored_answer(&m, hinted);
+    }
+    let limits = &state.cfg.scene_limits;
+    // One check of a scene at a time: the same bytes uploaded meanwhile wait for it and are
+    // answered as stored (one 201, the others 200), without a parse of their own. Uploads of
+    // other scenes do not wait for it.
+    let same_scene = check_lock(state, &id);
+    let _checking = match tokio::time::timeout(limits.parse_wait, same_scene.lock()).await {
+        Ok(guard) => guard,
+        Err(_) => {
+            return Err(AppError::Busy(format!(
+                "the same scene is being checked for another upload and that did not end \
+                 within {} s: try again shortly",
+                limits.parse_wait.as_secs_f64()
+            )))
+        }
+    };
+    if let Some(m) = meta(state, &id) {
+        return stored_answer(&m, hinted);
     }
     // Parsing takes memory (decoded texels and geometry): a bounded number run at once, the
     // other uploads wait here with their bytes on disk.
-    let limits = &state.cfg.scene_limits;
     let permit =
         match tokio::time::timeout(limits.parse_wait, state.parse_slots.clone().acquire_owned())
             .await
@@ -270,24 +331,27 @@ pub async fn upload(
         };
     let st = state.clone();
     let (id2, sha2) = (id.clone(), sha.clone());
-    let m = tokio::task::spawn_blocking(move || {
+    let (created, m) = tokio::task::spawn_blocking(move || {
         let _permit = permit;
         store_scene(&st, tmp, format, entry, id2, sha2)
     })
     .await
     .map_err(AppError::internal)??;
     Ok((
-        true,
+        created,
         raytile_proto::SceneCreated {
             id,
             format: m.format.clone(),
             entry: m.entry.clone(),
-            existed: false,
+            existed: !created,
             warnings: m.warnings.clone(),
         },
     ))
 }
 
+/// Checks an upload and stores it as scene `id`. Returns whether this upload stored it (the
+/// move into place is what decides: an identical upload may have got there first) and the
+/// scene's metadata.
 fn store_scene(
     state: &AppState,
     tmp: tempfile::NamedTempFile,
@@ -295,7 +359,7 @@ fn store_scene(
     entry: Option<String>,
     id: String,
     sha256: String,
-) -> Result<Arc<SceneMeta>, AppError> {
+) -> Result<(bool, Arc<SceneMeta>), AppError> {
     let stage = tempfile::Builder::new()
         .prefix("stage-")
         .tempdir_in(state.cfg.data_dir.join("tmp"))
@@ -351,8 +415,11 @@ fn store_scene(
     let dest = scene_dir(state, &id);
     let staged = stage.keep();
     if std::fs::rename(&staged, &dest).is_err() {
-        // Stored concurrently by an identical upload: keep theirs.
+        // Stored meanwhile by an identical upload: keep theirs, and answer as stored.
         let _ = std::fs::remove_dir_all(&staged);
+        if let Some(theirs) = meta(state, &id) {
+            return Ok((false, theirs));
+        }
     }
     let m = Arc::new(m);
     state
@@ -360,7 +427,7 @@ fn store_scene(
         .lock()
         .unwrap_or_else(|p| p.into_inner())
         .insert(id, m.clone());
-    Ok(m)
+    Ok((true, m))
 }
 
 /// Checks the environment map a job names (`map`, relative to the scene file's folder): read

@@ -892,6 +892,83 @@ async fn archives_whose_paths_clash_are_refused_naming_the_member() {
     assert_eq!(code, StatusCode::CREATED, "{body}");
 }
 
+/// The same new bytes uploaded many times at once are checked once and stored once: exactly
+/// one upload is answered 201, the others 200 `existed: true`, as they are afterwards.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn identical_uploads_at_once_are_checked_and_created_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut c = Config::new(dir.path());
+    let parses = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let counted = parses.clone();
+    c.scene_loader = Arc::new(move |_p: &std::path::Path| {
+        counted.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+        std::thread::sleep(std::time::Duration::from_millis(200));
+        Ok(LoadedScene::default())
+    });
+    c.scene_limits.max_parallel_parses = 8;
+    let st = AppState::open(c).unwrap();
+    let uploads: Vec<_> = (0..8)
+        .map(|_| {
+            let st = st.clone();
+            tokio::spawn(async move { call(&st, post("/v1/scenes", r#"{"objects": []}"#)).await })
+        })
+        .collect();
+    let mut created = 0;
+    for u in uploads {
+        let (code, body) = u.await.unwrap();
+        match code {
+            StatusCode::CREATED => {
+                created += 1;
+                assert_eq!(body["existed"], false, "{body}");
+            }
+            StatusCode::OK => assert_eq!(body["existed"], true, "{body}"),
+            _ => panic!("{code}: {body}"),
+        }
+    }
+    assert_eq!(created, 1);
+    assert_eq!(parses.load(std::sync::atomic::Ordering::SeqCst), 1);
+    let (code, body) = call(&st, post("/v1/scenes", r#"{"objects": []}"#)).await;
+    assert_eq!((code, &body["existed"]), (StatusCode::OK, &true.into()));
+}
+
+/// The answer to an upload does not depend on whether its bytes are stored already: a format
+/// the request gives (`?format=`, a Content-Type naming one) that is not the bytes' is refused
+/// either way, naming `format`; the right one, or none, is fine.
+#[tokio::test]
+async fn a_format_hint_is_checked_against_stored_bytes_too() {
+    let dir = tempfile::tempdir().unwrap();
+    let st = test_state(dir.path(), None);
+    let scene = r#"{"objects": []}"#;
+    let (code, e) = call(&st, post("/v1/scenes?format=tar", scene)).await;
+    assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "new bytes: {e}");
+    let (code, stored) = call(&st, post("/v1/scenes", scene)).await;
+    assert_eq!(code, StatusCode::CREATED, "{stored}");
+    let id = stored["id"].as_str().unwrap();
+    let (code, e) = call(&st, post("/v1/scenes?format=tar", scene)).await;
+    assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "stored bytes: {e}");
+    assert_error_body("format hint", &e);
+    assert_eq!(e["error"]["field"], "format");
+    assert_eq!(
+        e["error"]["message"],
+        format!("format: these bytes are stored as a json scene ({id}), not tar as ?format= says")
+    );
+    let as_zip = Request::post("/v1/scenes")
+        .header("content-type", "application/zip")
+        .body(Body::from(scene))
+        .unwrap();
+    let (code, e) = call(&st, as_zip).await;
+    assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{e}");
+    assert!(
+        e["error"]["message"]
+            .as_str()
+            .unwrap()
+            .ends_with("not zip as the Content-Type says"),
+        "{e}"
+    );
+    let (code, e) = call(&st, post("/v1/scenes?format=json", scene)).await;
+    assert_eq!((code, &e["existed"]), (StatusCode::OK, &true.into()), "{e}");
+}
+
 /// `?entry=` naming a path no archive member may have is refused as the entry's fault, as an
 /// entry the archive lacks is.
 #[tokio::test]
