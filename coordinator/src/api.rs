@@ -378,12 +378,22 @@ async fn job_tiles(
 async fn set_priority(
     State(state): State<AppState>,
     Path(id): Path<String>,
-    Json(body): Json<serde_json::Map<String, serde_json::Value>>,
+    Json(mut body): Json<serde_json::Map<String, serde_json::Value>>,
 ) -> Result<Json<proto::JobStatus>, AppError> {
-    // Read from an object only: serde would take `[5]` for `{"priority": 5}`.
-    let req: proto::PriorityRequest = serde_json::from_value(serde_json::Value::Object(body))
+    // Read from an object only (serde would take `[5]` for `{"priority": 5}`), by hand, so
+    // that an unknown field is named as `POST /v1/jobs` names one.
+    let value = body
+        .remove("priority")
+        .ok_or_else(|| AppError::invalid("priority", "missing field `priority`"))?;
+    if let Some(unknown) = body.keys().next() {
+        return Err(AppError::invalid(
+            unknown.clone(),
+            format!("{unknown}: unknown field `{unknown}`, expected `priority`"),
+        ));
+    }
+    let priority: i32 = serde_json::from_value(value)
         .map_err(|e| AppError::invalid("priority", format!("priority: {e}")))?;
-    let st = state.sched().set_priority(&id, req.priority)?;
+    let st = state.sched().set_priority(&id, priority)?;
     if st.is_some() {
         state.notify.notify_waiters();
     }

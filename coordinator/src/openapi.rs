@@ -250,7 +250,7 @@ pub fn document() -> Value {
                 json!({"200": ok_json("Tiles", "TileList"), "404": err("Unknown job")}))},
             "/v1/jobs/{id}/priority": {"post": with_body(json_body("PriorityRequest"), op("Change a job's priority (higher runs first)", json!([job_id]),
                 Inputs { params: true, json: true, writes: true },
-                json!({"200": ok_json("Job", "JobStatus"), "404": err("Unknown job")})))},
+                json!({"200": ok_json("Job", "JobStatus"), "404": err("Unknown job"), "422": err("No priority, a priority that is not a 32-bit integer (field priority), or an unknown field (field named)")})))},
             "/v1/events": {"get": op(EVENTS_SUMMARY, json!([]), none,
                 json!({"200": {"description": EVENTS_DESCRIPTION, "content": {"text/event-stream": {"schema": {"type": "string"}}}}}))},
             "/v1/jobs/{id}/tasks/{task}/result": {"put": with_body(binary_body(), op("Upload a tile result (workers): binary, see docs/farm.md",

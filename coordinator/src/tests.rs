@@ -747,6 +747,25 @@ async fn priority_and_tiles_of_a_job() {
     )
     .await;
     assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{e}");
+    assert_eq!(e["error"]["field"], "priority", "{e}");
+    // An unknown field is named, as `POST /v1/jobs` names one; a missing priority too.
+    for (body, field, says) in [
+        (
+            r#"{"priority": 1, "x": 2}"#,
+            "x",
+            "x: unknown field `x`, expected `priority`",
+        ),
+        (r#"{}"#, "priority", "priority: missing field `priority`"),
+    ] {
+        let (code, e) = call(&st, post(&format!("/v1/jobs/{id}/priority"), body)).await;
+        assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{body}: {e}");
+        assert_error_body(body, &e);
+        assert_eq!(
+            (&e["error"]["field"], &e["error"]["message"]),
+            (&field.into(), &says.into()),
+            "{body}"
+        );
+    }
     let (code, _) = call(&st, post("/v1/jobs/nope/priority", r#"{"priority": 1}"#)).await;
     assert_eq!(code, StatusCode::NOT_FOUND);
     // 3 × 2 tiles, none started, in row order.
