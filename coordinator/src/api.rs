@@ -101,7 +101,7 @@ pub fn app(state: AppState) -> Router {
 pub const TOKEN_COOKIE: &str = "raytile_token";
 
 /// Every request but `/healthz` and the web pages ([`crate::web::is_public`]) needs the
-/// token: as `Authorization: Bearer TOKEN`, or, on GET requests only, as the cookie
+/// token: as `Authorization: Bearer TOKEN` (the scheme in any case), or, on GET requests only, as the cookie
 /// `raytile_token` (percent-encoded). The cookie is for what a browser fetches without script
 /// control over headers: the event stream (`EventSource` cannot set headers) and image
 /// downloads. Requests that change something need the header, so another site cannot make a
@@ -115,7 +115,11 @@ async fn auth(State(state): State<AppState>, req: Request, next: Next) -> Respon
                 .headers()
                 .get(header::AUTHORIZATION)
                 .and_then(|v| v.to_str().ok())
-                .and_then(|v| v.strip_prefix("Bearer "))
+                .and_then(|v| {
+                    // The scheme is case-insensitive (RFC 7235): `bearer` is `Bearer`.
+                    let (scheme, token) = v.split_once(' ')?;
+                    scheme.eq_ignore_ascii_case("bearer").then_some(token)
+                })
                 .is_some_and(matches);
             let cookie_ok = req.method() == Method::GET
                 && cookie_token(req.headers()).is_some_and(|t| matches(&t));

@@ -130,11 +130,22 @@ async fn token_is_required_except_for_healthz() {
         .body(Body::empty())
         .unwrap();
     assert_eq!(call(&st, wrong).await.0, StatusCode::UNAUTHORIZED);
-    let right = Request::get("/v1/jobs")
-        .header("authorization", "Bearer sesame")
-        .body(Body::empty())
-        .unwrap();
-    assert_eq!(call(&st, right).await.0, StatusCode::OK);
+    // The scheme is case-insensitive (RFC 7235); the token is not, and a scheme is needed.
+    for (header, want) in [
+        ("Bearer sesame", StatusCode::OK),
+        ("bearer sesame", StatusCode::OK),
+        ("BEARER sesame", StatusCode::OK),
+        ("Bearer Sesame", StatusCode::UNAUTHORIZED),
+        ("Basic sesame", StatusCode::UNAUTHORIZED),
+        ("Bearersesame", StatusCode::UNAUTHORIZED),
+        ("sesame", StatusCode::UNAUTHORIZED),
+    ] {
+        let req = Request::get("/v1/jobs")
+            .header("authorization", header)
+            .body(Body::empty())
+            .unwrap();
+        assert_eq!(call(&st, req).await.0, want, "{header}");
+    }
 }
 
 #[tokio::test]
