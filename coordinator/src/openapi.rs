@@ -203,7 +203,7 @@ pub fn document() -> Value {
         "info": {
             "title": "raytile coordinator",
             "version": env!("CARGO_PKG_VERSION"),
-            "description": "Distributed path tracing: upload scenes, submit jobs, fetch images; workers lease tile passes and upload binary results. Every endpoint but /healthz needs `Authorization: Bearer TOKEN` when the coordinator has a token. Every error answer is the Error schema; a 405 (known path, other method) and a 404 (unknown path) are too. GET requests may give the token as the cookie raytile_token instead (for browsers: the event stream and image downloads). The web pages (/, /jobs/{id}, /workers and their files under /ui/) are served without the token and are not part of this API."
+            "description": "Distributed path tracing: upload scenes, submit jobs, fetch images; workers lease tile passes and upload binary results. Every endpoint but /healthz needs `Authorization: Bearer TOKEN` when the coordinator has a token. Every error answer is the Error schema; a 405 (known path, other method) and a 404 (unknown path) are too. Only a request that cannot be parsed as HTTP at all is answered without it, by the HTTP layer: 400 (malformed request line or header), 414 (path and query over 65,534 bytes), 431 (headers too large), with an empty body. GET requests may give the token as the cookie raytile_token instead (for browsers: the event stream and image downloads). The web pages (/, /jobs/{id}, /workers and their files under /ui/) are served without the token and are not part of this API."
         },
         "components": {
             "securitySchemes": {"bearer": {"type": "http", "scheme": "bearer"}},
