@@ -279,6 +279,18 @@ fn instanced_mesh_is_loaded_once() {
     assert!(matches!(s.objects[1].shape, ShapeDesc::Mesh { mesh: 0 }));
 }
 
+/// A one-triangle scene with texture coordinates and material 0, plus `extra`.
+fn textured_tri(extra: Value) -> Vec<u8> {
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    d.floats(&[0.0, 0.0, 1.0, 0.0, 0.0, 1.0], "VEC2", 2);
+    one_prim(
+        d,
+        json!({"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "material": 0}),
+        extra,
+    )
+}
+
 fn png_data_uri() -> String {
     let img = image::RgbaImage::from_fn(2, 2, |x, y| {
         image::Rgba([x as u8 * 255, y as u8 * 255, 128, 255])
@@ -334,27 +346,20 @@ fn png16_data_uri() -> String {
 #[test]
 fn textures_of_one_image_share_its_texels() {
     for (uri, eight_bit) in [(png_data_uri(), true), (png16_data_uri(), false)] {
-        let mut d = Doc::default();
-        d.positions(&TRI);
-        d.floats(&[0.0, 0.0, 1.0, 0.0, 0.0, 1.0], "VEC2", 2);
         // One image, two samplers, colour and data: three textures.
-        let bytes = one_prim(
-            d,
-            json!({"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "material": 0}),
-            json!({
-                "images": [{"uri": uri}],
-                "samplers": [{"wrapS": 33071}, {"wrapS": 33648}],
-                "textures": [{"source": 0, "sampler": 0}, {"source": 0, "sampler": 1}],
-                "materials": [{
-                    "pbrMetallicRoughness": {
-                        "baseColorTexture": {"index": 0},
-                        "metallicRoughnessTexture": {"index": 1},
-                    },
-                    "emissiveTexture": {"index": 1},
-                    "emissiveFactor": [1, 1, 1],
-                }],
-            }),
-        );
+        let bytes = textured_tri(json!({
+            "images": [{"uri": uri}],
+            "samplers": [{"wrapS": 33071}, {"wrapS": 33648}],
+            "textures": [{"source": 0, "sampler": 0}, {"source": 0, "sampler": 1}],
+            "materials": [{
+                "pbrMetallicRoughness": {
+                    "baseColorTexture": {"index": 0},
+                    "metallicRoughnessTexture": {"index": 1},
+                },
+                "emissiveTexture": {"index": 1},
+                "emissiveFactor": [1, 1, 1],
+            }],
+        }));
         let desc = load(&bytes).unwrap();
         assert_eq!(desc.textures.len(), 3);
         let first = &desc.textures[0].texels;
@@ -396,28 +401,21 @@ fn textures_of_one_image_share_its_texels() {
 
 #[test]
 fn colour_textures_are_srgb_and_data_textures_linear() {
-    let mut d = Doc::default();
-    d.positions(&TRI);
-    d.floats(&[0.0, 0.0, 1.0, 0.0, 0.0, 1.0], "VEC2", 2);
-    let bytes = one_prim(
-        d,
-        json!({"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "material": 0}),
-        json!({
-            "images": [{"uri": png_data_uri()}],
-            "samplers": [{"magFilter": 9728, "wrapS": 33071, "wrapT": 33648}],
-            // Textures 1 and 2 name the same image and sampling as texture 0 (an exporter's
-            // habit): they share its decoded copy.
-            "textures": [{"source": 0, "sampler": 0}, {"source": 0, "sampler": 0}, {"source": 0, "sampler": 0}],
-            "materials": [{
-                "pbrMetallicRoughness": {
-                    "baseColorTexture": {"index": 0},
-                    "metallicRoughnessTexture": {"index": 1},
-                },
-                "normalTexture": {"index": 0, "scale": 0.5},
-                "emissiveTexture": {"index": 2},
-            }],
-        }),
-    );
+    let bytes = textured_tri(json!({
+        "images": [{"uri": png_data_uri()}],
+        "samplers": [{"magFilter": 9728, "wrapS": 33071, "wrapT": 33648}],
+        // Textures 1 and 2 name the same image and sampling as texture 0 (an exporter's
+        // habit): they share its decoded copy.
+        "textures": [{"source": 0, "sampler": 0}, {"source": 0, "sampler": 0}, {"source": 0, "sampler": 0}],
+        "materials": [{
+            "pbrMetallicRoughness": {
+                "baseColorTexture": {"index": 0},
+                "metallicRoughnessTexture": {"index": 1},
+            },
+            "normalTexture": {"index": 0, "scale": 0.5},
+            "emissiveTexture": {"index": 2},
+        }],
+    }));
     let s = load(&bytes).unwrap();
     let m = &s.materials[0];
     let p = pbr(m);
