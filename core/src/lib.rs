@@ -78,4 +78,8 @@ pub use settings::{
 /// 10: 8-bit textures keep their bytes, and every byte b reads b / 255 correctly rounded; grey
 /// 8-bit images had read some bytes one unit in the last place away (2026-12-05). Images of
 /// other scenes unchanged.
-pub const RENDER_VERSION: u32 = 10;
+/// 11: `bdpt` and `sppm` with an unbounded plane under a directional light or an environment:
+/// light rays that start in the plane's shadow carry nothing, and the MIS weights leave out the
+/// light's strategies where its rays cannot reach; `bdpt` runs next-event estimation when its
+/// light subpath is empty (2026-12-06). Images of other scenes unchanged.
+pub const RENDER_VERSION: u32 = 11;

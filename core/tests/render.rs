@@ -439,7 +439,18 @@ fn every_example_scene_loads_and_renders() {
                 ..Default::default()
             };
             let scene = Scene::build(&desc).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-            let job = RenderJob::new(&scene, &settings).unwrap();
+            let job = match RenderJob::new(&scene, &settings) {
+                Ok(job) => job,
+                // sppm refuses an unbounded plane under the sun or the sky (classic, fog).
+                Err(e)
+                    if integrator == IntegratorKind::Sppm
+                        && e.to_string()
+                            .contains("sppm cannot render an unbounded plane") =>
+                {
+                    continue
+                }
+                Err(e) => panic!("{} {integrator:?}: {e}", path.display()),
+            };
             let film = render(&scene, &job, &());
             assert_eq!(film.bad_samples, 0, "{} {integrator:?}", path.display());
         }

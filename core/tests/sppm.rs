@@ -136,3 +136,34 @@ fn sppm_renders_in_one_pass() {
     let e = RenderJob::new(&scene, &s).unwrap_err().to_string();
     assert!(e.contains("passes") && e.contains("sppm"), "{e}");
 }
+
+#[test]
+fn sppm_refuses_an_unbounded_plane_under_the_sun_or_the_sky() {
+    // Its photons would start on a disk around the finite objects and never reach the plane
+    // beyond it: the plane's indirect light would be missing. A finite floor, or a plane under
+    // a point light, renders.
+    let scene = |floor: &str, lights: &str| {
+        load(&format!(
+            r#"{{"materials": {{"d": {{"type": "diffuse"}}}},
+  "objects": [{{"shape": {{"type": "sphere", "radius": 0.5}}, "material": "d"}},
+              {{"shape": {floor}, "material": "d"}}],
+  {lights}}}"#
+        ))
+    };
+    let plane = r#"{"type": "plane", "point": [0, -1, 0], "normal": [0, 1, 0]}"#;
+    let rect = r#"{"type": "rectangle", "corner": [-5, -1, 5], "edge_u": [10, 0, 0], "edge_v": [0, 0, -10]}"#;
+    let sun = r#""lights": [{"type": "directional", "direction": [0, -1, 0.2], "irradiance": [1, 1, 1]}]"#;
+    let sky = r#""environment": {"type": "constant", "radiance": [1, 1, 1]}"#;
+    let lamp = r#""lights": [{"type": "point", "position": [0, 3, 0], "intensity": [1, 1, 1]}]"#;
+    let s = settings(8, 8, 1, IntegratorKind::Sppm);
+    for lights in [sun, sky] {
+        let e = RenderJob::new(&scene(plane, lights), &s)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("sppm cannot render an unbounded plane"), "{e}");
+        assert!(RenderJob::new(&scene(rect, lights), &s).is_ok());
+        let path = settings(8, 8, 1, IntegratorKind::Path);
+        assert!(RenderJob::new(&scene(plane, lights), &path).is_ok());
+    }
+    assert!(RenderJob::new(&scene(plane, lamp), &s).is_ok());
+}

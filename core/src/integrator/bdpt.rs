@@ -207,6 +207,16 @@ impl Ctx<'_> {
         }
         let w = to / d2.sqrt();
         let mut pdf = if v.infinite {
+            // Rays of infinitely far lights start on a disk of the scene's bounding sphere
+            // facing `w` (`sample_emission`): they reach only the cylinder the disk sweeps.
+            // An infinite plane reaches beyond it, and its points there are found by the
+            // camera's strategies alone (a margin keeps rounding at the sphere out of it).
+            let rel = next.p - self.center;
+            let along = rel.dot(w);
+            let reach = self.radius * 1.001;
+            if along < -reach || (rel - w * along).length_squared() > reach * reach {
+                return 0.0;
+            }
             1.0 / (PI * self.radius * self.radius)
         } else {
             let Src::Light(i) = v.src else {
@@ -585,6 +595,16 @@ pub(super) fn scene_sphere(scene: &Scene) -> (Vec3A, f32) {
     }
 }
 
+/// Whether the light of an infinitely far light from direction `to_light` is blocked before
+/// it reaches `o`, a point of the disk its rays start on. Nothing of a bounded scene lies
+/// beyond that disk (it touches the scene's bounding sphere), but an unbounded plane does: a
+/// ray that starts on the disk in the plane's shadow (the sun below the horizon of an infinite
+/// floor, whose part outside the sphere blocks it) carries no light.
+fn shadowed(scene: &Scene, o: Vec3A, to_light: Vec3A) -> bool {
+    scene.aggregate.has_unbounded()
+        && scene.occluded_past_interfaces(&Ray::new(o, to_light), f32::INFINITY)
+}
+
 /// A light chosen by power and a ray sampled from it, with three hashed numbers and two
 /// pairs from `sampler`; `None` when the light gives nothing in the sampled direction.
 pub(super) fn sample_emission(
@@ -643,6 +663,9 @@ pub(super) fn sample_emission(
             let frame = Frame::from_z(to_light);
             let disk = concentric_disk(u1) * radius;
             let o = center + radius * to_light + frame.to_world(Vec3A::new(disk.x, disk.y, 0.0));
+            if shadowed(scene, o, to_light) {
+                return None;
+            }
             let pdf_pos = 1.0 / (PI * radius * radius);
             (
                 o,
@@ -677,6 +700,9 @@ pub(super) fn sample_emission(
             let frame = Frame::from_z(wi);
             let disk = concentric_disk(u2) * radius;
             let o = center + radius * wi + frame.to_world(Vec3A::new(disk.x, disk.y, 0.0));
+            if shadowed(scene, o, wi) {
+                return None;
+            }
             let pdf_pos = 1.0 / (PI * radius * radius);
             (
                 o,
@@ -771,11 +797,13 @@ fn mis_weight(
     if s + t == 2 {
         return 1.0;
     }
-    let mut lv: Vec<Vertex> = light[..s].to_vec();
+    // (With s = 1 the light subpath may be empty: the sampled vertex stands in for it.)
+    let mut lv: Vec<Vertex> = light[..s.min(light.len())].to_vec();
     let mut cv: Vec<Vertex> = camera[..t].to_vec();
     if let Some(v) = sampled {
         if s == 1 {
-            lv[0] = v;
+            lv.truncate(0);
+            lv.push(v);
         } else if t == 1 {
             cv[0] = v;
         }
@@ -786,11 +814,20 @@ fn mis_weight(
     if s > 0 {
         lv[s - 1].delta = false;
     }
+    // Camera vertices from `cut` down cannot be reached by the light's strategies: the light
+    // is infinitely far and its rays (from a disk of the scene's bounding sphere) miss the
+    // vertex next to it, which an infinite plane puts beyond that disk's reach. Their zero
+    // density must not be remapped to 1 as the zeros of delta vertices are.
+    let mut cut: Option<usize> = None;
     // pt's reverse density.
     if t > 0 {
         let r = if s > 0 {
             let qs_minus = if s > 1 { Some(lv[s - 2]) } else { None };
-            ctx.pdf(&lv[s - 1], qs_minus.as_ref(), &cv[t - 1])
+            let r = ctx.pdf(&lv[s - 1], qs_minus.as_ref(), &cv[t - 1]);
+            if s == 1 && lv[0].infinite && r == 0.0 {
+                cut = Some(t - 1);
+            }
+            r
         } else if t > 1 {
             let w = (cv[t - 2].p - cv[t - 1].p).normalize_or_zero();
             ctx.pdf_light_origin(&cv[t - 1], w)
@@ -804,7 +841,11 @@ fn mis_weight(
         let r = if s > 0 {
             ctx.pdf(&cv[t - 1], Some(&lv[s - 1]), &cv[t - 2])
         } else {
-            ctx.pdf_light(&cv[t - 1], &cv[t - 2])
+            let r = ctx.pdf_light(&cv[t - 1], &cv[t - 2]);
+            if cv[t - 1].infinite && r == 0.0 {
+                cut = Some(t - 2);
+            }
+            r
         };
         cv[t - 2].pdf_rev = r;
     }
@@ -820,6 +861,9 @@ fn mis_weight(
     let mut sum = 0.0f32;
     let mut ri = 1.0f32;
     for i in (1..t).rev() {
+        if cut.is_some_and(|c| i <= c) {
+            break;
+        }
         ri *= remap(cv[i].pdf_rev) / remap(cv[i].pdf_fwd);
         if !cv[i].delta && !cv[i - 1].delta {
             sum += ri;
@@ -892,8 +936,10 @@ pub fn li(
 
     let key = (light_sampler.hashed_3()[0] * 16_777_216.0) as u32;
     let mut l = Vec3A::ZERO;
+    // s = 1 samples its own point on a light (next-event estimation): it runs even when the
+    // light subpath is empty (its emission sampled nothing, or was shadowed).
     for t in 1..=camera.len() {
-        for s in 0..=light.len() {
+        for s in 0..=light.len().max(1) {
             let depth = s as i64 + t as i64 - 2;
             if (s == 1 && t == 1) || depth < 0 || depth > max_depth as i64 {
                 continue;

@@ -216,6 +216,11 @@ impl Aggregate {
     }
 
     /// Bytes held by the BVHs and primitives.
+    /// Whether the scene has unbounded shapes (planes), which reach beyond its bounds.
+    pub(crate) fn has_unbounded(&self) -> bool {
+        !self.unbounded.is_empty()
+    }
+
     pub(crate) fn memory_bytes(&self) -> usize {
         use std::mem::size_of;
         self.bvh.memory_bytes()

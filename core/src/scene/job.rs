@@ -82,6 +82,35 @@ impl JobCache {
     }
 }
 
+/// Refuses `sppm` on a scene whose unbounded plane a directional light or an environment
+/// lights: their photons start on a disk of the bounding sphere of the finite objects and never
+/// reach the plane beyond it, so the plane's share of indirect light would be missing from the
+/// image (without an error). `path` and `bdpt` render such scenes.
+pub(crate) fn check_sppm_lighting(
+    scene: &Scene,
+    settings: &RenderSettings,
+    environment: bool,
+) -> Result<(), SceneError> {
+    let infinite_light = environment
+        || scene
+            .lights
+            .iter()
+            .any(|l| matches!(l, Light::Directional { .. }));
+    if settings.integrator == crate::IntegratorKind::Sppm
+        && infinite_light
+        && scene.aggregate.has_unbounded()
+    {
+        return Err(SceneError::Invalid(
+            "render setting integrator: sppm cannot render an unbounded plane lit by a \
+             directional light or an environment (its photons start on a disk around the \
+             scene's finite objects and never reach the plane beyond it): use path or bdpt, or \
+             a rectangle for the plane"
+                .into(),
+        ));
+    }
+    Ok(())
+}
+
 impl RenderJob {
     /// The job rendering `scene` with `settings`: the camera the settings name (the scene's
     /// first, or one framing the scene if it has none) and the scene's environment, but for
@@ -131,6 +160,7 @@ impl RenderJob {
                 )))
             }
         };
+        check_sppm_lighting(scene, settings, environment.is_some())?;
         let job = RenderJob {
             settings: settings.clone(),
             camera,
