@@ -29,26 +29,29 @@ pub struct BenchArgs {
     /// Scene for the samples/s and scene ray figures.
     #[arg(long, default_value = "scenes/cornell-box.json")]
     pub scene: PathBuf,
-    /// Image edge for the samples/s figure.
-    #[arg(long, default_value_t = 256)]
+    /// Image edge for the samples/s figure (1 to 8192).
+    #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(1..=8192))]
     pub size: u32,
-    /// Samples per pixel for the samples/s figure.
-    #[arg(long, default_value_t = 64)]
+    /// Samples per pixel for the samples/s figure (1 to 2^20).
+    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u32).range(1..=1 << 20))]
     pub spp: u32,
-    /// Maximum depth for the samples/s figure.
-    #[arg(long, default_value_t = 64)]
+    /// Maximum depth for the samples/s figure (at most 1024).
+    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u32).range(0..=1024))]
     pub max_depth: u32,
-    /// Triangles in the BVH mesh (rounded to a grid).
-    #[arg(long, default_value_t = 1 << 20)]
+    /// Triangles in the BVH mesh (rounded to a grid; 8 to 2^28).
+    #[arg(long, default_value_t = 1 << 20,
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(8..=1 << 28))]
     pub triangles: usize,
-    /// Rays per throughput measurement.
-    #[arg(long, default_value_t = 2_000_000)]
+    /// Rays per throughput measurement (at least 1).
+    #[arg(long, default_value_t = 2_000_000,
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
     pub rays: usize,
     /// Scene for the per-integrator samples/s figures.
     #[arg(long, default_value = "scenes/caustic.json")]
     pub caustic_scene: PathBuf,
-    /// Samples per pixel (sppm: iterations) of the per-integrator figures, at 160×120.
-    #[arg(long, default_value_t = 16)]
+    /// Samples per pixel (sppm: iterations) of the per-integrator figures, at 160×120 (1 to
+    /// 2^20).
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=1 << 20))]
     pub caustic_spp: u32,
     /// Skip the BVH build benchmark.
     #[arg(long)]
@@ -159,6 +162,15 @@ fn mrays(n: usize, secs: f64) -> f64 {
 
 /// Runs `raytile bench`.
 pub fn run(args: BenchArgs) -> Result<()> {
+    // The BVH flags are checked before the render figures, which take minutes.
+    for w in &args.widths {
+        if !matches!(w, 4 | 8 | 16) {
+            anyhow::bail!("--width {w}: the BVH's nodes are 4, 8 or 16 wide");
+        }
+    }
+    for b in args.builds.iter().filter(|b| *b != BINNED_SAH) {
+        build_params(b)?;
+    }
     println!("raytile bench ({} threads)", rayon::current_num_threads());
     let desc =
         load_scene(&args.scene).with_context(|| format!("loading {}", args.scene.display()))?;

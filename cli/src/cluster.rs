@@ -35,9 +35,9 @@ pub struct ClusterArgs {
     /// Render this scene, write the image to -o and exit.
     #[arg(long)]
     pub render: Option<PathBuf>,
-    /// Output image for --render (.png, .exr, .hdr).
-    #[arg(short = 'o', long, default_value = "render.png")]
-    pub output: PathBuf,
+    /// Output image for --render (.png, .exr, .hdr; default render.png).
+    #[arg(short = 'o', long)]
+    pub output: Option<PathBuf>,
     /// Job settings for --render.
     #[command(flatten)]
     pub job: JobArgs,
@@ -45,18 +45,34 @@ pub struct ClusterArgs {
 
 /// Runs `raytile cluster`.
 pub fn run(a: ClusterArgs) -> anyhow::Result<()> {
+    let output = a
+        .output
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("render.png"));
     if a.render.is_some() {
-        // Before the cluster starts: an unknown extension would fail only after the render.
-        ImageFormat::from_path(&a.output)?;
+        // Before the cluster starts: an unknown extension or a folder that does not exist
+        // would fail only after the render.
+        ImageFormat::from_path(&output)?;
+        raytile_core::film::check_writable(&output)?;
+    } else if a.output.is_some()
+        || a.job.priority.is_some()
+        || a.job.overrides != raytile_proto::settings::RenderOverrides::default()
+    {
+        // Without --render the cluster serves the jobs clients submit, with their settings.
+        anyhow::bail!(
+            "-o and the job settings (--spp, --width, --integrator, --priority...) are for \
+             --render; without it, the cluster serves the jobs clients submit (raytile submit), \
+             with their own settings"
+        );
     }
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
         .build()?;
-    rt.block_on(cluster(a))
+    rt.block_on(cluster(a, output))
 }
 
-async fn cluster(a: ClusterArgs) -> anyhow::Result<()> {
+async fn cluster(a: ClusterArgs, output: PathBuf) -> anyhow::Result<()> {
     // The scene loader's warnings are said once, by the job's submission (as `raytile render`
     // says them), not again by the coordinator's check and by every worker's load.
     let _ = tracing_subscriber::fmt()
@@ -135,16 +151,19 @@ async fn cluster(a: ClusterArgs) -> anyhow::Result<()> {
     }
     let work = async {
         match &a.render {
-            Some(scene) => {
-                submit::submit_and_follow(&api, scene, &a.job, true, Some(a.output.as_path()))
-                    .await
-                    .map(|_| ())
-            }
+            Some(scene) => tokio::select! {
+                r = submit::submit_and_follow(&api, scene, &a.job, true, Some(output.as_path())) => {
+                    r.map(|_| ())
+                }
+                _ = shutdown_signal() => {
+                    Err(anyhow::anyhow!("stopped by a signal before the render was done"))
+                }
+            },
             None => {
                 eprintln!(
                     "raytile cluster: coordinator on {base} with {n} workers; Ctrl-C to stop"
                 );
-                tokio::signal::ctrl_c().await.ok();
+                shutdown_signal().await;
                 Ok(())
             }
         }
@@ -164,6 +183,23 @@ async fn cluster(a: ClusterArgs) -> anyhow::Result<()> {
         let _ = coord.await;
     }
     result
+}
+
+/// Waits for Ctrl-C or SIGTERM (what `docker stop` and service managers send), so that the
+/// cluster stops its workers and removes its temporary folder either way.
+async fn shutdown_signal() {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{signal, SignalKind};
+        if let Ok(mut term) = signal(SignalKind::terminate()) {
+            tokio::select! {
+                _ = tokio::signal::ctrl_c() => {}
+                _ = term.recv() => {}
+            }
+            return;
+        }
+    }
+    tokio::signal::ctrl_c().await.ok();
 }
 
 /// The error of a coordinator task that ended before it was asked to stop.

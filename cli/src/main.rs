@@ -41,6 +41,21 @@ fn threads_flag(min: u64) -> clap::builder::RangedU64ValueParser<usize> {
         .range(min..=raytile_worker::MAX_THREADS as u64)
 }
 
+/// `--exposure`: a finite number of stops, at most 64 either way (2^64 keeps every value a
+/// film holds finite).
+fn exposure_flag(s: &str) -> Result<f32, String> {
+    let x: f32 = s
+        .parse()
+        .map_err(|_| format!("not a number of stops: '{s}'"))?;
+    if x.is_finite() && x.abs() <= 64.0 {
+        Ok(x)
+    } else {
+        Err(format!(
+            "must be a finite number of stops from -64 to 64, got {s}"
+        ))
+    }
+}
+
 fn main() {
     let cli = Cli::parse();
     let result = match cli.command {

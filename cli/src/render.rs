@@ -33,8 +33,8 @@ pub struct RenderArgs {
     /// Worker threads (default: all cores; at most 1024).
     #[arg(long, value_parser = crate::threads_flag(1))]
     pub threads: Option<usize>,
-    /// Exposure in stops for PNG output.
-    #[arg(long, default_value_t = 0.0)]
+    /// Exposure in stops for PNG output (-64 to 64).
+    #[arg(long, default_value_t = 0.0, value_parser = crate::exposure_flag, allow_hyphen_values = true)]
     pub exposure: f32,
     /// Tone map for PNG output: clamp or aces.
     #[arg(long, default_value = "clamp")]
@@ -70,6 +70,7 @@ impl RenderProgress for Progress {
 pub fn run(args: RenderArgs) -> Result<()> {
     let start = Instant::now();
     film::ImageFormat::from_path(&args.output)?;
+    film::check_writable(&args.output)?;
     let desc = load_scene(&args.scene)?;
     let settings = desc.render.resolve(&args.overrides).map_err(flag_error)?;
     if args.overrides.camera.is_some() {

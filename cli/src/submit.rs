@@ -400,6 +400,9 @@ pub async fn submit_and_follow(
     output: Option<&Path>,
 ) -> anyhow::Result<JobStatus> {
     let format = output.map(ImageFormat::from_path).transpose()?;
+    if let Some(o) = output {
+        raytile_core::film::check_writable(o)?;
+    }
     job.overrides.check().map_err(flag_error)?;
     let mut pack = ScenePack::check(scene)?;
     let mut job = job.clone();

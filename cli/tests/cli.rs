@@ -728,3 +728,83 @@ fn the_default_light_warning_says_what_the_render_does() {
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// What would fail only after a long render, or be ignored, is refused before anything runs:
+/// an output in a folder that does not exist, a non-finite exposure, a BVH mesh of no
+/// triangles or a node width the BVH does not have, and job flags given to a cluster that has
+/// no job of its own.
+#[test]
+fn what_would_fail_after_the_render_is_refused_before_it() {
+    let s = scene("cornell-box.json");
+    let missing = "/nonexistent-raytile-folder/x.png";
+    refused_at_once(
+        &["render", &s, "-o", missing, "--spp", "100000"],
+        1,
+        &["writing /nonexistent-raytile-folder/x.png: No such file"],
+    );
+    refused_at_once(
+        &["cluster", "--render", &s, "-o", missing, "--spp", "100000"],
+        1,
+        &["writing /nonexistent-raytile-folder/x.png"],
+    );
+    for bad in ["nan", "inf", "-1000"] {
+        refused_at_once(
+            &["render", &s, "-o", "x.png", "--exposure", bad],
+            2,
+            &["--exposure", "finite number of stops"],
+        );
+    }
+    refused_at_once(&["bench", "--triangles", "0"], 2, &["--triangles"]);
+    refused_at_once(&["bench", "--width", "5"], 1, &["--width 5"]);
+    refused_at_once(&["bench", "--size", "0"], 2, &["--size"]);
+    for flags in [&["-o", "x.png"][..], &["--spp", "4"], &["--priority", "3"]] {
+        let mut args = vec!["cluster", "--listen", "127.0.0.1:1"];
+        args.extend_from_slice(flags);
+        refused_at_once(&args, 1, &["are for --render"]);
+    }
+}
+
+/// `docker stop` and service managers send SIGTERM: the cluster stops as on Ctrl-C and removes
+/// its temporary data folder.
+#[cfg(unix)]
+#[test]
+fn cluster_removes_its_temporary_folder_on_sigterm() {
+    let tmp = std::env::temp_dir().join(format!("raytile-cli-term-{}", std::process::id()));
+    std::fs::create_dir_all(&tmp).unwrap();
+    let port = 20_000 + std::process::id() % 20_000;
+    let mut child = raytile()
+        .args(["cluster", "--workers", "1", "--threads", "1", "--listen"])
+        .arg(format!("127.0.0.1:{port}"))
+        .env("TMPDIR", &tmp)
+        .env_remove("RAYTILE_TOKEN")
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // Up once its temporary folder holds the coordinator's database.
+    let up = || {
+        std::fs::read_dir(&tmp)
+            .unwrap()
+            .flatten()
+            .any(|d| d.path().join("data/raytile.sqlite3").exists())
+    };
+    let t = std::time::Instant::now();
+    while !up() {
+        assert!(t.elapsed().as_secs() < 30, "the cluster did not start");
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let killed = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let status = child.wait().unwrap();
+    assert!(status.success(), "{status:?}");
+    let left: Vec<_> = std::fs::read_dir(&tmp)
+        .unwrap()
+        .flatten()
+        .map(|d| d.path())
+        .collect();
+    assert!(left.is_empty(), "left behind: {left:?}");
+    std::fs::remove_dir_all(&tmp).unwrap();
+}

@@ -8,7 +8,7 @@ pub mod filter;
 pub mod output;
 
 pub use filter::FilterSampler;
-pub use output::{encode, save, FilmError, ImageFormat, OutputOptions, ToneMap};
+pub use output::{check_writable, encode, save, FilmError, ImageFormat, OutputOptions, ToneMap};
 
 /// Per-pixel sums of one tile over one range of samples (what a worker uploads, so the type is
 /// the wire crate's).

@@ -20,8 +20,8 @@ pub enum FilmError {
         /// The encoder's message.
         message: String,
     },
-    /// Writing the file failed.
-    #[error("{path}: {source}")]
+    /// Writing the file failed (the OS error is the source: said once by error chains).
+    #[error("writing {path}")]
     Io {
         /// The file.
         path: String,
@@ -163,6 +163,32 @@ pub fn encode(
     Ok(out.into_inner())
 }
 
+/// Checks, before a render, that its image can be written to `path`: not a folder, in a folder
+/// that exists, where a file can be opened for writing (an existing file is left unchanged; a
+/// new one is created and removed). A render that would fail only when it is done fails now;
+/// a full disk is still found only when the image is written.
+pub fn check_writable(path: &Path) -> Result<(), FilmError> {
+    let io = |source| FilmError::Io {
+        path: path.display().to_string(),
+        source,
+    };
+    if path.is_dir() {
+        return Err(io(std::io::Error::new(
+            std::io::ErrorKind::IsADirectory,
+            "it is a folder",
+        )));
+    }
+    let mut open = std::fs::OpenOptions::new();
+    open.write(true);
+    if path.exists() {
+        open.open(path).map_err(io)?;
+    } else {
+        open.create_new(true).open(path).map_err(io)?;
+        std::fs::remove_file(path).map_err(io)?;
+    }
+    Ok(())
+}
+
 /// Writes the film to `path`, the format chosen by its extension.
 pub fn save(film: &Film, path: &Path, opts: &OutputOptions) -> Result<(), FilmError> {
     let format = ImageFormat::from_path(path)?;
@@ -188,6 +214,30 @@ mod tests {
         assert!(aces(0.18) > 0.1 && aces(0.18) < 0.3);
     }
     use crate::{Tile, TileAccum};
+
+    #[test]
+    fn an_output_that_cannot_be_written_is_found_before_the_render() {
+        let dir = std::env::temp_dir().join(format!("raytile-writable-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let new = dir.join("new.png");
+        check_writable(&new).unwrap();
+        assert!(!new.exists(), "the probe file is removed");
+        std::fs::write(&new, b"old").unwrap();
+        check_writable(&new).unwrap();
+        assert_eq!(
+            std::fs::read(&new).unwrap(),
+            b"old",
+            "an existing file is left as it is"
+        );
+        for bad in [dir.join("missing/x.png"), dir.clone()] {
+            let e = check_writable(&bad).unwrap_err();
+            let FilmError::Io { path, .. } = &e else {
+                panic!("{e}");
+            };
+            assert_eq!(path, &bad.display().to_string());
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     fn film() -> Film {
         let mut f = Film::new(3, 2);
