@@ -600,6 +600,14 @@ impl SceneFiles {
         // What was read: a file may be longer than it claimed.
         check(bytes.len() as u64)?;
         self.read_left.set(left - bytes.len() as u64);
+        self.note_used(r, bytes.len() as u64);
+        Ok(bytes)
+    }
+
+    /// Records that the scene uses the file `r` (of `bytes` bytes) by its name, once per name:
+    /// what [`SceneFiles::read`] records, for a file whose contents the caller already holds
+    /// (an image a JSON scene names twice, once through a link).
+    pub(crate) fn note_used(&self, r: &Resolved, bytes: u64) {
         let mut used = self.used.borrow_mut();
         if !used
             .iter()
@@ -608,10 +616,9 @@ impl SceneFiles {
             used.push(UsedFile {
                 path: r.canonical.clone(),
                 name: r.name.clone(),
-                bytes: bytes.len() as u64,
+                bytes,
             });
         }
-        Ok(bytes)
     }
 }
 

@@ -589,8 +589,8 @@ struct Converter<'a> {
     files: &'a SceneFiles,
     /// The line of the value at a JSON path, else of the first `needle`, as " (line N)".
     line_of: &'a dyn Fn(&str, &str) -> String,
-    /// Images decoded so far, by canonical path: (width, height, texels).
-    images: RefCell<HashMap<PathBuf, (u32, u32, Texels)>>,
+    /// Images decoded so far, by canonical path: (width, height, texels, file bytes).
+    images: RefCell<HashMap<PathBuf, (u32, u32, Texels, u64)>>,
     desc: SceneDesc,
 }
 
@@ -606,6 +606,8 @@ fn value_at(text: &str, path: &str) -> Option<usize> {
         skip_ws(b, i);
         let start = (*i, here.len());
         if here == path || depth > 200 {
+            // The value is stepped over, so that the walk stays in step with the text.
+            skip_value(b, i);
             return start;
         }
         let mut deepest = start;
@@ -626,6 +628,7 @@ fn value_at(text: &str, path: &str) -> Option<usize> {
                 *i += 1;
                 loop {
                     skip_ws(b, i);
+                    let before = *i;
                     match b.get(*i) {
                         Some(b'}') | None => break,
                         Some(b',') => *i += 1,
@@ -645,6 +648,10 @@ fn value_at(text: &str, path: &str) -> Option<usize> {
                             child(i, sub);
                         }
                     }
+                    // Text the walk cannot read (it was parsed already, so never): stop.
+                    if *i <= before {
+                        break;
+                    }
                 }
                 *i += 1;
             }
@@ -653,6 +660,7 @@ fn value_at(text: &str, path: &str) -> Option<usize> {
                 let mut n = 0;
                 loop {
                     skip_ws(b, i);
+                    let before = *i;
                     match b.get(*i) {
                         Some(b']') | None => break,
                         Some(b',') => *i += 1,
@@ -660,6 +668,9 @@ fn value_at(text: &str, path: &str) -> Option<usize> {
                             child(i, format!("{here}[{n}]"));
                             n += 1;
                         }
+                    }
+                    if *i <= before {
+                        break;
                     }
                 }
                 *i += 1;
@@ -766,7 +777,9 @@ impl Converter<'_> {
             .files
             .resolve_path(self.base, path, at)
             .map_err(|e| self.err(at, e.describe(), &needle))?;
-        if let Some((w, h, texels)) = self.images.borrow().get(&r.canonical) {
+        if let Some((w, h, texels, bytes)) = self.images.borrow().get(&r.canonical) {
+            // Recorded by this name too: a package for a farm must carry it.
+            self.files.note_used(&r, *bytes);
             return Ok(texture(*w, *h, texels.clone()));
         }
         let (r, bytes) = self.read_file(at, path, super::image::MAX_IMAGE_FILE)?;
@@ -776,9 +789,13 @@ impl Converter<'_> {
             .charge_memory(super::image::image_bytes(&bytes).map_err(bad)?, &shown)
             .map_err(|e| self.err(at, e, &needle))?;
         let img = super::image::decode_image(&bytes).map_err(bad)?;
-        self.images
-            .borrow_mut()
-            .insert(r.canonical, (img.width, img.height, img.texels.clone()));
+        let entry = (
+            img.width,
+            img.height,
+            img.texels.clone(),
+            bytes.len() as u64,
+        );
+        self.images.borrow_mut().insert(r.canonical, entry);
         Ok(texture(img.width, img.height, img.texels))
     }
 
@@ -1850,6 +1867,14 @@ mod tests {
         );
         assert_eq!(value_at(r#"{"a": [1, {"b": "x,]}"}]}"#, "a[1].b"), Some(16));
         assert_eq!(value_at(r#"{"a": 1}"#, "b"), None);
+        // A value at the path is stepped over: the braces inside a later string are text.
+        let e = at(r#"{"materials": {"w": {"type": "diffuse"}},
+ "objects": [{"shape": {"type": "sphere"}, "material": "w",
+              "transform": {"scale": 0}, "name": "x}}"}]}"#);
+        assert!(e.contains("at objects[0].transform (line 3)"), "{e}");
+        let text = r#"{"a": [{"b": {"c": 1}, "d": "} }"}, {"b": [1, 2]}], "e": 3}"#;
+        assert_eq!(value_at(text, "a[1].b"), Some(text.find("[1, 2]").unwrap()));
+        assert_eq!(value_at(text, "e"), Some(text.len() - 2));
     }
 
     #[test]
@@ -2232,6 +2257,31 @@ mod tests {
         assert!(
             e.starts_with("test.json: at render.camera (line 1): the scene has no camera"),
             "{e}"
+        );
+    }
+
+    /// An image read once for two textures is recorded by every name the scene gives it (a
+    /// link inside the folder is a second name): a package for a farm carries both.
+    #[cfg(unix)]
+    #[test]
+    fn an_image_named_twice_is_recorded_by_both_names() {
+        let d = Dir::new("aliases");
+        let scene = d.0.join("scene/scene.json");
+        std::os::unix::fs::symlink("wood.png", d.0.join("scene/alias.png")).unwrap();
+        std::fs::write(
+            &scene,
+            r#"{"textures": {"a": {"type": "image", "path": "wood.png"},
+                             "b": {"type": "image", "path": "alias.png"}}}"#,
+        )
+        .unwrap();
+        let files = SceneFiles::confined_to_scene(&scene, 1 << 20, 1 << 20).unwrap();
+        let desc = load_json_files(&scene, &files).unwrap();
+        assert!(desc.textures[0].texels.shares(&desc.textures[1].texels));
+        let mut names: Vec<_> = files.used().into_iter().filter_map(|u| u.name).collect();
+        names.sort();
+        assert_eq!(
+            names,
+            ["alias.png", "scene.json", "wood.png"].map(PathBuf::from)
         );
     }
 
