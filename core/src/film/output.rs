@@ -178,6 +178,10 @@ pub fn check_writable(path: &Path) -> Result<(), FilmError> {
             "it is a folder",
         )));
     }
+    if path.symlink_metadata().is_ok() && !path.exists() {
+        // A link to a file yet to be made: writing creates its target; nothing to try here.
+        return Ok(());
+    }
     let mut open = std::fs::OpenOptions::new();
     open.write(true);
     if path.exists() {

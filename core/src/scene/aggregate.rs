@@ -215,12 +215,12 @@ impl Aggregate {
             .geom(slot - u32::from(lane), u32::from(count), u32::from(lane))
     }
 
-    /// Bytes held by the BVHs and primitives.
     /// Whether the scene has unbounded shapes (planes), which reach beyond its bounds.
     pub(crate) fn has_unbounded(&self) -> bool {
         !self.unbounded.is_empty()
     }
 
+    /// Bytes held by the BVHs and primitives.
     pub(crate) fn memory_bytes(&self) -> usize {
         use std::mem::size_of;
         self.bvh.memory_bytes()
