@@ -12,9 +12,7 @@ use tower::ServiceExt;
 async fn delete_with_purge_removes_the_job_from_the_api() {
     let dir = tempfile::tempdir().unwrap();
     let st = test_state(dir.path(), None);
-    let (_, scene) = call(&st, post("/v1/scenes", r#"{"objects": []}"#)).await;
-    let body = format!(r#"{{"scene": "{}"}}"#, scene["id"].as_str().unwrap());
-    let (code, job) = call(&st, post("/v1/jobs", body)).await;
+    let (code, job) = empty_scene_job(&st, "").await;
     assert_eq!(code, StatusCode::CREATED);
     let uri = format!("/v1/jobs/{}", job["id"].as_str().unwrap());
     let del = |q: &str| {
@@ -66,6 +64,27 @@ fn post(uri: &str, body: impl Into<Body>) -> Request<Body> {
         .header("content-type", "application/json")
         .body(body.into())
         .unwrap()
+}
+
+/// Uploads a scene with no objects and submits a job of it with the JSON members `fields`
+/// (`""` for none): the job's answer.
+async fn empty_scene_job(st: &AppState, fields: &str) -> (StatusCode, serde_json::Value) {
+    let (_, scene) = call(st, post("/v1/scenes", r#"{"objects": []}"#)).await;
+    let id = scene["id"].as_str().unwrap();
+    let body = match fields {
+        "" => format!(r#"{{"scene": "{id}"}}"#),
+        f => format!(r#"{{"scene": "{id}", {f}}}"#),
+    };
+    call(st, post("/v1/jobs", body)).await
+}
+
+/// Registers a worker of this render version named `w` with one thread: the answer.
+async fn register_worker(st: &AppState) -> (StatusCode, serde_json::Value) {
+    let reg = format!(
+        r#"{{"name": "w", "threads": 1, "render_version": {}}}"#,
+        raytile_core::RENDER_VERSION
+    );
+    call(st, post("/v1/workers", reg)).await
 }
 
 #[tokio::test]
@@ -306,14 +325,8 @@ async fn handlers_take_the_time_from_the_injected_clock() {
     };
     let clock = manual_clock(&mut c, start);
     let st = AppState::open(c).unwrap();
-    let (_, scene) = call(&st, post("/v1/scenes", r#"{"objects": []}"#)).await;
-    let body = format!(r#"{{"scene": "{}"}}"#, scene["id"].as_str().unwrap());
-    let (_, job) = call(&st, post("/v1/jobs", body)).await;
-    let reg = format!(
-        r#"{{"name": "w", "threads": 1, "render_version": {}}}"#,
-        raytile_core::RENDER_VERSION
-    );
-    let (code, worker) = call(&st, post("/v1/workers", reg)).await;
+    let (_, job) = empty_scene_job(&st, "").await;
+    let (code, worker) = register_worker(&st).await;
     assert_eq!(code, StatusCode::OK, "{worker}");
     *clock.lock().unwrap() = start.after(std::time::Duration::from_secs(5));
     let lease = format!(
@@ -732,12 +745,11 @@ async fn the_token_cookie_is_taken_on_get_requests_only() {
 async fn priority_and_tiles_of_a_job() {
     let dir = tempfile::tempdir().unwrap();
     let st = test_state(dir.path(), None);
-    let (_, scene) = call(&st, post("/v1/scenes", r#"{"objects": []}"#)).await;
-    let body = format!(
-        r#"{{"scene": "{}", "width": 48, "height": 32, "tile_size": 16, "passes": 2, "spp": 2}}"#,
-        scene["id"].as_str().unwrap()
-    );
-    let (_, job) = call(&st, post("/v1/jobs", body)).await;
+    let (_, job) = empty_scene_job(
+        &st,
+        r#""width": 48, "height": 32, "tile_size": 16, "passes": 2, "spp": 2"#,
+    )
+    .await;
     let id = job["id"].as_str().unwrap();
     let (code, j) = call(
         &st,
@@ -1032,19 +1044,11 @@ async fn results_with_non_finite_sums_are_refused_and_the_task_is_queued_again()
     use raytile_proto::tile::{encode, TileAccum};
     let dir = tempfile::tempdir().unwrap();
     let st = test_state(dir.path(), None);
-    let (_, scene) = call(&st, post("/v1/scenes", r#"{"objects": []}"#)).await;
-    let body = format!(
-        r#"{{"scene": "{}", "width": 4, "height": 2, "spp": 1, "tile_size": 16}}"#,
-        scene["id"].as_str().unwrap()
-    );
-    let (code, job) = call(&st, post("/v1/jobs", body)).await;
+    let (code, job) =
+        empty_scene_job(&st, r#""width": 4, "height": 2, "spp": 1, "tile_size": 16"#).await;
     assert_eq!(code, StatusCode::CREATED, "{job}");
     let job = job["id"].as_str().unwrap().to_string();
-    let reg = format!(
-        r#"{{"name": "w", "threads": 1, "render_version": {}}}"#,
-        raytile_core::RENDER_VERSION
-    );
-    let (_, w) = call(&st, post("/v1/workers", reg)).await;
+    let (_, w) = register_worker(&st).await;
     let worker = w["worker_id"].as_str().unwrap().to_string();
     let lease_uri = format!("/v1/workers/{worker}/lease");
     let upload = |task: u64, worker: &str, pixels: Vec<[f32; 4]>| {
@@ -1122,18 +1126,13 @@ async fn results_claiming_more_dropped_samples_than_the_pass_has_are_refused() {
     use raytile_proto::tile::{encode, TileAccum};
     let dir = tempfile::tempdir().unwrap();
     let st = test_state(dir.path(), None);
-    let (_, scene) = call(&st, post("/v1/scenes", r#"{"objects": []}"#)).await;
-    let body = format!(
-        r#"{{"scene": "{}", "width": 4, "height": 2, "spp": 3, "passes": 1, "tile_size": 16}}"#,
-        scene["id"].as_str().unwrap()
-    );
-    let (_, job) = call(&st, post("/v1/jobs", body)).await;
+    let (_, job) = empty_scene_job(
+        &st,
+        r#""width": 4, "height": 2, "spp": 3, "passes": 1, "tile_size": 16"#,
+    )
+    .await;
     let job = job["id"].as_str().unwrap().to_string();
-    let reg = format!(
-        r#"{{"name": "w", "threads": 1, "render_version": {}}}"#,
-        raytile_core::RENDER_VERSION
-    );
-    let (_, w) = call(&st, post("/v1/workers", reg)).await;
+    let (_, w) = register_worker(&st).await;
     let worker = w["worker_id"].as_str().unwrap().to_string();
     let lease_uri = format!("/v1/workers/{worker}/lease");
     let upload = |bad_samples: u64| {
@@ -1307,12 +1306,7 @@ async fn image_requests_wait_for_a_slot_and_are_answered_busy_after_the_wait() {
     c.max_parallel_images = 1;
     c.image_wait = std::time::Duration::from_millis(200);
     let st = AppState::open(c).unwrap();
-    let (_, scene) = call(&st, post("/v1/scenes", r#"{"objects": []}"#)).await;
-    let body = format!(
-        r#"{{"scene": "{}", "width": 16, "height": 16, "spp": 1}}"#,
-        scene["id"].as_str().unwrap()
-    );
-    let (_, job) = call(&st, post("/v1/jobs", body)).await;
+    let (_, job) = empty_scene_job(&st, r#""width": 16, "height": 16, "spp": 1"#).await;
     let uri = format!("/v1/jobs/{}/image?format=exr", job["id"].as_str().unwrap());
     // Every slot taken (as by an image being made).
     let held = st.image_slots.clone().acquire_owned().await.unwrap();
