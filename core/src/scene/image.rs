@@ -55,6 +55,9 @@ fn decoder(bytes: &[u8], limited: bool) -> Result<Box<dyn ImageDecoder + '_>, St
         }
         return Ok(Box::new(hdr));
     }
+    if let Some(grey) = ExrGrey::new(bytes)? {
+        return Ok(Box::new(grey));
+    }
     let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
         .with_guessed_format()
         .map_err(|e| format!("cannot read: {e}"))?;
@@ -144,6 +147,149 @@ fn check_exr_windows(bytes: &[u8]) -> Result<(), String> {
         at = value + size;
     }
     Ok(())
+}
+
+/// An OpenEXR file without R, G and B channels whose first flat part has one other channel (a
+/// luminance `Y`, or a data map's `R` or `Z` alone), with or without `A`: decoded as grey, the
+/// channel in R, G and B. The image crate's decoder reads only files with R, G and B.
+struct ExrGrey<'a> {
+    bytes: &'a [u8],
+    channel: exr::meta::attribute::Text,
+    alpha: bool,
+    /// The display window: the image's extent; pixels outside the data window are 0.
+    display: exr::meta::attribute::IntegerBounds,
+    /// Where the data window starts in the display window.
+    offset: (i64, i64),
+}
+
+impl<'a> ExrGrey<'a> {
+    /// The grey reader of `bytes`, or `None` where the file is no OpenEXR file or one with R, G
+    /// and B (the image crate reads those). A file with several other channels is refused,
+    /// naming them.
+    fn new(bytes: &'a [u8]) -> Result<Option<Self>, String> {
+        use exr::meta::attribute::Text;
+        if !bytes.starts_with(&EXR_MAGIC) {
+            return Ok(None);
+        }
+        let Ok(reader) = exr::block::read(std::io::Cursor::new(bytes), false) else {
+            return Ok(None); // the image crate's decoder gives the error
+        };
+        let flat = || reader.headers().iter().filter(|h| !h.deep);
+        let has = |h: &exr::meta::header::Header, name: &str| {
+            h.channels
+                .find_index_of_channel(&Text::from(name))
+                .is_some()
+        };
+        if flat().any(|h| ["R", "G", "B"].iter().all(|&c| has(h, c))) {
+            return Ok(None);
+        }
+        let Some(header) = flat().next() else {
+            return Ok(None);
+        };
+        let names: Vec<&Text> = header.channels.list.iter().map(|c| &c.name).collect();
+        let others: Vec<&&Text> = names.iter().filter(|n| n.as_slice() != b"A").collect();
+        let [channel] = others[..] else {
+            let list = names.iter().map(|n| n.to_string()).collect::<Vec<_>>();
+            return Err(format!(
+                "an OpenEXR image with the channels {}: raytile reads R, G and B (and A), or a \
+                 single channel such as Y",
+                list.join(", ")
+            ));
+        };
+        let display = header.shared_attributes.display_window;
+        let offset = header.own_attributes.layer_position - display.position;
+        Ok(Some(Self {
+            bytes,
+            channel: (*channel).clone(),
+            alpha: has(header, "A"),
+            display,
+            offset: (i64::from(offset.x()), i64::from(offset.y())),
+        }))
+    }
+
+    /// Texels a pixel has in the buffer [`ImageDecoder::read_image`] fills: RGB or RGBA.
+    fn channels(&self) -> usize {
+        if self.alpha {
+            4
+        } else {
+            3
+        }
+    }
+}
+
+impl ImageDecoder for ExrGrey<'_> {
+    fn dimensions(&self) -> (u32, u32) {
+        (
+            self.display.size.width() as u32,
+            self.display.size.height() as u32,
+        )
+    }
+
+    fn color_type(&self) -> image::ColorType {
+        if self.alpha {
+            image::ColorType::Rgba32F
+        } else {
+            image::ColorType::Rgb32F
+        }
+    }
+
+    fn read_image(self, buf: &mut [u8]) -> image::ImageResult<()> {
+        use exr::prelude::{ReadChannels, ReadLayers, ReadSpecificChannel};
+        let (display, channels, alpha) = (self.display, self.channels(), self.alpha);
+        let failed = |e: exr::error::Error| {
+            image::ImageError::Decoding(image::error::DecodingError::new(
+                image::ImageFormat::OpenExr.into(),
+                e,
+            ))
+        };
+        // The file's values (and alphas) over the display window, 0 outside the data window;
+        // then spread to the RGB(A) texels.
+        let (w, h) = (display.size.width(), display.size.height());
+        let (offset, stride) = (self.offset, if alpha { 2 } else { 1 });
+        let image = exr::prelude::read()
+            .no_deep_data()
+            .largest_resolution_level()
+            .specific_channels()
+            .required(self.channel)
+            .optional("A", 1.0f32)
+            .collect_pixels(
+                move |_, _: &_| vec![0.0f32; w * h * stride],
+                move |out: &mut Vec<f32>, at: exr::math::Vec2<usize>, (v, a): (f32, f32)| {
+                    let x = usize::try_from(at.x() as i64 + offset.0)
+                        .ok()
+                        .filter(|&x| x < w);
+                    let y = usize::try_from(at.y() as i64 + offset.1)
+                        .ok()
+                        .filter(|&y| y < h);
+                    if let (Some(x), Some(y)) = (x, y) {
+                        let first = (y * w + x) * stride;
+                        out[first] = v;
+                        if alpha {
+                            out[first + 1] = a;
+                        }
+                    }
+                },
+            )
+            .first_valid_layer()
+            .all_attributes()
+            .from_buffered(std::io::Cursor::new(self.bytes))
+            .map_err(failed)?;
+        let values = &image.layer_data.channel_data.pixels;
+        for (texel, value) in buf
+            .chunks_exact_mut(4 * channels)
+            .zip(values.chunks_exact(stride))
+        {
+            for (c, bytes) in texel.chunks_exact_mut(4).enumerate() {
+                let v = if c == 3 { value[1] } else { value[0] };
+                bytes.copy_from_slice(&v.to_ne_bytes());
+            }
+        }
+        Ok(())
+    }
+
+    fn read_image_boxed(self: Box<Self>, buf: &mut [u8]) -> image::ImageResult<()> {
+        (*self).read_image(buf)
+    }
 }
 
 /// Decodes the image in `bytes`, within the limits.
@@ -528,7 +674,7 @@ mod tests {
     }
 
     #[test]
-    fn openexr_half_channels_decode_and_a_lone_luminance_channel_is_refused() {
+    fn openexr_half_channels_decode_and_a_lone_channel_is_grey() {
         // Uncompressed scanlines of 3×2 pixels: each channel's row in turn, names sorted.
         let (w, h) = (3i32, 2i32);
         let file = |channels: &[&str]| {
@@ -586,8 +732,34 @@ mod tests {
             // The last pixel's red: k = (2 + 3 + 'R') % 8 = 7.
             assert_eq!(ours.texels.get(5)[0], 1.0 + 7.0 / 8.0, "{channels:?}");
         }
-        let e = decode_image(&file(&["Y"])).unwrap_err();
-        assert!(e.contains("rgb channels"), "{e}");
+        // One channel, with or without alpha: grey (the image crate's decoder refuses these).
+        for channels in [&["Y"][..], &["A", "Y"], &["R"], &["Z"]] {
+            let bytes = file(channels);
+            assert_eq!(image_size(&bytes), Ok((3, 2)), "{channels:?}");
+            let alpha = channels.contains(&"A");
+            assert_eq!(image_bytes(&bytes), Ok(6 * 16), "{channels:?}");
+            let Texels::F32(got) = decode_image(&bytes).unwrap().texels else {
+                panic!("{channels:?}: an OpenEXR image is kept as f32");
+            };
+            let grey = channels.iter().find(|&&c| c != "A").unwrap().as_bytes()[0];
+            for (i, texel) in got.iter().enumerate() {
+                let (x, y) = (i as u16 % 3, i as u16 / 3);
+                let half = |name: u8| 1.0 + f32::from((x + 3 * y + u16::from(name)) % 8) / 8.0;
+                let a = if alpha { half(b'A') } else { 1.0 };
+                assert_eq!(
+                    *texel,
+                    [half(grey), half(grey), half(grey), a],
+                    "{channels:?} {i}"
+                );
+            }
+        }
+        // Several channels but not R, G and B: refused, naming them.
+        let e = decode_image(&file(&["U", "V"])).unwrap_err();
+        assert!(
+            e.contains("channels U, V") && e.contains("single channel"),
+            "{e}"
+        );
+        assert!(image_size(&file(&["G", "R"])).is_err());
     }
 
     #[test]
