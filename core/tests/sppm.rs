@@ -165,5 +165,12 @@ fn sppm_refuses_an_unbounded_plane_under_the_sun_or_the_sky() {
         let path = settings(8, 8, 1, IntegratorKind::Path);
         assert!(RenderJob::new(&scene(plane, lights), &path).is_ok());
     }
-    assert!(RenderJob::new(&scene(plane, lamp), &s).is_ok());
+    // An environment a program adds to a job later is refused the same way.
+    let job = RenderJob::new(&scene(plane, lamp), &s).unwrap();
+    let sky = std::sync::Arc::new(raytile_core::light::Environment::constant(glam::Vec3A::ONE));
+    let e = job
+        .with_environment(&scene(plane, lamp), Some(sky))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("sppm cannot render an unbounded plane"), "{e}");
 }

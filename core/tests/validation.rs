@@ -82,7 +82,8 @@ fn huge_finite_light_never_makes_a_non_finite_pixel() {
             let env = Environment::constant(Vec3A::splat(radiance));
             let job = RenderJob::new(&scene, &settings)
                 .unwrap()
-                .with_environment(&scene, Some(Arc::new(env)));
+                .with_environment(&scene, Some(Arc::new(env)))
+                .unwrap();
             let film = render(&scene, &job, &());
             for (i, p) in film.resolve().iter().enumerate() {
                 assert!(

@@ -1008,8 +1008,7 @@ impl RenderJob {
             ..settings.clone()
         };
         let mut job = RenderJob::new(scene, &no_map)?;
-        super::job::check_sppm_lighting(scene, settings, true)?;
         job.settings = settings.clone();
-        Ok(job.with_environment(scene, Some(Arc::new(map))))
+        job.with_environment(scene, Some(Arc::new(map)))
     }
 }

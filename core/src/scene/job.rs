@@ -86,7 +86,7 @@ impl JobCache {
 /// lights: their photons start on a disk of the bounding sphere of the finite objects and never
 /// reach the plane beyond it, so the plane's share of indirect light would be missing from the
 /// image (without an error). `path` and `bdpt` render such scenes.
-pub(crate) fn check_sppm_lighting(
+fn check_sppm_lighting(
     scene: &Scene,
     settings: &RenderSettings,
     environment: bool,
@@ -160,7 +160,6 @@ impl RenderJob {
                 )))
             }
         };
-        check_sppm_lighting(scene, settings, environment.is_some())?;
         let job = RenderJob {
             settings: settings.clone(),
             camera,
@@ -169,21 +168,24 @@ impl RenderJob {
             lights: LightSet::default(),
             cache: Arc::default(),
         };
-        Ok(job.with_environment(scene, environment))
+        job.with_environment(scene, environment)
     }
 
     /// This job with `environment` in place of the one it had (`None`: no environment), and
     /// the light distribution that goes with it: how a job brings an environment of its own.
+    /// Refused where the job's integrator cannot render the scene under it (sppm and an
+    /// unbounded plane).
     pub fn with_environment(
         mut self,
         scene: &Scene,
         environment: Option<Arc<Environment>>,
-    ) -> Self {
+    ) -> Result<Self, SceneError> {
+        check_sppm_lighting(scene, &self.settings, environment.is_some())?;
         let power = environment.as_ref().map(|e| e.power(scene.radius));
         self.lights = LightSet::new(&scene.lights, scene.radius, power);
         self.environment = environment;
         self.cache = Arc::default();
-        self
+        Ok(self)
     }
 
     /// The environment, if any.
@@ -443,14 +445,14 @@ mod tests {
         let job = RenderJob::new(&scene, &settings).unwrap();
         assert!(job.environment().is_none());
         let env = Arc::new(Environment::constant(Vec3A::splat(0.5)));
-        let job = job.with_environment(&scene, Some(env));
+        let job = job.with_environment(&scene, Some(env)).unwrap();
         assert_eq!(job.lights().len(), 5);
         assert_eq!(job.lights().environment(), Some(4));
         let s = job
             .sample_light(&scene, 4, Vec3A::ZERO, Vec2::new(0.3, 0.7))
             .unwrap();
         assert!(!s.delta && !s.dist.is_finite() && s.li == Vec3A::splat(0.5));
-        let job = job.with_environment(&scene, None);
+        let job = job.with_environment(&scene, None).unwrap();
         assert_eq!(job.lights().len(), 4);
         assert!(job
             .sample_light(&scene, 4, Vec3A::ZERO, Vec2::ZERO)
