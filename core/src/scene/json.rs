@@ -16,8 +16,9 @@ use crate::texture::Texels;
 use glam::{EulerRot, Mat3, Mat4, Quat, Vec2, Vec3, Vec3A};
 use serde::Deserialize;
 use std::cell::RefCell;
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 type Rgb = [f32; 3];
 
@@ -837,6 +838,7 @@ impl Converter<'_> {
         self.desc.render = f.render;
         // Textures.
         let mut tex_index = BTreeMap::new();
+        let mut spaces = HashSet::new();
         for (name, t) in &f.textures {
             let at = format!("textures.{name}");
             let desc = match t {
@@ -847,6 +849,22 @@ impl Converter<'_> {
                     bilinear,
                 } => {
                     let mut d = self.image(&format!("{at}.path"), path)?;
+                    // An f32 image is converted for each of colour and data it is read as
+                    // (`Scene::build`): its second reading is charged once more.
+                    if let Texels::F32(values) = &d.texels {
+                        let image = Arc::as_ptr(values) as usize;
+                        if spaces.insert((image, *srgb)) && spaces.contains(&(image, !*srgb)) {
+                            let bytes = 16 * u64::from(d.width) * u64::from(d.height);
+                            let what = format!(
+                                "{} as {}",
+                                show(&path.to_string_lossy()),
+                                if *srgb { "colour" } else { "data" }
+                            );
+                            self.files
+                                .charge_memory(bytes, &what)
+                                .map_err(|e| self.err(&format!("{at}.srgb"), e, name))?;
+                        }
+                    }
                     d.name = name.clone();
                     d.srgb = *srgb;
                     d.wrap_u = *wrap;
@@ -2282,6 +2300,25 @@ mod tests {
         assert_eq!(
             names,
             ["alias.png", "scene.json", "wood.png"].map(PathBuf::from)
+        );
+        // A 16-bit image, kept as f32 values (64 bytes), read as colour and as data: the build
+        // converts it once for each, so it is charged twice.
+        let deep = image::ImageBuffer::<image::Rgb<u16>, _>::from_pixel(2, 2, image::Rgb([9; 3]));
+        deep.save(d.0.join("scene/deep.png")).unwrap();
+        std::fs::write(
+            &scene,
+            r#"{"textures": {"a": {"type": "image", "path": "deep.png"},
+                             "b": {"type": "image", "path": "deep.png", "srgb": false},
+                             "c": {"type": "image", "path": "deep.png", "srgb": false}}}"#,
+        )
+        .unwrap();
+        let files = SceneFiles::trusted().with_memory_limit(128);
+        assert!(load_json_files(&scene, &files).is_ok());
+        let files = SceneFiles::trusted().with_memory_limit(127);
+        let e = load_json_files(&scene, &files).unwrap_err().to_string();
+        assert!(
+            e.contains("at textures.b.srgb") && e.contains("\"deep.png\" as data"),
+            "{e}"
         );
     }
 
