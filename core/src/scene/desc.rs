@@ -347,22 +347,26 @@ impl MaterialDesc {
         self.emission.max_element() > 0.0 && !matches!(self.bsdf, BsdfDesc::Interface)
     }
 
-    /// Every texture the material looks up, with the name of its slot.
-    pub fn texture_refs(&self) -> Vec<(&'static str, TextureRef)> {
+    /// Every texture the material looks up, with the name of its slot (the one list of a
+    /// material's slots that loaders walk: to check, to renumber).
+    pub fn texture_refs_mut(&mut self) -> Vec<(&'static str, &mut TextureRef)> {
         let mut refs = vec![
-            ("emissive", self.emission_texture),
-            ("normal", self.normal_texture.map(|(t, _)| t)),
+            ("emissive", self.emission_texture.as_mut()),
+            ("normal", self.normal_texture.as_mut().map(|(t, _)| t)),
         ];
-        match &self.bsdf {
-            BsdfDesc::Diffuse { texture, .. } => refs.push(("albedo", *texture)),
+        match &mut self.bsdf {
+            BsdfDesc::Diffuse { texture, .. } => refs.push(("albedo", texture.as_mut())),
             BsdfDesc::Pbr(p) => refs.extend([
-                ("base colour", p.base_color_texture),
-                ("metallic-roughness", p.metallic_roughness_texture),
-                ("specular", p.specular_texture),
-                ("specular colour", p.specular_color_texture),
-                ("transmission", p.transmission_texture),
-                ("clearcoat", p.clearcoat_texture),
-                ("clearcoat roughness", p.clearcoat_roughness_texture),
+                ("base colour", p.base_color_texture.as_mut()),
+                ("metallic-roughness", p.metallic_roughness_texture.as_mut()),
+                ("specular", p.specular_texture.as_mut()),
+                ("specular colour", p.specular_color_texture.as_mut()),
+                ("transmission", p.transmission_texture.as_mut()),
+                ("clearcoat", p.clearcoat_texture.as_mut()),
+                (
+                    "clearcoat roughness",
+                    p.clearcoat_roughness_texture.as_mut(),
+                ),
             ]),
             _ => {}
         }

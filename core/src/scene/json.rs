@@ -1656,27 +1656,8 @@ impl Converter<'_> {
         self.desc.meshes.extend(inc.meshes);
         self.desc.textures.extend(inc.textures);
         for mut m in inc.materials {
-            let shift = |r: &mut Option<TextureRef>| {
-                if let Some(r) = r {
-                    r.texture += to;
-                }
-            };
-            shift(&mut m.emission_texture);
-            if let Some((r, _)) = &mut m.normal_texture {
+            for (_, r) in m.texture_refs_mut() {
                 r.texture += to;
-            }
-            match &mut m.bsdf {
-                BsdfDesc::Diffuse { texture, .. } => shift(texture),
-                BsdfDesc::Pbr(p) => {
-                    shift(&mut p.base_color_texture);
-                    shift(&mut p.metallic_roughness_texture);
-                    shift(&mut p.transmission_texture);
-                    shift(&mut p.specular_texture);
-                    shift(&mut p.specular_color_texture);
-                    shift(&mut p.clearcoat_texture);
-                    shift(&mut p.clearcoat_roughness_texture);
-                }
-                _ => {}
             }
             self.desc.materials.push(m);
         }
@@ -2301,25 +2282,6 @@ mod tests {
             names,
             ["alias.png", "scene.json", "wood.png"].map(PathBuf::from)
         );
-        // A 16-bit image, kept as f32 values (64 bytes), read as colour and as data: the build
-        // converts it once for each, so it is charged twice.
-        let deep = image::ImageBuffer::<image::Rgb<u16>, _>::from_pixel(2, 2, image::Rgb([9; 3]));
-        deep.save(d.0.join("scene/deep.png")).unwrap();
-        std::fs::write(
-            &scene,
-            r#"{"textures": {"a": {"type": "image", "path": "deep.png"},
-                             "b": {"type": "image", "path": "deep.png", "srgb": false},
-                             "c": {"type": "image", "path": "deep.png", "srgb": false}}}"#,
-        )
-        .unwrap();
-        let files = SceneFiles::trusted().with_memory_limit(128);
-        assert!(load_json_files(&scene, &files).is_ok());
-        let files = SceneFiles::trusted().with_memory_limit(127);
-        let e = load_json_files(&scene, &files).unwrap_err().to_string();
-        assert!(
-            e.contains("at textures.b.srgb") && e.contains("\"deep.png\" as data"),
-            "{e}"
-        );
     }
 
     #[test]
@@ -2341,6 +2303,25 @@ mod tests {
         let e = load_json_files(&scene, &files).unwrap_err().to_string();
         assert!(
             e.contains("at textures.a.path") && e.contains("more memory"),
+            "{e}"
+        );
+        // A 16-bit image, kept as f32 values (64 bytes), read as colour and as data: the build
+        // converts it once for each, so it is charged twice.
+        let deep = image::ImageBuffer::<image::Rgb<u16>, _>::from_pixel(2, 2, image::Rgb([9; 3]));
+        deep.save(d.0.join("scene/deep.png")).unwrap();
+        std::fs::write(
+            &scene,
+            r#"{"textures": {"a": {"type": "image", "path": "deep.png"},
+                             "b": {"type": "image", "path": "deep.png", "srgb": false},
+                             "c": {"type": "image", "path": "deep.png", "srgb": false}}}"#,
+        )
+        .unwrap();
+        let files = SceneFiles::trusted().with_memory_limit(128);
+        assert!(load_json_files(&scene, &files).is_ok());
+        let files = SceneFiles::trusted().with_memory_limit(127);
+        let e = load_json_files(&scene, &files).unwrap_err().to_string();
+        assert!(
+            e.contains("at textures.b.srgb") && e.contains("\"deep.png\" as data"),
             "{e}"
         );
     }

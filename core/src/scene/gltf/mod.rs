@@ -21,7 +21,7 @@ mod tests;
 
 use super::desc::{
     check_affine, check_camera_transform, CameraDesc, Degenerate, EnvironmentDesc, LightDesc,
-    ObjectDesc, Projection, SceneDesc, ShapeDesc,
+    ObjectDesc, Projection, SceneDesc, ShapeDesc, TextureRef,
 };
 use super::files::{folder_of, SceneFiles};
 use super::SceneError;
@@ -661,7 +661,12 @@ impl<'a> Loader<'a> {
     /// `mesh_index` lacks is looked up at (0, 0) over the whole primitive, as glTF viewers
     /// do, with a warning (the specification leaves it undefined).
     fn fill_missing_uvs(&mut self, mesh_index: usize, material: usize) -> Result<(), String> {
-        for (slot, t) in self.desc.materials[material].texture_refs() {
+        let refs: Vec<(&str, TextureRef)> = self.desc.materials[material]
+            .texture_refs_mut()
+            .into_iter()
+            .map(|(slot, t)| (slot, *t))
+            .collect();
+        for (slot, t) in refs {
             let set = usize::from(t.texcoord.min(1));
             let mesh = &self.desc.meshes[mesh_index];
             if !mesh.uvs[set].is_empty() {
