@@ -424,10 +424,16 @@ fn load_inner(
     }
     let mut warnings = Vec::new();
     check_extensions(&raw, &mut warnings)?;
+    // Errors name the JSON path of the value they are about, as well as serde's message.
+    let invalid = |e: serde_path_to_error::Error<serde_json::Error>| match e.path().to_string() {
+        path if path == "." => format!("invalid glTF: {}", e.inner()),
+        path => format!("invalid glTF at {path}: {}", e.inner()),
+    };
     let mut root: gltf::json::Root = if add_scene_nodes(&mut raw) {
-        serde::Deserialize::deserialize(&raw).map_err(|e| format!("invalid glTF: {e}"))?
+        serde_path_to_error::deserialize(&raw).map_err(invalid)?
     } else {
-        serde_json::from_slice(json).map_err(|e| format!("invalid glTF: {e}"))?
+        let mut json = serde_json::Deserializer::from_slice(json);
+        serde_path_to_error::deserialize(&mut json).map_err(invalid)?
     };
     // Already checked against raytile's own list; the gltf crate's list lacks some we support.
     root.extensions_required.clear();
@@ -497,6 +503,11 @@ impl<'a> Loader<'a> {
             let what = format!("buffer {}", buffer.index());
             let len = buffer.length();
             let data: Cow<'a, [u8]> = match buffer.source() {
+                gltf::buffer::Source::Bin if buffer.index() > 0 => {
+                    return Err(format!(
+                        "{what} has no uri: only the first buffer may be the GLB binary chunk"
+                    ))
+                }
                 gltf::buffer::Source::Bin => Cow::Borrowed(bin.ok_or_else(|| {
                     format!("{what} refers to the GLB binary chunk, which is missing")
                 })?),
@@ -565,6 +576,15 @@ impl<'a> Loader<'a> {
                         "node {ni} is reached twice: the node hierarchy has a cycle or a node with two parents"
                     ))
                 }
+            }
+            let json = &doc.as_json().nodes[ni];
+            if json.matrix.is_some()
+                && (json.translation.is_some() || json.rotation.is_some() || json.scale.is_some())
+            {
+                self.warn(format!(
+                    "node {ni} has both a matrix and translation, rotation or scale, which glTF \
+                     forbids: the matrix is used"
+                ));
             }
             let world = parent * node_matrix(&node)?;
             if !world.is_finite() {

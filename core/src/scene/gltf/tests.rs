@@ -180,6 +180,34 @@ fn transforms_compose_through_the_hierarchy() {
     assert_eq!(s.meshes[0].indices, vec![[0, 1, 2]]);
 }
 
+/// A node with both a matrix and TRS properties (invalid glTF) uses the matrix, with a warning.
+#[test]
+fn a_node_with_a_matrix_and_trs_uses_the_matrix_and_warns() {
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    let bytes = d.finish(json!({
+        "scenes": [{"nodes": [0, 1]}],
+        "nodes": [
+            {"matrix": [1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,5,1], "translation": [7, 0, 0], "mesh": 0},
+            {"matrix": [1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,5,1], "mesh": 0},
+        ],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+    }));
+    let s = load(&bytes).unwrap();
+    let p = s.objects[0].transform.transform_point3(Vec3::ZERO);
+    assert_eq!(p, Vec3::new(0.0, 0.0, 5.0));
+    let warned: Vec<_> = s
+        .warnings
+        .iter()
+        .filter(|w| w.contains("both a matrix"))
+        .collect();
+    assert!(
+        warned.len() == 1 && warned[0].contains("node 0 "),
+        "{:?}",
+        s.warnings
+    );
+}
+
 /// A node matrix that is projective (its last row not [0, 0, 0, 1]) is refused when the file is
 /// loaded, naming the node by index and name, and the file.
 #[test]
@@ -994,6 +1022,12 @@ fn glb_containers() {
     expect_err(&good[..good.len() - 1], &["truncated"]);
     // No binary chunk although buffer 0 needs it.
     expect_err(&glb(&json, &[]), &["buffer 0", "binary chunk"]);
+    // A second buffer without a uri: only the first may be the binary chunk.
+    let mut two: Value = serde_json::from_slice(&json).unwrap();
+    two["buffers"] = json!([{"byteLength": 36}, {"byteLength": 36}]);
+    two["bufferViews"][0]["buffer"] = json!(1);
+    let two = serde_json::to_vec(&two).unwrap();
+    expect_err(&glb(&two, &bin), &["buffer 1 has no uri", "first buffer"]);
     // Wrong magic for a .glb path.
     let dir = temp_dir("magic");
     let p = dir.join("bad.glb");
@@ -1170,6 +1204,21 @@ fn lights_cameras_and_units() {
         }),
     );
     expect_err(&bad, &["nodes[0].extensions.KHR_lights_punctual.light"]);
+    // A value of the wrong shape is named by its path, too.
+    let bad = tri_scene(
+        json!({"material": 0}),
+        json!({
+            "extensionsUsed": ["KHR_texture_transform"],
+            "images": [{"uri": "data:image/png;base64,"}],
+            "textures": [{"source": 0}],
+            "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0,
+                "extensions": {"KHR_texture_transform": {"offset": [1]}}}}}],
+        }),
+    );
+    expect_err(
+        &bad,
+        &["invalid glTF at materials[0].pbrMetallicRoughness.baseColorTexture.extensions.KHR_texture_transform.offset"],
+    );
     assert_eq!(
         extension_names(
             "materials[2].extensions.khrMaterialsEmissiveStrength.x.khrTextureTransform"
