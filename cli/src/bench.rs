@@ -163,11 +163,19 @@ fn mrays(n: usize, secs: f64) -> f64 {
 /// Runs `raytile bench`.
 pub fn run(args: BenchArgs) -> Result<()> {
     // The BVH flags are checked before the render figures, which take minutes.
-    for w in &args.widths {
-        if !matches!(w, 4 | 8 | 16) {
-            anyhow::bail!("--width {w}: the BVH's nodes are 4, 8 or 16 wide");
-        }
-    }
+    let widths = if args.widths.is_empty() {
+        vec![(4, Width::Four), (8, Width::Eight), (16, Width::Sixteen)]
+    } else {
+        let width = |&w: &u32| match w {
+            4 => Ok((w, Width::Four)),
+            8 => Ok((w, Width::Eight)),
+            16 => Ok((w, Width::Sixteen)),
+            _ => Err(anyhow::anyhow!(
+                "--width {w}: the BVH's nodes are 4, 8 or 16 wide"
+            )),
+        };
+        args.widths.iter().map(width).collect::<Result<Vec<_>>>()?
+    };
     for b in args.builds.iter().filter(|b| *b != BINNED_SAH) {
         build_params(b)?;
     }
@@ -325,24 +333,13 @@ pub fn run(args: BenchArgs) -> Result<()> {
     } else {
         args.builds.clone()
     };
-    let widths = if args.widths.is_empty() {
-        vec![4, 8, 16]
-    } else {
-        args.widths.clone()
-    };
     for name in &builds {
         let params = if name == BINNED_SAH {
             None
         } else {
             Some(build_params(name)?)
         };
-        for &w in &widths {
-            let width = match w {
-                4 => Width::Four,
-                8 => Width::Eight,
-                16 => Width::Sixteen,
-                _ => anyhow::bail!("--width {w}: 4, 8 or 16"),
-            };
+        for &(w, width) in &widths {
             // The binned builder consumes its bounds: a copy, made before the clock starts.
             let owned = params.is_none().then(|| bounds.clone());
             let t = Instant::now();
