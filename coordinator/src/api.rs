@@ -97,19 +97,28 @@ pub fn app(state: AppState) -> Router {
         .with_state(state)
 }
 
-/// The cookie a browser may carry the token in (see [`auth`]).
-pub const TOKEN_COOKIE: &str = "raytile_token";
-
 /// Every request but `/healthz` and the web pages ([`crate::web::is_public`]) needs the
-/// token: as `Authorization: Bearer TOKEN` (the scheme in any case), or, on GET requests only, as the cookie
-/// `raytile_token` (percent-encoded). The cookie is for what a browser fetches without script
-/// control over headers: the event stream (`EventSource` cannot set headers) and image
-/// downloads. Requests that change something need the header, so another site cannot make a
-/// browser change anything with the cookie (which the page also sets `SameSite=Strict`).
+/// token, as `Authorization: Bearer TOKEN` (the scheme in any case). The token is taken from
+/// that header only: a browser sends cookies along with requests other sites' pages make, and
+/// to other services on the same host, so the pages send the header themselves.
+///
+/// Two more rules keep other sites' pages out, with or without a token:
+/// - a request that would change something (any method but GET, HEAD and OPTIONS) made by a
+///   browser for a page of another origin is refused (its `Sec-Fetch-Site` or `Origin`);
+///   programs send neither header;
+/// - a coordinator without a token (on loopback, unless `--insecure`) answers only requests
+///   that name it by an IP address or `localhost` in `Host`: a page on a domain whose DNS
+///   answer turns to 127.0.0.1 (DNS rebinding) cannot read or change anything.
 async fn auth(State(state): State<AppState>, req: Request, next: Next) -> Response {
-    if let Some(token) = &state.cfg.token {
-        let path = req.uri().path();
-        if path != "/healthz" && !crate::web::is_public(path) {
+    let path = req.uri().path();
+    if path == "/healthz" || crate::web::is_public(path) {
+        return next.run(req).await;
+    }
+    if let Some(refused) = cross_site(&req) {
+        return AppError::Forbidden(refused).into_response();
+    }
+    match &state.cfg.token {
+        Some(token) => {
             let matches = |t: &str| constant_time_eq(t.trim().as_bytes(), token.as_bytes());
             let header_ok = req
                 .headers()
@@ -121,33 +130,74 @@ async fn auth(State(state): State<AppState>, req: Request, next: Next) -> Respon
                     scheme.eq_ignore_ascii_case("bearer").then_some(token)
                 })
                 .is_some_and(matches);
-            let cookie_ok = req.method() == Method::GET
-                && cookie_token(req.headers()).is_some_and(|t| matches(&t));
-            if !header_ok && !cookie_ok {
+            if !header_ok {
                 return AppError::Unauthorized.into_response();
             }
         }
+        None if !state.cfg.insecure => {
+            let host = req.headers().get(header::HOST).map(|h| h.to_str().ok());
+            if let Some(host) = host.filter(|h| !h.is_some_and(names_this_machine)) {
+                return AppError::Forbidden(format!(
+                    "a coordinator without a token answers only requests to an IP address or \
+                     localhost, not to {:?}: use http://127.0.0.1:PORT/, or give the \
+                     coordinator a token",
+                    host.unwrap_or("(not text)")
+                ))
+                .into_response();
+            }
+        }
+        None => {}
     }
     next.run(req).await
 }
 
-/// The token in the `raytile_token` cookie, percent-decoded.
-fn cookie_token(headers: &HeaderMap) -> Option<String> {
-    headers
-        .get_all(header::COOKIE)
-        .iter()
-        .filter_map(|v| v.to_str().ok())
-        .flat_map(|v| v.split(';'))
-        .find_map(|c| {
-            let (name, value) = c.trim().split_once('=')?;
-            (name == TOKEN_COOKIE).then(|| {
-                let encoded = format!("t={}", value.replace('+', "%2B"));
-                form_urlencoded::parse(encoded.as_bytes())
-                    .next()
-                    .map(|(_, v)| v.into_owned())
-                    .unwrap_or_default()
-            })
-        })
+/// Why `req`, made by a browser for a page of another origin, is refused, if it is such a
+/// request and would change something.
+fn cross_site(req: &Request) -> Option<String> {
+    if matches!(*req.method(), Method::GET | Method::HEAD | Method::OPTIONS) {
+        return None;
+    }
+    let headers = req.headers();
+    let text = |name| {
+        headers
+            .get(name)
+            .map(|v| v.to_str().unwrap_or("(not text)"))
+    };
+    let refused = |what: String| {
+        format!("{what}: the coordinator takes changes from its own pages and from programs only")
+    };
+    if let Some(site) = text(header::HeaderName::from_static("sec-fetch-site")) {
+        if !matches!(site, "same-origin" | "none") {
+            return Some(refused(format!(
+                "a request from another site's page (Sec-Fetch-Site {site})"
+            )));
+        }
+    }
+    if let Some(origin) = text(header::ORIGIN) {
+        let authority = origin.split_once("://").map(|(_, a)| a);
+        if authority.is_none() || authority != text(header::HOST) {
+            return Some(refused(format!("a request from a page of {origin:?}")));
+        }
+    }
+    None
+}
+
+/// Whether `host` (a `Host` header: a name or address, and maybe a port) names this machine in
+/// a way no DNS answer can redirect: an IP address, `localhost` or a name under `.localhost`.
+fn names_this_machine(host: &str) -> bool {
+    if host.starts_with('[') {
+        return host
+            .split_once(']')
+            .is_some_and(|(ip, _)| ip[1..].parse::<std::net::Ipv6Addr>().is_ok());
+    }
+    let name = host
+        .split(':')
+        .next()
+        .unwrap_or_default()
+        .to_ascii_lowercase();
+    name.parse::<std::net::Ipv4Addr>().is_ok()
+        || name == "localhost"
+        || name.ends_with(".localhost")
 }
 
 fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {

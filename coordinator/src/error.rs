@@ -23,6 +23,10 @@ pub enum AppError {
     /// 401: missing or wrong bearer token.
     #[error("missing or wrong bearer token")]
     Unauthorized,
+    /// 403: a request the coordinator refuses whoever sends it: a browser's request from
+    /// another site's page, or a name for the coordinator it cannot trust.
+    #[error("{0}")]
+    Forbidden(String),
     /// 404: no such object.
     #[error("{0}")]
     NotFound(String),
@@ -109,6 +113,7 @@ impl AppError {
                 (StatusCode::BAD_REQUEST, "bad_request", field.clone())
             }
             AppError::Unauthorized => (StatusCode::UNAUTHORIZED, "unauthorized", None),
+            AppError::Forbidden(_) => (StatusCode::FORBIDDEN, "forbidden", None),
             AppError::NotFound(_) => (StatusCode::NOT_FOUND, "not_found", None),
             AppError::MethodNotAllowed => {
                 (StatusCode::METHOD_NOT_ALLOWED, "method_not_allowed", None)

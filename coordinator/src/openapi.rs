@@ -59,6 +59,10 @@ fn op(summary: &str, parameters: Value, inputs: Inputs, responses: Value) -> Val
         r.entry(code.to_string()).or_insert(v);
     };
     add("401", err("Missing or wrong bearer token."));
+    add(
+        "403",
+        err("A browser's request from another site's page that would change something (its Origin or Sec-Fetch-Site names another origin), or, on a coordinator without a token, a Host header that is not an IP address or localhost."),
+    );
     if inputs.params || inputs.json {
         add(
             "400",
@@ -187,7 +191,7 @@ each has an `id` that increases by one with every change the coordinator makes (
 `task_leased` {job, task, tile, pass, worker}; `task_done` {job, task, tile, pass, worker}; \
 `task_failed` {job, task, tile, pass, worker, error}; `task_queued` {job, task, tile, pass, reason: expired|released}; \
 `worker_registered` {worker, name, threads}; `worker_seen` {worker, last_seen_ms, tasks_done}; `worker_gone` {worker}. \
-A comment line keeps the connection alive every 15 s. Browsers may give the token as the cookie raytile_token.";
+A comment line keeps the connection alive every 15 s.";
 
 /// The whole document.
 pub fn document() -> Value {
@@ -203,7 +207,7 @@ pub fn document() -> Value {
         "info": {
             "title": "raytile coordinator",
             "version": env!("CARGO_PKG_VERSION"),
-            "description": "Distributed path tracing: upload scenes, submit jobs, fetch images; workers lease tile passes and upload binary results. Every endpoint but /healthz needs `Authorization: Bearer TOKEN` when the coordinator has a token. Every error answer is the Error schema; a 405 (known path, other method) and a 404 (unknown path) are too. Only a request that cannot be parsed as HTTP at all is answered without it, by the HTTP layer: 400 (malformed request line or header), 414 (path and query over 65,534 bytes), 431 (headers too large), with an empty body. GET requests may give the token as the cookie raytile_token instead (for browsers: the event stream and image downloads). The web pages (/, /jobs/{id}, /workers and their files under /ui/) are served without the token and are not part of this API."
+            "description": "Distributed path tracing: upload scenes, submit jobs, fetch images; workers lease tile passes and upload binary results. Every endpoint but /healthz needs `Authorization: Bearer TOKEN` when the coordinator has a token. Every error answer is the Error schema; a 405 (known path, other method) and a 404 (unknown path) are too. Only a request that cannot be parsed as HTTP at all is answered without it, by the HTTP layer: 400 (malformed request line or header), 414 (path and query over 65,534 bytes), 431 (headers too large), with an empty body. The token is taken from that header only. A browser's request from another site's page that would change something, and, on a coordinator without a token, a request whose Host is not an IP address or localhost, are answered 403. The web pages (/, /jobs/{id}, /workers and their files under /ui/) are served without the token and are not part of this API."
         },
         "components": {
             "securitySchemes": {"bearer": {"type": "http", "scheme": "bearer"}},

@@ -715,7 +715,7 @@ async fn pages_are_served_without_the_token_and_load_nothing_from_elsewhere() {
 }
 
 #[tokio::test]
-async fn the_token_cookie_is_taken_on_get_requests_only() {
+async fn the_token_is_taken_from_the_header_only() {
     let dir = tempfile::tempdir().unwrap();
     let st = test_state(dir.path(), Some("se/same+1"));
     let with = |method: &str, uri: &str, cookie: &str, auth: Option<&str>| {
@@ -728,17 +728,122 @@ async fn the_token_cookie_is_taken_on_get_requests_only() {
         }
         b.body(Body::empty()).unwrap()
     };
-    let good = "a=1; raytile_token=se%2Fsame%2B1";
-    let (code, _) = call(&st, with("GET", "/v1/jobs", good, None)).await;
-    assert_eq!(code, StatusCode::OK);
-    let (code, _) = call(&st, with("GET", "/v1/jobs", "raytile_token=nope", None)).await;
-    assert_eq!(code, StatusCode::UNAUTHORIZED);
-    // A change needs the header: another site cannot make a browser cancel jobs.
-    let (code, _) = call(&st, with("DELETE", "/v1/jobs/x", good, None)).await;
-    assert_eq!(code, StatusCode::UNAUTHORIZED);
+    // A browser sends cookies with other sites' requests and to other ports of the host: the
+    // coordinator takes none.
+    let cookie = "a=1; raytile_token=se%2Fsame%2B1";
+    for method in ["GET", "DELETE"] {
+        let (code, _) = call(&st, with(method, "/v1/jobs/x", cookie, None)).await;
+        assert_eq!(code, StatusCode::UNAUTHORIZED, "{method}");
+    }
     let auth = Some("Bearer se/same+1");
     let (code, _) = call(&st, with("DELETE", "/v1/jobs/x", "", auth)).await;
     assert_eq!(code, StatusCode::NOT_FOUND);
+}
+
+#[tokio::test]
+async fn other_sites_pages_cannot_change_anything() {
+    for token in [None, Some("t")] {
+        let dir = tempfile::tempdir().unwrap();
+        let st = test_state(dir.path(), token);
+        let req = |method: &str, headers: &[(&str, &str)]| {
+            let mut b = Request::builder()
+                .method(method)
+                .uri("/v1/scenes?format=json")
+                .header("host", "127.0.0.1:8080")
+                .header("authorization", "Bearer t");
+            for (k, v) in headers {
+                b = b.header(*k, *v);
+            }
+            b.body(Body::from("{}")).unwrap()
+        };
+        for headers in [
+            &[("origin", "http://evil.example")][..],
+            &[("origin", "http://127.0.0.1:9999")],
+            &[("origin", "null")],
+            &[("sec-fetch-site", "cross-site")],
+            &[
+                ("sec-fetch-site", "same-site"),
+                ("origin", "http://127.0.0.1:8080"),
+            ],
+        ] {
+            let (code, e) = call(&st, req("POST", headers)).await;
+            assert_eq!(code, StatusCode::FORBIDDEN, "{token:?} {headers:?}: {e}");
+            let says = e["error"]["message"].as_str().unwrap();
+            assert!(says.contains("its own pages and from programs only"), "{e}");
+        }
+        // The coordinator's own pages, and programs (no such header), may.
+        for headers in [
+            &[
+                ("origin", "http://127.0.0.1:8080"),
+                ("sec-fetch-site", "same-origin"),
+            ][..],
+            &[],
+        ] {
+            let (code, e) = call(&st, req("POST", headers)).await;
+            assert!(code.is_success(), "{token:?} {headers:?}: {code} {e}");
+        }
+        // Reading is not refused on these grounds (the browser does not let the page read the
+        // answer).
+        let mut get = req("GET", &[("origin", "http://evil.example")]);
+        *get.uri_mut() = "/v1/jobs".parse().unwrap();
+        assert_eq!(call(&st, get).await.0, StatusCode::OK, "{token:?}");
+    }
+}
+
+#[tokio::test]
+async fn a_coordinator_without_a_token_answers_only_to_its_addresses() {
+    let dir = tempfile::tempdir().unwrap();
+    let get = |host: &str| {
+        Request::builder()
+            .uri("/v1/jobs")
+            .header("host", host)
+            .body(Body::empty())
+            .unwrap()
+    };
+    let st = test_state(dir.path(), None);
+    for host in [
+        "127.0.0.1:8080",
+        "localhost:8080",
+        "LOCALHOST",
+        "farm.localhost:1",
+        "[::1]:8080",
+        "10.0.0.7",
+    ] {
+        assert_eq!(call(&st, get(host)).await.0, StatusCode::OK, "{host}");
+    }
+    // A name a DNS answer can turn to 127.0.0.1 (rebinding) is refused.
+    for host in [
+        "attacker.example:8080",
+        "localhost.evil.example",
+        "[::1",
+        "127.0.0.1.nip.io",
+    ] {
+        let (code, e) = call(&st, get(host)).await;
+        assert_eq!(code, StatusCode::FORBIDDEN, "{host}: {e}");
+        assert!(
+            e["error"]["message"]
+                .as_str()
+                .unwrap()
+                .contains("127.0.0.1"),
+            "{e}"
+        );
+    }
+    // With a token, or with --insecure, any name.
+    let mut with_token = get("farm-host:8080");
+    with_token
+        .headers_mut()
+        .insert("authorization", "Bearer t".parse().unwrap());
+    let other = tempfile::tempdir().unwrap();
+    let with_a_token = test_state(other.path(), Some("t"));
+    assert_eq!(call(&with_a_token, with_token).await.0, StatusCode::OK);
+    let other = tempfile::tempdir().unwrap();
+    let mut c = Config::new(other.path());
+    c.insecure = true;
+    let insecure = AppState::open(c).unwrap();
+    assert_eq!(
+        call(&insecure, get("farm-host:8080")).await.0,
+        StatusCode::OK
+    );
 }
 
 #[tokio::test]

@@ -54,8 +54,10 @@ function isFinal(state) {
   return state === "done" || state === "failed" || state === "cancelled";
 }
 
-// Runs `fn` at most once every `ms`, and once more after the last call.
+// Runs `fn` at most once every `ms` milliseconds (a number, or a function giving it), and once
+// more after the last call.
 function throttle(fn, ms) {
+  const interval = typeof ms === "function" ? ms : () => ms;
   let timer = null;
   let again = false;
   let last = 0;
@@ -64,7 +66,7 @@ function throttle(fn, ms) {
       again = true;
       return;
     }
-    const wait = Math.max(0, last + ms - Date.now());
+    const wait = Math.max(0, last + interval() - Date.now());
     timer = setTimeout(async () => {
       last = Date.now();
       again = false;
@@ -92,13 +94,18 @@ function tileText(t) {
 
 let tokenAsked = null;
 
+// A token goes in an HTTP header, which carries printable ASCII only.
+const TOKEN_TEXT = /^[\x20-\x7e]+$/;
+
 function token() {
-  return sessionStorage.getItem(TOKEN_KEY);
+  const t = sessionStorage.getItem(TOKEN_KEY);
+  return t && TOKEN_TEXT.test(t) ? t : null;
 }
 
-// Asks for the token (once for every request waiting on it), keeps it for the browser
-// session, and sets it as a cookie for what cannot send a header: the event stream and
-// image downloads (GET only; the coordinator takes the cookie on nothing else).
+// Asks for the token (once for every request waiting on it) and keeps it for the browser
+// session, in this tab only. It is sent in the Authorization header of every request, the
+// event stream's and downloads' too (the coordinator takes it from nowhere else: a cookie
+// would go with other sites' requests and to other services on the host).
 function askToken(refused) {
   if (tokenAsked) return tokenAsked;
   tokenAsked = new Promise((resolve) => {
@@ -114,9 +121,12 @@ function askToken(refused) {
       e.preventDefault();
       const t = input.value.trim();
       if (!t) return;
+      if (!TOKEN_TEXT.test(t)) {
+        document.getElementById("token-error").textContent =
+          "A token is printable ASCII: letters, digits, spaces and punctuation.";
+        return;
+      }
       sessionStorage.setItem(TOKEN_KEY, t);
-      document.cookie =
-        "raytile_token=" + encodeURIComponent(t) + "; path=/; SameSite=Strict";
       box.hidden = true;
       tokenAsked = null;
       resolve();
@@ -169,7 +179,7 @@ function postJson(path, body) {
 // ---------------------------------------------------------------- live events
 
 const listeners = new Set();
-let source = null;
+let stream = null; // the AbortController of the open event stream
 
 function setLive(on, text) {
   const el = document.getElementById("live");
@@ -177,35 +187,80 @@ function setLive(on, text) {
   el.textContent = text;
 }
 
+function dispatch(data, lastId) {
+  let ev;
+  try {
+    ev = JSON.parse(data);
+  } catch (_) {
+    return;
+  }
+  window.raytile.events++;
+  const id = lastId ? Number(lastId) : null;
+  for (const f of listeners) f(ev, id);
+}
+
+// Reads the event stream (server-sent events: `id:` and `data:` lines, an empty line ends an
+// event) until it ends. Read with fetch rather than an EventSource, which cannot send the
+// token's header.
+async function readEvents(signal) {
+  const headers = { Accept: "text/event-stream" };
+  const t = token();
+  if (t) headers["Authorization"] = "Bearer " + t;
+  const r = await fetch("/v1/events", { headers, signal, cache: "no-store" });
+  if (r.status === 401) {
+    await askToken(!!t);
+    return;
+  }
+  if (!r.ok || !r.body) return;
+  setLive(true, "live");
+  const reader = r.body.pipeThrough(new TextDecoderStream()).getReader();
+  let text = "";
+  let data = [];
+  let lastId = null;
+  for (;;) {
+    const { value, done } = await reader.read();
+    if (done) return;
+    text += value;
+    let from = 0;
+    for (let nl = text.indexOf("\n"); nl >= 0; nl = text.indexOf("\n", from)) {
+      let line = text.slice(from, nl);
+      from = nl + 1;
+      if (line.endsWith("\r")) line = line.slice(0, -1);
+      if (line === "") {
+        if (data.length) dispatch(data.join("\n"), lastId);
+        data = [];
+        continue;
+      }
+      if (line.startsWith(":")) continue; // a comment: the stream is alive
+      const colon = line.indexOf(":");
+      const name = colon < 0 ? line : line.slice(0, colon);
+      let v = colon < 0 ? "" : line.slice(colon + 1);
+      if (v.startsWith(" ")) v = v.slice(1);
+      if (name === "data") data.push(v);
+      else if (name === "id") lastId = v;
+    }
+    text = text.slice(from);
+  }
+}
+
+// Opens the event stream, and opens it again 1.5 s after it ends or fails (each opening
+// starts with a resync event).
 function connectEvents() {
-  if (source) source.close();
-  source = new EventSource("/v1/events");
-  source.onopen = () => setLive(true, "live");
-  source.onmessage = (m) => {
-    let ev;
-    try {
-      ev = JSON.parse(m.data);
-    } catch (_) {
-      return;
+  if (stream) stream.abort();
+  const ctl = new AbortController();
+  stream = ctl;
+  (async () => {
+    while (!ctl.signal.aborted) {
+      try {
+        await readEvents(ctl.signal);
+      } catch (e) {
+        if (!ctl.signal.aborted) console.error(e);
+      }
+      if (ctl.signal.aborted) return;
+      setLive(false, "reconnecting…");
+      await new Promise((resolve) => setTimeout(resolve, 1500));
     }
-    window.raytile.events++;
-    const id = m.lastEventId ? Number(m.lastEventId) : null;
-    for (const f of listeners) f(ev, id);
-  };
-  source.onerror = () => {
-    setLive(false, "reconnecting…");
-    if (source.readyState === EventSource.CLOSED) {
-      // Refused (a token is needed or changed): ask through the API, then open again.
-      setTimeout(async () => {
-        try {
-          await api("/v1/workers");
-        } catch (_) {
-          // shown elsewhere
-        }
-        connectEvents();
-      }, 1500);
-    }
-  };
+  })();
 }
 
 // ---------------------------------------------------------------- job actions
@@ -274,6 +329,25 @@ function jobActions(job, onChange) {
     }),
   }, "Delete"));
   return h("div", { class: "actions" }, out);
+}
+
+// A download link of a coordinator with a token: fetched with the token's header (a link
+// cannot send it), then saved from memory.
+async function download(e) {
+  if (!token()) return; // the link works as it is
+  e.preventDefault();
+  const link = e.currentTarget;
+  try {
+    const r = await api(link.getAttribute("href"), { raw: true });
+    const url = URL.createObjectURL(await r.blob());
+    const save = h("a", { href: url, download: link.getAttribute("download"), hidden: true });
+    document.body.append(save);
+    save.click();
+    save.remove();
+    setTimeout(() => URL.revokeObjectURL(url), 60000);
+  } catch (err) {
+    alert(err.message);
+  }
 }
 
 function progressCell(job) {
@@ -469,27 +543,50 @@ function jobsPage(main) {
   filter.value = params.get("state") || "";
   const body = h("tbody", { id: "jobs-body" });
   let jobs = [];
+  // Each job's row is kept and its cells updated in place (the link and the buttons only when
+  // they change), so that a focused button or link and a click in progress survive updates.
+  const rows = new Map();
+  const classes = ["", "", "", "num", "num opt", "opt", "num", "opt", "num opt", "num opt", ""];
+  const rowOf = (j) => {
+    let r = rows.get(j.id);
+    if (!r) {
+      const tds = classes.map((c) => h("td", { class: c || null }));
+      tds[0].append(h("a", { href: "/jobs/" + encodeURIComponent(j.id) }, j.id));
+      r = { tr: h("tr", { "data-job": j.id }, tds), tds, actions: null };
+      rows.set(j.id, r);
+    }
+    return r;
+  };
   const render = () => {
     const shown = jobs.filter((j) => !filter.value || j.state === filter.value).reverse();
-    body.replaceChildren(...shown.map((j) => {
+    const ids = new Set(jobs.map((j) => j.id));
+    for (const id of rows.keys()) if (!ids.has(id)) rows.delete(id);
+    const trs = shown.map((j) => {
+      const r = rowOf(j);
+      const c = r.tds;
       const t = timing(j);
       const s = j.settings;
-      return h("tr", { "data-job": j.id },
-        h("td", {}, h("a", { href: "/jobs/" + encodeURIComponent(j.id) }, j.id)),
-        h("td", {}, h("span", { class: "state state-" + j.state }, j.state)),
-        h("td", {}, progressCell(j)),
-        h("td", { class: "num" }, s.spp),
-        h("td", { class: "num opt" }, s.width + "×" + s.height),
-        h("td", { class: "opt" }, s.integrator),
-        h("td", { class: "num" }, j.priority),
-        h("td", { class: "opt" }, fmtTime(j.created_ms)),
-        h("td", { class: "num opt" }, fmtDur(t.elapsed)),
-        h("td", { class: "num opt" }, isFinal(j.state) && j.state !== "done" ? "—" : fmtDur(t.eta)),
-        h("td", {}, jobActions(j, refresh)));
-    }));
+      c[1].replaceChildren(h("span", { class: "state state-" + j.state }, j.state));
+      c[2].replaceChildren(...progressCell(j));
+      c[3].textContent = s.spp;
+      c[4].textContent = s.width + "×" + s.height;
+      c[5].textContent = s.integrator;
+      c[6].textContent = j.priority;
+      c[7].textContent = fmtTime(j.created_ms);
+      c[8].textContent = fmtDur(t.elapsed);
+      c[9].textContent = isFinal(j.state) && j.state !== "done" ? "—" : fmtDur(t.eta);
+      const actions = j.state + " " + j.priority;
+      if (r.actions !== actions) {
+        r.actions = actions;
+        c[10].replaceChildren(jobActions(j, refresh));
+      }
+      return r.tr;
+    });
     if (!shown.length) {
-      body.append(h("tr", {}, h("td", { colspan: 11, class: "muted" },
+      body.replaceChildren(h("tr", {}, h("td", { colspan: 11, class: "muted" },
         jobs.length ? "No job is " + filter.value + "." : "No jobs yet: submit one above.")));
+    } else if (trs.length !== body.children.length || trs.some((tr, i) => body.children[i] !== tr)) {
+      body.replaceChildren(...trs);
     }
   };
   const refresh = throttle(async () => {
@@ -557,7 +654,7 @@ function jobPage(main, id) {
           h("span", {}, h("span", { class: "swatch done" }), "refining")),
         h("div", { class: "downloads" }, "Download:",
           ["png", "exr", "hdr"].map((f) => h("a", { class: "button", href: "/v1/jobs/" + enc +
-            "/image?format=" + f, download: id + "." + f }, f.toUpperCase())))),
+            "/image?format=" + f, download: id + "." + f, onclick: download }, f.toUpperCase())))),
       h("section", { "aria-label": "Details" },
         h("h2", {}, "Progress"), progress,
         h("h2", {}, "Settings"), settings,
@@ -573,7 +670,11 @@ function jobPage(main, id) {
     const st = document.getElementById("job-state");
     st.className = "state state-" + job.state;
     st.textContent = job.state;
-    actions.replaceChildren(jobActions(job, () => refreshJob()));
+    const shownActions = job.state + " " + job.priority;
+    if (actions.dataset.shown !== shownActions) {
+      actions.dataset.shown = shownActions;
+      actions.replaceChildren(jobActions(job, () => refreshJob()));
+    }
     errorBox.textContent = job.error || "";
     const t = timing(job);
     progress.replaceChildren(...progressCell(job),
@@ -602,28 +703,39 @@ function jobPage(main, id) {
 
   // The overlay is drawn larger than the frame so that worker names are legible.
   let scale = 1;
-  const drawOverlay = () => {
+  // Drawn at most every 100 ms however many task events arrive (a job may have many
+  // thousands of tiles): the waiting tiles are dimmed in one path, the few being rendered
+  // outlined and named.
+  const paintOverlay = () => {
     if (!job) return;
     const ctx = overlay.getContext("2d");
     ctx.clearRect(0, 0, overlay.width, overlay.height);
     if (!showOverlay.checked) return;
-    ctx.font = Math.max(10, Math.round(11 * scale / 2)) + "px sans-serif";
-    ctx.textBaseline = "top";
+    const dim = !isFinal(job.state);
+    const leased = [];
+    ctx.beginPath();
     for (const t of tiles.values()) {
-      const x = t.tile.x0 * scale, y = t.tile.y0 * scale;
-      const w = (t.tile.x1 - t.tile.x0) * scale, hgt = (t.tile.y1 - t.tile.y0) * scale;
-      if (t.workers.size) {
-        ctx.strokeStyle = "#ffb300";
-        ctx.lineWidth = Math.max(2, scale);
-        ctx.strokeRect(x + 1, y + 1, w - 2, hgt - 2);
-        ctx.fillStyle = "#ffb300";
-        ctx.fillText([...t.workers].map(name).join(", "), x + 3 + ctx.lineWidth, y + 3 + ctx.lineWidth, w - 8);
-      } else if (t.passes_done === 0 && !isFinal(job.state)) {
-        ctx.fillStyle = "rgba(0,0,0,0.5)";
-        ctx.fillRect(x, y, w, hgt);
+      if (t.workers.size) leased.push(t);
+      else if (dim && t.passes_done === 0) {
+        ctx.rect(t.tile.x0 * scale, t.tile.y0 * scale, (t.tile.x1 - t.tile.x0) * scale,
+          (t.tile.y1 - t.tile.y0) * scale);
       }
     }
+    ctx.fillStyle = "rgba(0,0,0,0.5)";
+    ctx.fill();
+    ctx.font = Math.max(10, Math.round(11 * scale / 2)) + "px sans-serif";
+    ctx.textBaseline = "top";
+    ctx.strokeStyle = "#ffb300";
+    ctx.fillStyle = "#ffb300";
+    ctx.lineWidth = Math.max(2, scale);
+    for (const t of leased) {
+      const x = t.tile.x0 * scale, y = t.tile.y0 * scale;
+      const w = (t.tile.x1 - t.tile.x0) * scale, hgt = (t.tile.y1 - t.tile.y0) * scale;
+      ctx.strokeRect(x + 1, y + 1, w - 2, hgt - 2);
+      ctx.fillText([...t.workers].map(name).join(", "), x + 3 + ctx.lineWidth, y + 3 + ctx.lineWidth, w - 8);
+    }
   };
+  const drawOverlay = throttle(paintOverlay, 100);
   showOverlay.addEventListener("change", drawOverlay);
 
   const sizeCanvases = () => {
@@ -637,8 +749,12 @@ function jobPage(main, id) {
     }
   };
 
+  // The coordinator builds the whole frame for each preview: asked for no more often than
+  // every 400 ms, nor than four times as long as the last one took.
+  let previewMs = 0;
   const refreshPreview = throttle(async () => {
     if (!job || gone) return;
+    const began = performance.now();
     const before = { tasks_done: job.tasks_done, tasks_total: job.tasks_total, state: job.state };
     const r = await api("/v1/jobs/" + enc + "/image?format=png", { raw: true });
     const bitmap = await createImageBitmap(await r.blob());
@@ -653,7 +769,8 @@ function jobPage(main, id) {
     }
     before.lit = lit / (px.length / 4);
     window.raytile.previews.push(before);
-  }, 400);
+    previewMs = performance.now() - began;
+  }, () => Math.max(400, 4 * previewMs));
 
   // Task events that arrive while the tile list is being fetched are kept, and those the
   // list does not include yet (a larger id than its event_id) are applied to it after.
@@ -798,6 +915,15 @@ function workersPage(main) {
 
 // ---------------------------------------------------------------- start
 
+// The job id of a page's path segment, or null where its percent-encoding is malformed.
+function jobId(segment) {
+  try {
+    return decodeURIComponent(segment);
+  } catch (_) {
+    return null;
+  }
+}
+
 function start() {
   const main = document.getElementById("main");
   main.replaceChildren();
@@ -811,7 +937,7 @@ function start() {
   }
   if (path === "/") jobsPage(main);
   else if (path === "/workers") workersPage(main);
-  else if (m) jobPage(main, decodeURIComponent(m[1]));
+  else if (m && jobId(m[1]) !== null) jobPage(main, jobId(m[1]));
   else main.append(h("h1", {}, "Not found"), h("p", {}, h("a", { href: "/" }, "All jobs")));
   connectEvents();
 }
@@ -820,9 +946,9 @@ function start() {
 // browser opens only a few connections to one host: close the stream when the page is
 // hidden, open it again (it starts with a resync) when the page comes back.
 window.addEventListener("pagehide", () => {
-  if (source) {
-    source.close();
-    source = null;
+  if (stream) {
+    stream.abort();
+    stream = null;
   }
 });
 window.addEventListener("pageshow", (e) => {

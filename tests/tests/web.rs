@@ -610,8 +610,20 @@ async fn the_web_page_submits_watches_and_cancels() {
         }
     }
 
+    // A job path whose percent-encoding is malformed is a page that says so.
+    c.goto(&format!("{base}/jobs/%E0%A4%A")).await.unwrap();
+    until(
+        &c,
+        20,
+        "the not-found page",
+        "return document.querySelector('#main h1').textContent === 'Not found'",
+    )
+    .await;
+
     // A coordinator with a token: the page asks for it once, keeps it for the session, and
-    // the event stream gets it as the cookie.
+    // sends it in a header on every request, the event stream's too (no cookie, which would
+    // go to other services on the host). A token that is not printable ASCII cannot go in a
+    // header: the form says so.
     let locked = Coord::start_with_token(&dir.path().join("locked"), Some("open sesame")).await;
     c.goto(&format!("{}/", locked.base)).await.unwrap();
     until(
@@ -621,12 +633,24 @@ async fn the_web_page_submits_watches_and_cancels() {
         "return !document.getElementById('token-box').hidden",
     )
     .await;
-    c.find(Locator::Css("#token-input"))
+    let input = c.find(Locator::Css("#token-input")).await.unwrap();
+    input.send_keys("open s\u{2019}same").await.unwrap();
+    c.find(Locator::Css("#token-form button"))
         .await
         .unwrap()
-        .send_keys("open sesame")
+        .click()
         .await
         .unwrap();
+    let said = until(
+        &c,
+        20,
+        "the token's error",
+        "return document.getElementById('token-error').textContent",
+    )
+    .await;
+    assert!(said.as_str().unwrap().contains("printable ASCII"), "{said}");
+    input.clear().await.unwrap();
+    input.send_keys("open sesame").await.unwrap();
     c.find(Locator::Css("#token-form button"))
         .await
         .unwrap()
@@ -638,6 +662,7 @@ async fn the_web_page_submits_watches_and_cancels() {
     until(&c, 20, "the workers page with the kept token", "return document.getElementById('live').textContent === 'live' && document.querySelector('#workers-body td')").await;
     let asked = js(&c, "return !document.getElementById('token-box').hidden").await;
     assert_eq!(asked, false, "the token was asked for again");
+    assert_eq!(js(&c, "return document.cookie").await, "");
     locked.stop().await;
 
     c.close().await.unwrap();
