@@ -261,14 +261,19 @@ impl Job {
         transition(&mut self.tasks[idx], ev) == Outcome::Changed
     }
 
-    /// The first queued task in layout order, if any.
-    pub fn next_queued(&mut self) -> Option<usize> {
-        let found = self.tasks[self.cursor..]
+    /// The first queued task in layout order that `take` accepts, if any. (The cursor stays at
+    /// the first queued task, whether taken or not.)
+    pub fn next_queued(&mut self, take: impl Fn(&Task) -> bool) -> Option<usize> {
+        let first = self.tasks[self.cursor..]
             .iter()
             .position(|t| t.state == TaskState::Queued)
             .map(|i| self.cursor + i);
-        self.cursor = found.unwrap_or(self.tasks.len());
-        found
+        self.cursor = first.unwrap_or(self.tasks.len());
+        let first = first?;
+        self.tasks[first..]
+            .iter()
+            .position(|t| t.state == TaskState::Queued && take(t))
+            .map(|i| first + i)
     }
 
     /// Whether every task but `idx` is done (so that `idx` done finishes the job).

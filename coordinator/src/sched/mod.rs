@@ -368,8 +368,18 @@ impl Sched {
             !j.is_final() && j.failures_of(worker) < block
         });
         for id in queue {
+            // A task goes back to the worker that failed it last only when no other live
+            // worker may take the job's tasks: one broken worker would otherwise fail the
+            // same task again at once, until the task's failures failed the job.
+            let others = self.workers.another_may_take(
+                worker,
+                &self.jobs[&id].worker_failures,
+                block,
+                now.wall_ms,
+            );
             let job = self.jobs.get_mut(&id).expect("listed above");
-            let Some(idx) = job.next_queued() else {
+            let Some(idx) = job.next_queued(|t| !others || t.failed_by.as_deref() != Some(worker))
+            else {
                 continue;
             };
             let lease = self.ids.next("l-");

@@ -36,6 +36,9 @@ pub struct Task {
     pub state: TaskState,
     /// Failures reported so far.
     pub failures: u32,
+    /// The worker that failed it last, while it waits for another (kept in memory only: after
+    /// a restart any worker may take it).
+    pub failed_by: Option<String>,
 }
 
 impl Task {
@@ -44,6 +47,7 @@ impl Task {
         Task {
             state: TaskState::Queued,
             failures: 0,
+            failed_by: None,
         }
     }
 }
@@ -129,8 +133,9 @@ pub fn transition(task: &mut Task, ev: TaskEvent) -> Outcome {
                 deadline,
             }
         }
-        (Leased { lease, .. }, TaskEvent::Fail { lease: l, fatal }) if *lease == l => {
+        (Leased { worker, lease, .. }, TaskEvent::Fail { lease: l, fatal }) if *lease == l => {
             task.failures += 1;
+            task.failed_by = Some(worker.clone());
             if fatal {
                 Failed
             } else {

@@ -237,8 +237,10 @@ fn repeated_failures_fail_the_job_and_block_the_worker() {
     let bad = s.register("bad", 1, now).unwrap();
     let good = s.register("good", 1, now).unwrap();
     let job = s.new_job("s".into(), small(1), 0, now).unwrap().id;
-    for _ in 0..2 {
+    // The task bad failed waits for good, which may take it: bad gets the next one.
+    for task in [0, 1] {
         let g = s.lease(&bad, now).unwrap().unwrap();
+        assert_eq!(g.task, task);
         assert!(s.fail(&g.lease, "out of memory", now).unwrap());
     }
     assert!(
@@ -246,6 +248,12 @@ fn repeated_failures_fail_the_job_and_block_the_worker() {
         "blocked after two failures"
     );
     let g = s.lease(&good, now).unwrap().unwrap();
+    assert_eq!(g.task, 0);
+    assert!(s.fail(&g.lease, "disk full", now).unwrap());
+    assert_eq!(state_of(&s, &job), JobState::Running);
+    // No other worker may take task 0 now: good takes it again.
+    let g = s.lease(&good, now).unwrap().unwrap();
+    assert_eq!(g.task, 0);
     assert!(s.fail(&g.lease, "disk full", now).unwrap());
     let j = s.job_status(&job).unwrap();
     assert_eq!(j.state, JobState::Failed);
@@ -256,7 +264,49 @@ fn repeated_failures_fail_the_job_and_block_the_worker() {
     );
     assert!(s.lease(&good, now).unwrap().is_none());
     let failures: Vec<u64> = s.worker_list(t0()).iter().map(|w| w.failures).collect();
-    assert_eq!(failures, [2, 1]);
+    assert_eq!(failures, [2, 2]);
+}
+
+#[test]
+fn one_broken_worker_does_not_fail_a_job_that_others_can_render() {
+    // A worker that fails every task it gets (too little memory for the scene) beside a
+    // healthy one: the job is rendered. It used to take the task it had just failed again at
+    // once, three times, and fail the job before the healthy worker got to it.
+    let dir = tempfile::tempdir().unwrap();
+    let now = t0();
+    let mut s = open(dir.path(), now);
+    let bad = s.register("bad", 1, now).unwrap();
+    let good = s.register("good", 1, now).unwrap();
+    let job = s.new_job("s".into(), small(1), 0, now).unwrap().id;
+    loop {
+        if let Some(g) = s.lease(&bad, now).unwrap() {
+            assert!(s
+                .fail(&g.lease, "scene over --scene-memory-mb", now)
+                .unwrap());
+        }
+        if finish(&mut s, &good, now).is_none() {
+            break;
+        }
+    }
+    let j = s.job_status(&job).unwrap();
+    assert_eq!(j.state, JobState::Done, "{:?}", j.error);
+    // Alone, a worker retakes the task it failed (the job does not wait for another): its
+    // failures end the job.
+    let dir2 = tempfile::tempdir().unwrap();
+    let mut alone = open(dir2.path(), now);
+    let w = alone.register("w", 1, now).unwrap();
+    let one = RenderSettings {
+        width: 16,
+        height: 16,
+        ..small(1)
+    };
+    let only = alone.new_job("s".into(), one, 0, now).unwrap().id;
+    for _ in 0..2 {
+        let g = alone.lease(&w, now).unwrap().unwrap();
+        assert_eq!(g.task, 0);
+        assert!(alone.fail(&g.lease, "broken", now).unwrap());
+    }
+    assert_eq!(state_of(&alone, &only), JobState::Failed);
 }
 
 #[test]
@@ -599,9 +649,10 @@ fn a_failed_write_changes_nothing_and_the_retry_applies_once() {
         s.heartbeat(&g.lease, late),
         Heartbeat::Stop { .. }
     ));
-    // Finish the job: every task exactly once.
+    // Finish the job: every task exactly once (the one w failed waits for w2, which may take
+    // it).
     let mut n = 1;
-    while finish(&mut s, &w, late).is_some() {
+    while finish(&mut s, &w, late).is_some() || finish(&mut s, &w2, late).is_some() {
         n += 1;
     }
     let st = s.job_status(&job).unwrap();
@@ -802,10 +853,14 @@ fn a_job_that_ends_holds_no_leases() {
         }
     );
     // Failed by one task's failures while another worker holds a lease.
+    // (A failed task waits for another worker than the one that failed it: a and c take
+    // turns.)
+    let c = s.register("c", 1, now).unwrap();
     let failed = s.new_job("s".into(), small(1), 0, now).unwrap().id;
     s.lease(&b, now).unwrap().unwrap();
-    for _ in 0..3 {
-        let g = s.lease(&a, now).unwrap().unwrap();
+    for w in [&a, &c, &a] {
+        let g = s.lease(w, now).unwrap().unwrap();
+        assert_eq!(g.task, 1);
         assert!(s.fail(&g.lease, "boom", now).unwrap());
     }
     assert_eq!(state_of(&s, &failed), JobState::Failed);

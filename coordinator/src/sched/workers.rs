@@ -99,6 +99,22 @@ impl Workers {
         self.recs.get(id).is_some_and(|w| self.is_live(w, now_ms))
     }
 
+    /// Whether a live worker other than `worker` has fewer than `block_after` failures in
+    /// `failures` (it may take the job's tasks).
+    pub fn another_may_take(
+        &self,
+        worker: &str,
+        failures: &HashMap<String, u32>,
+        block_after: u32,
+        now_ms: u64,
+    ) -> bool {
+        self.recs.iter().any(|(id, w)| {
+            id != worker
+                && self.is_live(w, now_ms)
+                && failures.get(id).copied().unwrap_or(0) < block_after
+        })
+    }
+
     /// Whether every live worker has `block_after` failures or more in `failures` (and at least
     /// one worker is live): a job in that state would wait for ever.
     pub fn all_live_blocked(
