@@ -253,6 +253,9 @@ pub struct Inner {
     /// ([`Config::max_parallel_images`]).
     pub image_slots: Arc<tokio::sync::Semaphore>,
     shutdown_tx: watch::Sender<bool>,
+    /// The data directory's `lock` file, locked while the coordinator runs (see
+    /// [`lock_data_dir`]).
+    _lock: Option<std::fs::File>,
 }
 
 impl std::ops::Deref for AppState {
@@ -269,6 +272,7 @@ impl AppState {
             std::fs::create_dir_all(cfg.data_dir.join(d))
                 .with_context(|| format!("creating {}", cfg.data_dir.join(d).display()))?;
         }
+        let lock = lock_data_dir(&cfg.data_dir)?;
         let store = store::Store::open(&cfg.data_dir).context("opening the database")?;
         let now = (cfg.clock)();
         let grace = cfg.startup_grace.max(cfg.lease_timeout);
@@ -302,6 +306,7 @@ impl AppState {
             parse_slots,
             image_slots,
             shutdown_tx,
+            _lock: lock,
         })))
     }
 
@@ -324,6 +329,36 @@ impl AppState {
     /// A receiver that sees `true` once shutdown began.
     pub fn shutdown_rx(&self) -> watch::Receiver<bool> {
         self.shutdown_tx.subscribe()
+    }
+}
+
+/// Locks `dir`'s `lock` file for as long as the returned file is open: a second coordinator on
+/// the same data directory would resume the same jobs and hand out their tasks too, and
+/// each would overwrite the other's state (a job one cancelled, the other finished). A file
+/// system without locks (some network ones) is used unlocked, with a warning.
+fn lock_data_dir(dir: &std::path::Path) -> anyhow::Result<Option<std::fs::File>> {
+    let path = dir.join("lock");
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&path)
+        .with_context(|| format!("creating {}", path.display()))?;
+    match file.try_lock() {
+        Ok(()) => Ok(Some(file)),
+        Err(std::fs::TryLockError::WouldBlock) => anyhow::bail!(
+            "{} is in use by another coordinator (which holds {}): give each coordinator a \
+             --data-dir of its own",
+            dir.display(),
+            path.display()
+        ),
+        Err(std::fs::TryLockError::Error(e)) => {
+            tracing::warn!(
+                "cannot lock {}: {e}; nothing stops a second coordinator on this data directory",
+                path.display()
+            );
+            Ok(None)
+        }
     }
 }
 

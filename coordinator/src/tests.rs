@@ -1442,3 +1442,20 @@ async fn image_requests_wait_for_a_slot_and_are_answered_busy_after_the_wait() {
         StatusCode::NOT_FOUND
     );
 }
+
+#[tokio::test]
+async fn a_data_directory_serves_one_coordinator_at_a_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let first = test_state(dir.path(), None);
+    let e = AppState::open(Config::new(dir.path()))
+        .err()
+        .expect("a second coordinator on the same data directory");
+    let e = format!("{e:#}");
+    assert!(
+        e.contains("in use by another coordinator") && e.contains("--data-dir"),
+        "{e}"
+    );
+    // Once the first has stopped, the directory is free again (a restart).
+    drop(first);
+    assert!(AppState::open(Config::new(dir.path())).is_ok());
+}
