@@ -82,4 +82,6 @@ pub use settings::{
 /// light rays that start in the plane's shadow carry nothing, and the MIS weights leave out the
 /// light's strategies where its rays cannot reach; `bdpt` runs next-event estimation when its
 /// light subpath is empty (2026-12-06). Images of other scenes unchanged.
-pub const RENDER_VERSION: u32 = 11;
+/// 12: `sppm`'s initial search radius is two pixel widths where the camera's rays meet the
+/// scene, not two pixels' worth of the scene's extent (2026-12-06): every `sppm` image changes.
+pub const RENDER_VERSION: u32 = 12;

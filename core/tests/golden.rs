@@ -278,7 +278,7 @@ const GOLDEN: [(IntegratorKind, &str); 9] = [
     (IntegratorKind::Path, "158c1e7f9e4be2cf"),
     (IntegratorKind::Volpath, "ca9fa39f64ba142b"),
     (IntegratorKind::Bdpt, "672d7c5e534d19ae"),
-    (IntegratorKind::Sppm, "048e137344dfe195"),
+    (IntegratorKind::Sppm, "719925b70751749e"),
     (IntegratorKind::Whitted, "1fb03513b2104f1a"),
     (IntegratorKind::Normals, "7bc0a2763bfb615f"),
     (IntegratorKind::Albedo, "ad105da7432cb490"),

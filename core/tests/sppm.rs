@@ -174,3 +174,50 @@ fn sppm_refuses_an_unbounded_plane_under_the_sun_or_the_sky() {
         .to_string();
     assert!(e.contains("sppm cannot render an unbounded plane"), "{e}");
 }
+
+#[test]
+fn the_initial_radius_follows_what_the_camera_sees_not_the_scenes_extent() {
+    // scenes/caustic.json's glass ball over a floor, with the floor 4 m or 2 km wide, or with
+    // a 1 cm speck 100 km away: the camera sees much the same (more floor towards the horizon
+    // under the wide floor), so the search radius is much the same. It used to grow with the
+    // scene's bounding sphere (to some 140 m under the wide floor) until the caustic blurred
+    // away.
+    let scene = |floor: f32, speck: bool| {
+        let speck = if speck {
+            r#", {"shape": {"type": "sphere", "center": [1e5, 0, 0], "radius": 0.01}, "material": "floor"}"#
+        } else {
+            ""
+        };
+        load(&format!(
+            r#"{{"camera": {{"position": [0, 1.6, 3.2], "look_at": [0, 0.3, 0], "fov": 40}},
+  "materials": {{"floor": {{"type": "diffuse"}}, "glass": {{"type": "dielectric", "ior": 1.5}},
+                 "lamp": {{"type": "emitter", "emission": [1000, 1000, 1000]}}}},
+  "objects": [
+    {{"shape": {{"type": "rectangle", "corner": [{h}, 0, {h}], "edge_u": [0, 0, {floor}],
+                "edge_v": [{floor}, 0, 0]}}, "material": "floor"}},
+    {{"shape": {{"type": "sphere", "center": [0, 1, 0], "radius": 0.5}}, "material": "glass"}},
+    {{"shape": {{"type": "disk", "center": [0, 3, 0], "normal": [0, -1, 0], "radius": 0.05}},
+     "material": "lamp"}}{speck}]}}"#,
+            h = -floor / 2.0
+        ))
+    };
+    let s = settings(80, 60, 1, IntegratorKind::Sppm);
+    let radius = |scene: &raytile_core::Scene| {
+        sppm::initial_radius(scene, &RenderJob::new(scene, &s).unwrap())
+    };
+    let small = radius(&scene(4.0, false));
+    // Two pixel widths on the floor about 3.5 m from the camera: 2 · 3.5 · 2 tan 20° / 60.
+    assert!((0.03..0.1).contains(&small), "{small}");
+    let speck = radius(&scene(4.0, true));
+    assert_eq!(speck, small);
+    let wide = radius(&scene(2000.0, false));
+    assert!((wide / small - 1.0).abs() < 0.25, "{wide} against {small}");
+    // A camera that sees nothing: the scene's extent.
+    let away = load(
+        r#"{"camera": {"position": [0, 0, 0], "look_at": [0, 0, 1]},
+        "materials": {"d": {"type": "diffuse"}},
+        "objects": [{"shape": {"type": "sphere", "center": [0, 0, -5], "radius": 1}, "material": "d"}]}"#,
+    );
+    let r = radius(&away);
+    assert!(r.is_finite() && r > 0.0, "{r}");
+}

@@ -34,8 +34,8 @@ use std::sync::Arc;
 /// The fraction of new photons kept in a pixel's count per iteration.
 pub const ALPHA: f32 = 2.0 / 3.0;
 
-/// Initial search radius in pixels of the scene's extent: the scene's bounding-sphere
-/// diameter over the image's longer edge, times this.
+/// Initial search radius in pixel widths, where the camera's rays first meet the scene (see
+/// [`initial_radius`]).
 pub const INITIAL_RADIUS_PIXELS: f32 = 2.0;
 
 /// Mixed into the seed of photon samplers, so that photon k of iteration i draws numbers of its
@@ -47,9 +47,48 @@ const PHOTON_CHUNK: u32 = 4096;
 
 /// The initial search radius of every pixel of `job`: tile-independent, and the largest radius
 /// any lookup uses (radii only shrink), hence the photon grid's cell size.
+///
+/// [`INITIAL_RADIUS_PIXELS`] times the median width of a pixel where the camera's rays through
+/// a grid of 16 × 16 pixels first meet a surface (passing media boundaries): what the camera
+/// sees sets it, not the extent of the scene, which a floor kilometres wide or a far-off object
+/// would stretch until every caustic blurred away. A camera that sees nothing falls back to
+/// the scene's extent (its bounding-sphere diameter over the image's longer edge).
 pub fn initial_radius(scene: &Scene, job: &RenderJob) -> f32 {
-    let edge = job.settings.width.max(job.settings.height).max(1) as f32;
-    INITIAL_RADIUS_PIXELS * 2.0 * scene_sphere(scene).1 / edge
+    const GRID: u32 = 16;
+    let (w, h) = (job.settings.width.max(1), job.settings.height.max(1));
+    let (nx, ny) = (GRID.min(w), GRID.min(h));
+    let lens = Vec2::splat(0.5);
+    let mut widths = Vec::with_capacity((nx * ny) as usize);
+    for j in 0..ny {
+        for i in 0..nx {
+            let x = ((i as f32 + 0.5) * w as f32 / nx as f32).floor() + 0.5;
+            let y = ((j as f32 + 0.5) * h as f32 / ny as f32).floor() + 0.5;
+            let first = job.camera.generate_ray(Vec2::new(x, y), lens);
+            let beside = job.camera.generate_ray(Vec2::new(x + 1.0, y), lens);
+            let mut ray = first;
+            for _ in 0..16 {
+                let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
+                    break;
+                };
+                if !scene.is_interface(hit.object) {
+                    let t = (ray.at(hit.t) - first.o).length();
+                    let width = (beside.at(t) - first.at(t)).length();
+                    if width.is_finite() && width > 0.0 {
+                        widths.push(width);
+                    }
+                    break;
+                }
+                ray = scene.interaction(&ray, &hit).spawn_ray(ray.d);
+            }
+        }
+    }
+    if widths.is_empty() {
+        let edge = w.max(h) as f32;
+        return INITIAL_RADIUS_PIXELS * 2.0 * scene_sphere(scene).1 / edge;
+    }
+    let middle = widths.len() / 2;
+    let (_, median, _) = widths.select_nth_unstable_by(middle, f32::total_cmp);
+    INITIAL_RADIUS_PIXELS * *median
 }
 
 /// Photons per iteration: one per pixel, as pbrt's default.
