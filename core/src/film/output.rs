@@ -127,10 +127,31 @@ pub fn encode(
     };
     match format {
         ImageFormat::Exr => {
-            let bytes: Vec<u8> = px.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
-            image::codecs::openexr::OpenExrEncoder::new(&mut out)
-                .write_image(&bytes, w, h, ExtendedColorType::Rgb32F)
-                .map_err(err("OpenEXR"))?;
+            // The image crate's encoder (RLE in 64² tiles) writes its tiles in whatever order
+            // its threads finish them (line order "random"): the same frame gave other bytes
+            // from one encoding to the next. The same compression and tiles, in increasing
+            // order (the exr crate sorts what its threads compress), are the same bytes always.
+            use exr::prelude::{
+                Blocks, Compression, Encoding, Image, LineOrder, SpecificChannels, Vec2,
+                WritableImage,
+            };
+            let encoding = Encoding {
+                compression: Compression::RLE,
+                blocks: Blocks::Tiles(Vec2(64, 64)),
+                line_order: LineOrder::Increasing,
+            };
+            let width = w as usize;
+            let channels = SpecificChannels::rgb(|at: Vec2<usize>| {
+                let [r, g, b] = px[at.y() * width + at.x()];
+                (r, g, b)
+            });
+            Image::from_encoded_channels((width, h as usize), encoding, channels)
+                .write()
+                .to_buffered(&mut out)
+                .map_err(|e| FilmError::Encode {
+                    format: "OpenEXR",
+                    message: e.to_string(),
+                })?;
         }
         ImageFormat::Hdr => {
             let data: Vec<image::Rgb<f32>> = px
@@ -218,6 +239,7 @@ mod tests {
         assert!(aces(0.18) > 0.1 && aces(0.18) < 0.3);
     }
     use crate::{Tile, TileAccum};
+    use rayon::prelude::*;
 
     #[test]
     fn an_output_that_cannot_be_written_is_found_before_the_render() {
@@ -268,6 +290,41 @@ mod tests {
             .into_rgb32f();
         assert_eq!(img.dimensions(), (3, 2));
         assert_eq!(img.get_pixel(2, 1).0, [1.25, 0.5, 2.0]);
+    }
+
+    /// A frame of many tiles encodes to the same bytes every time, whatever the threads do:
+    /// the tiles are written in increasing order.
+    #[test]
+    fn exr_bytes_are_the_same_every_time() {
+        let (w, h) = (300, 200);
+        let mut f = Film::new(w, h);
+        f.add_tile(&TileAccum {
+            tile: Tile {
+                x0: 0,
+                y0: 0,
+                x1: w,
+                y1: h,
+            },
+            pixels: (0..w * h)
+                .map(|i| [(i % 7) as f32, (i % 13) as f32 * 0.5, (i / w) as f32, 1.0])
+                .collect(),
+            bad_samples: 0,
+            splats: Vec::new(),
+        })
+        .unwrap();
+        let once = encode(&f, ImageFormat::Exr, &OutputOptions::default()).unwrap();
+        let img = image::load_from_memory_with_format(&once, image::ImageFormat::OpenExr)
+            .unwrap()
+            .into_rgb32f();
+        assert_eq!(
+            img.get_pixel(299, 199).0,
+            [(59999 % 7) as f32, 0.5 * (59999 % 13) as f32, 199.0]
+        );
+        let again: Vec<Vec<u8>> = (0..16)
+            .into_par_iter()
+            .map(|_| encode(&f, ImageFormat::Exr, &OutputOptions::default()).unwrap())
+            .collect();
+        assert!(again.iter().all(|b| *b == once));
     }
 
     #[test]
