@@ -9,6 +9,7 @@
 //! task that runs it is how tests "kill" a worker.
 
 mod cache;
+mod files;
 
 pub use cache::{SceneCache, DEFAULT_BUDGET as DEFAULT_SCENE_CACHE};
 
@@ -338,24 +339,22 @@ impl Worker {
             return Err(anyhow!("bad scene id '{}'", lease.scene));
         }
         let dir = self.cfg.cache_dir.join(&lease.scene);
-        let blob = dir.join("blob");
-        let root = dir.join("root");
-        let entry = root.join(&lease.scene_entry);
-        if dir.join("ok").exists() {
-            if self.verified.contains(&lease.scene) {
-                return Ok(entry);
-            }
-            let sha = {
-                let b = blob.clone();
-                tokio::task::spawn_blocking(move || pkg::sha256_file(&b)).await??
-            };
-            if sha == lease.scene_sha256 {
+        let entry = dir.join("root").join(&lease.scene_entry);
+        if self.verified.contains(&lease.scene) && dir.join("ok").exists() {
+            return Ok(entry);
+        }
+        // Once per process and scene: the blob and every unpacked file checked against what
+        // was recorded (see the `files` module).
+        if dir.exists() {
+            let (d, sha) = (dir.clone(), lease.scene_sha256.clone());
+            if tokio::task::spawn_blocking(move || files::verify(&d, &sha)).await? {
                 self.verified.insert(lease.scene.clone());
                 return Ok(entry);
             }
-            tracing::warn!(scene = %lease.scene, "cached scene is corrupt; downloading again");
+            tracing::warn!(scene = %lease.scene, "cached scene is incomplete or corrupt; downloading again");
+            let d = dir.clone();
+            tokio::task::spawn_blocking(move || files::discard(&d)).await?;
         }
-        let _ = std::fs::remove_dir_all(&dir);
         let bytes = loop {
             match self.client.download_scene(&lease.scene).await {
                 Ok(b) => break b,
@@ -373,30 +372,10 @@ impl Worker {
         }
         let format = pkg::SceneFormat::from_name(&lease.scene_format)
             .ok_or_else(|| anyhow!("unknown scene format '{}'", lease.scene_format))?;
-        let entry_name = lease.scene_entry.clone();
+        let scene_entry = lease.scene_entry.clone();
         let d = dir.clone();
-        tokio::task::spawn_blocking(move || -> anyhow::Result<()> {
-            let tmp = d.with_extension("partial");
-            let _ = std::fs::remove_dir_all(&tmp);
-            std::fs::create_dir_all(tmp.join("root"))?;
-            std::fs::write(tmp.join("blob"), &bytes)?;
-            let e = if format.is_archive() {
-                Some(entry_name.as_str())
-            } else {
-                None
-            };
-            pkg::unpack(
-                &tmp.join("blob"),
-                format,
-                e,
-                &tmp.join("root"),
-                pkg::UnpackLimits::default(),
-            )?;
-            std::fs::write(tmp.join("ok"), b"")?;
-            std::fs::rename(&tmp, &d)?;
-            Ok(())
-        })
-        .await??;
+        tokio::task::spawn_blocking(move || files::install(&d, &bytes, format, &scene_entry))
+            .await??;
         self.verified.insert(lease.scene.clone());
         Ok(entry)
     }

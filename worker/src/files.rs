@@ -1,0 +1,167 @@
+//! The scene files a worker keeps on disk (`--cache-dir`), by scene id: `ID/blob` (the
+//! package as downloaded, whose sha256 the coordinator gives with every lease), `ID/root/`
+//! (the package unpacked) and `ID/ok` (the sha256 and path of every unpacked file).
+//!
+//! Several worker processes may share one cache directory. A scene is unpacked into a folder
+//! of the process's own and moved into place with one rename; when another process got there
+//! first, its folder is used and this one's dropped. A folder whose files no longer match
+//! what was recorded (bit rot, an edit, an unpack that did not finish) is moved aside, then
+//! removed, and the scene fetched again: the files a frame is rendered from are always the
+//! package's.
+
+use anyhow::Context;
+use raytile_proto::scene as pkg;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// A name no other process or call uses, beside `dir`: `dir` with `what`, the process id and
+/// a counter as its extension.
+fn own_name(dir: &Path, what: &str) -> PathBuf {
+    static NEXT: AtomicU64 = AtomicU64::new(0);
+    let n = NEXT.fetch_add(1, Ordering::Relaxed);
+    dir.with_extension(format!("{what}-{}-{n}", std::process::id()))
+}
+
+/// The manifest of the files under `root`: one line per file, `SHA256 PATH` (the path relative
+/// to `root`, with `/`), sorted by path.
+fn manifest(root: &Path) -> std::io::Result<String> {
+    let mut lines = Vec::new();
+    let mut folders = vec![PathBuf::new()];
+    while let Some(rel) = folders.pop() {
+        for e in std::fs::read_dir(root.join(&rel))? {
+            let e = e?;
+            let path = rel.join(e.file_name());
+            let kind = e.file_type()?;
+            if kind.is_dir() {
+                folders.push(path);
+            } else {
+                let shown = path.to_string_lossy().replace('\\', "/");
+                lines.push(format!("{} {shown}", pkg::sha256_file(&root.join(&path))?));
+            }
+        }
+    }
+    lines.sort_by(|a, b| a[65..].cmp(&b[65..]));
+    Ok(lines.iter().map(|l| format!("{l}\n")).collect())
+}
+
+/// Whether the scene folder `dir` is complete and its files are what was recorded: the blob's
+/// sha256 is `sha256`, and the unpacked files are those of the manifest, to the byte.
+pub fn verify(dir: &Path, sha256: &str) -> bool {
+    let Ok(recorded) = std::fs::read_to_string(dir.join("ok")) else {
+        return false;
+    };
+    // A folder from a version that recorded no manifest is fetched again once.
+    !recorded.is_empty()
+        && pkg::sha256_file(&dir.join("blob")).is_ok_and(|s| s == sha256)
+        && manifest(&dir.join("root")).is_ok_and(|m| m == recorded)
+}
+
+/// Moves `dir` aside (one rename, so no process sees it half removed) and removes it. Nothing
+/// happens when it does not exist.
+pub fn discard(dir: &Path) {
+    let aside = own_name(dir, "discarded");
+    if std::fs::rename(dir, &aside).is_ok() {
+        let _ = std::fs::remove_dir_all(&aside);
+    }
+}
+
+/// Unpacks the package `bytes` (already checked against its sha256) into the scene folder
+/// `dir`: into a folder of this call's own first, then moved into place. When another process
+/// put a complete folder there meanwhile, that one stays.
+pub fn install(
+    dir: &Path,
+    bytes: &[u8],
+    format: pkg::SceneFormat,
+    entry: &str,
+) -> anyhow::Result<()> {
+    let tmp = own_name(dir, "partial");
+    let result = (|| -> anyhow::Result<()> {
+        std::fs::create_dir_all(tmp.join("root"))
+            .with_context(|| format!("creating {}", tmp.display()))?;
+        std::fs::write(tmp.join("blob"), bytes)?;
+        let entry = format.is_archive().then_some(entry);
+        pkg::unpack(
+            &tmp.join("blob"),
+            format,
+            entry,
+            &tmp.join("root"),
+            pkg::UnpackLimits::default(),
+        )?;
+        std::fs::write(tmp.join("ok"), manifest(&tmp.join("root"))?)?;
+        Ok(())
+    })();
+    if let Err(e) = result {
+        let _ = std::fs::remove_dir_all(&tmp);
+        return Err(e);
+    }
+    match std::fs::rename(&tmp, dir) {
+        Ok(()) => Ok(()),
+        // Another process installed it first (a rename onto a folder that is not empty fails).
+        Err(_) if dir.join("ok").exists() => {
+            let _ = std::fs::remove_dir_all(&tmp);
+            Ok(())
+        }
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(&tmp);
+            Err(e).with_context(|| format!("moving the scene into {}", dir.display()))
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn json_scene() -> (Vec<u8>, String) {
+        let bytes = br#"{"objects": []}"#.to_vec();
+        let sha = pkg::sha256_hex(&bytes);
+        (bytes, sha)
+    }
+
+    #[test]
+    fn a_folder_is_used_only_while_its_files_are_what_was_unpacked() {
+        let cache = tempfile::tempdir().unwrap();
+        let (bytes, sha) = json_scene();
+        let dir = cache.path().join(&sha);
+        assert!(!verify(&dir, &sha));
+        install(&dir, &bytes, pkg::SceneFormat::Json, "scene.json").unwrap();
+        assert!(verify(&dir, &sha));
+        assert!(!verify(&dir, &"0".repeat(64)), "another scene's id");
+        // An unpacked file edited (or rotted): the folder is not used.
+        let file = std::fs::read_dir(dir.join("root"))
+            .unwrap()
+            .next()
+            .unwrap()
+            .unwrap();
+        std::fs::write(file.path(), b"{\"objects\": [], \"x\": 1}").unwrap();
+        assert!(!verify(&dir, &sha));
+        discard(&dir);
+        assert!(!dir.exists());
+        // A folder from a version that wrote no manifest.
+        install(&dir, &bytes, pkg::SceneFormat::Json, "scene.json").unwrap();
+        std::fs::write(dir.join("ok"), b"").unwrap();
+        assert!(!verify(&dir, &sha));
+    }
+
+    #[test]
+    fn processes_sharing_a_cache_install_a_scene_once_without_failing() {
+        let cache = tempfile::tempdir().unwrap();
+        let (bytes, sha) = json_scene();
+        let dir = cache.path().join(&sha);
+        std::thread::scope(|s| {
+            for _ in 0..8 {
+                s.spawn(|| install(&dir, &bytes, pkg::SceneFormat::Json, "scene.json").unwrap());
+            }
+        });
+        assert!(verify(&dir, &sha));
+        let left: Vec<_> = std::fs::read_dir(cache.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(
+            left,
+            [std::ffi::OsString::from(&sha)],
+            "no partial folder left"
+        );
+    }
+}
