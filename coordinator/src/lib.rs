@@ -373,12 +373,31 @@ pub fn check_exposure(ip: IpAddr, cfg: &Config) -> anyhow::Result<()> {
 }
 
 /// Re-queues expired leases, forever; waits out the start-up grace period first.
+///
+/// When it finds that it did not run for longer than a lease lives (the process was stopped,
+/// or its machine paused), the workers' heartbeats and results of that time are still waiting
+/// in the sockets: every lease out gets the start-up grace period to be heard from, as after a
+/// restart, instead of all expiring at once and their tiles being rendered twice.
 pub async fn timeout_checker(state: AppState) {
     let tick = (state.cfg.lease_timeout / 4).max(Duration::from_millis(20));
+    let mut last = state.now().instant;
     loop {
         tokio::time::sleep(tick).await;
         let now = state.now();
+        let away = now.instant.saturating_duration_since(last);
+        last = now.instant;
         if now.instant < state.started.instant + state.cfg.startup_grace {
+            continue;
+        }
+        if away > state.cfg.lease_timeout {
+            let grace = state.cfg.startup_grace.max(state.cfg.lease_timeout);
+            let n = state.sched().extend_leases(now.instant + grace);
+            tracing::warn!(
+                "the coordinator did not run for {:.1} s (stopped, or its machine paused): \
+                 {n} leases get {:.0} s to be heard from before they expire",
+                away.as_secs_f64(),
+                grace.as_secs_f64()
+            );
             continue;
         }
         let res = state.sched().expire(now);

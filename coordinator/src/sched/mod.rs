@@ -759,6 +759,30 @@ impl Sched {
     /// Re-queues every lease whose deadline has passed at `now`, and fails the jobs every live
     /// worker is blocked from; returns how many leases expired. Only the leases out are
     /// looked at, not every task of every job.
+    /// Gives every lease out at least until `until` (deadlines live in memory: nothing is
+    /// stored); returns how many it extended. For a coordinator that was not running for
+    /// longer than a lease lives (see [`crate::timeout_checker`]).
+    pub fn extend_leases(&mut self, until: tokio::time::Instant) -> usize {
+        let mut n = 0;
+        for (lease, (job_id, idx)) in &self.leases {
+            let Some(job) = self.jobs.get_mut(job_id) else {
+                continue;
+            };
+            let short = matches!(
+                &job.tasks()[*idx].state,
+                state::TaskState::Leased { deadline, .. } if *deadline < until
+            );
+            let renew = TaskEvent::Renew {
+                lease: lease.clone(),
+                deadline: until,
+            };
+            if short && job.renew(*idx, renew) {
+                n += 1;
+            }
+        }
+        n
+    }
+
     pub fn expire(&mut self, now: Now) -> Result<usize, SchedError> {
         let mut expired = Vec::new();
         for (lease, (job_id, idx)) in &self.leases {

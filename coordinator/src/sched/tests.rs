@@ -230,6 +230,32 @@ fn expired_leases_are_requeued_and_late_results_are_duplicates() {
 }
 
 #[test]
+fn leases_extended_after_a_pause_expire_only_after_the_extension() {
+    let dir = tempfile::tempdir().unwrap();
+    let now = t0();
+    let mut s = open_with(dir.path(), cfg(), now, Duration::ZERO);
+    let w = s.register("w", 1, now).unwrap();
+    s.new_job("s".into(), small(1), 0, now).unwrap();
+    let g = s.lease(&w, now).unwrap().unwrap();
+    // The lease lives 10 s; the coordinator was away for 60 s and extends it by 30.
+    let back = now.after(secs(60));
+    assert_eq!(s.extend_leases(back.instant + secs(30)), 1);
+    assert_eq!(
+        s.extend_leases(back.instant + secs(5)),
+        0,
+        "never shortened"
+    );
+    assert_eq!(s.expire(back.after(secs(29))).unwrap(), 0);
+    assert_eq!(
+        s.heartbeat(&g.lease, back.after(secs(29))),
+        Heartbeat::Renewed
+    );
+    // The heartbeat renewed it for its usual 10 s from then.
+    assert_eq!(s.expire(back.after(secs(38))).unwrap(), 0);
+    assert_eq!(s.expire(back.after(secs(40))).unwrap(), 1);
+}
+
+#[test]
 fn repeated_failures_fail_the_job_and_block_the_worker() {
     let dir = tempfile::tempdir().unwrap();
     let now = t0();
