@@ -82,6 +82,9 @@ pub use settings::{
 /// light rays that start in the plane's shadow carry nothing, and the MIS weights leave out the
 /// light's strategies where its rays cannot reach; `bdpt` runs next-event estimation when its
 /// light subpath is empty (2026-12-06). Images of other scenes unchanged.
-/// 12: `sppm`'s initial search radius is two pixel widths where the camera's rays meet the
-/// scene, not two pixels' worth of the scene's extent (2026-12-06): every `sppm` image changes.
+/// 12 (2026-12-06): `sppm`'s initial search radius is two pixel widths where the camera's rays
+/// meet the scene, not two pixels' worth of the scene's extent: every `sppm` image changes.
+/// The debug integrators (`normals`, `albedo`, `depth`, `ao`) pass through `interface`
+/// surfaces (medium boundaries), as `path` does, and their occlusion rays too: their images of
+/// scenes with interfaces change.
 pub const RENDER_VERSION: u32 = 12;

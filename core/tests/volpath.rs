@@ -393,3 +393,45 @@ fn an_exterior_grid_held_by_several_objects_is_refused() {
     let msg = err.to_string();
     assert!(msg.contains("held by several objects"), "{msg}");
 }
+
+#[test]
+fn debug_outputs_see_through_interfaces_as_path_does() {
+    // A grey wall lit by a lamp, with a foggy interface sphere in front of it: the boundary is
+    // invisible to every integrator but volpath, so the debug outputs must show the wall as if
+    // the sphere were not there (the wall itself, its depth from the camera, and no occlusion
+    // by the sphere for the ambient-occlusion rays that leave the wall).
+    let with = r#"{
+  "media": {"fog": {"type": "homogeneous", "sigma_a": [0.1, 0.1, 0.1], "sigma_s": [0.5, 0.5, 0.5]}},
+  "materials": {"boundary": {"type": "interface"}, "wall": {"type": "diffuse", "albedo": [0.6, 0.5, 0.4]}},
+  "objects": [
+    {"shape": {"type": "rectangle", "corner": [-2, -2, -1], "edge_u": [4, 0, 0], "edge_v": [0, 4, 0]}, "material": "wall"},
+    {"shape": {"type": "sphere", "center": [0, 0, -0.5], "radius": 0.6}, "material": "boundary", "interior": "fog"}
+  ],
+  "environment": {"type": "constant", "radiance": [0.2, 0.3, 0.4]},
+  "camera": {"position": [0, 0, 4], "look_at": [0, 0, 0], "fov": 40}
+}"#;
+    let without = with.replace(
+        r#",
+    {"shape": {"type": "sphere", "center": [0, 0, -0.5], "radius": 0.6}, "material": "boundary", "interior": "fog"}"#,
+        "",
+    );
+    assert_ne!(with, without);
+    let (with, without) = (load(with), load(&without));
+    for kind in [
+        IntegratorKind::Normals,
+        IntegratorKind::Albedo,
+        IntegratorKind::Depth,
+        IntegratorKind::Ao,
+    ] {
+        let s = settings(24, 4, kind);
+        let (a, b) = (image(&with, &s), image(&without, &s));
+        for (i, (p, q)) in a.iter().zip(&b).enumerate() {
+            for c in 0..3 {
+                assert!(
+                    (p[c] - q[c]).abs() <= 1e-4 * q[c].abs().max(1.0),
+                    "{kind:?}: pixel {i} is {p:?} with the interface sphere, {q:?} without"
+                );
+            }
+        }
+    }
+}

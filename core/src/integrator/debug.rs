@@ -11,17 +11,32 @@ use glam::Vec3A;
 pub fn li(
     scene: &Scene,
     job: &RenderJob,
-    ray: Ray,
+    mut ray: Ray,
     sampler: &mut Sampler,
     kind: IntegratorKind,
 ) -> Vec3A {
-    let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
-        return match kind {
-            IntegratorKind::Albedo => job.environment().map_or(Vec3A::ZERO, |e| e.radiance(ray.d)),
-            _ => Vec3A::ZERO,
+    // The first surface that is not an interface (a medium boundary, invisible to every
+    // integrator but volpath, as to `path`), and the ray parameter travelled to cross the
+    // interfaces in front of it.
+    let mut crossed = 0.0f32;
+    let (hit, it) = loop {
+        let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
+            return match kind {
+                IntegratorKind::Albedo => {
+                    job.environment().map_or(Vec3A::ZERO, |e| e.radiance(ray.d))
+                }
+                _ => Vec3A::ZERO,
+            };
         };
+        let it = scene.interaction(&ray, &hit);
+        if scene.is_interface(it.object) {
+            let next = it.spawn_ray(ray.d);
+            crossed += (next.o - ray.o).dot(ray.d);
+            ray = next;
+            continue;
+        }
+        break (hit, it);
     };
-    let it = scene.interaction(&ray, &hit);
     match kind {
         // World-space shading normal mapped from [-1, 1] to [0, 1].
         IntegratorKind::Normals => it.ns * 0.5 + 0.5,
@@ -34,7 +49,7 @@ pub fn li(
             }
         }
         // Distance along the primary ray, in scene units.
-        IntegratorKind::Depth => Vec3A::splat(hit.t),
+        IntegratorKind::Depth => Vec3A::splat(crossed + hit.t),
         IntegratorKind::Ao => {
             // One cosine-distributed occlusion ray, reaching a fifth of the scene's size:
             // the estimate of the cosine-weighted visible fraction of the hemisphere.
@@ -45,7 +60,7 @@ pub fn li(
                 it.ns
             };
             let d = Frame::from_z(n).to_world(cosine_hemisphere(sampler.next_2d()));
-            if scene.occluded(&it.spawn_ray(d), radius) {
+            if scene.occluded_past_interfaces(&it.spawn_ray(d), radius) {
                 Vec3A::ZERO
             } else {
                 Vec3A::ONE
