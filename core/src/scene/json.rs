@@ -1312,6 +1312,7 @@ impl Converter<'_> {
                 majorant_resolution,
                 ..
             } => {
+                let majorant_resolution = self.majorant(name, &at, majorant_resolution)?;
                 let field = format!("{at}.path");
                 let limits = crate::medium::GridLimits::default();
                 let (r, bytes) = self.read_file(&field, path, limits.max_file_bytes)?;
@@ -1328,7 +1329,7 @@ impl Converter<'_> {
                 Some(GridDesc {
                     density: loaded.density,
                     transform: loaded.transform,
-                    majorant_resolution: self.majorant_resolution(&at, majorant_resolution)?,
+                    majorant_resolution,
                 })
             }
             JMedium::Noise {
@@ -1364,6 +1365,7 @@ impl Converter<'_> {
                         &needle,
                     ));
                 }
+                let majorant_resolution = self.majorant(name, &at, majorant_resolution)?;
                 self.files
                     .charge_memory(voxels * 4, &format!("noise medium '{name}'"))
                     .map_err(|e| self.err(&at, e, &needle))?;
@@ -1385,7 +1387,7 @@ impl Converter<'_> {
                 Some(GridDesc {
                     density,
                     transform: glam::Affine3A::IDENTITY,
-                    majorant_resolution: self.majorant_resolution(&at, majorant_resolution)?,
+                    majorant_resolution,
                 })
             }
         };
@@ -1397,6 +1399,34 @@ impl Converter<'_> {
             scale,
             density,
         })
+    }
+
+    /// The `majorant_resolution` of the grid medium `media.NAME` (at `at`), checked, with its
+    /// majorant grid (one f32 bound per cell, built once per medium) charged to the scene's
+    /// memory budget: 256³ cells take 64 MiB.
+    fn majorant(
+        &self,
+        name: &str,
+        at: &str,
+        res: &Option<[u32; 3]>,
+    ) -> Result<Option<[usize; 3]>, SceneError> {
+        let checked = self.majorant_resolution(at, res)?;
+        let cells = checked
+            .unwrap_or([crate::medium::majorant::DEFAULT_MAJORANT_RES; 3])
+            .iter()
+            .map(|&c| c as u64)
+            .product::<u64>();
+        let field = match res {
+            Some(_) => format!("{at}.majorant_resolution"),
+            None => at.to_string(),
+        };
+        self.files
+            .charge_memory(
+                cells * std::mem::size_of::<f32>() as u64,
+                &format!("the majorant grid of medium '{name}'"),
+            )
+            .map_err(|e| self.err(&field, e, &format!("\"{name}\"")))?;
+        Ok(checked)
     }
 
     /// A grid medium's `majorant_resolution`, checked: 1 to 256 cells per axis.
@@ -2322,6 +2352,37 @@ mod tests {
         let e = load_json_files(&scene, &files).unwrap_err().to_string();
         assert!(
             e.contains("at textures.b.srgb") && e.contains("\"deep.png\" as data"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn majorant_grids_are_charged_to_the_memory_budget() {
+        // Two noise media of 2³ voxels (32 bytes each) with majorant grids of 64³ cells
+        // (1 MiB each) and the default 16³ (16 KiB).
+        let json = r#"{"media": {
+            "a": {"type": "noise", "resolution": [2, 2, 2], "majorant_resolution": [64, 64, 64],
+                  "sigma_a": [1, 1, 1], "sigma_s": [1, 1, 1]},
+            "b": {"type": "noise", "resolution": [2, 2, 2],
+                  "sigma_a": [1, 1, 1], "sigma_s": [1, 1, 1]}}}"#;
+        let need = 2 * 32 + (64 * 64 * 64 + 16 * 16 * 16) * 4;
+        let load = |limit: u64| {
+            let files = SceneFiles::trusted().with_memory_limit(limit);
+            parse_json_files(json, Path::new("."), Path::new("smoke.json"), &files)
+        };
+        assert!(load(need).is_ok());
+        // Charged in order: a's majorant and voxels, then b's.
+        let e = load(need - 33).unwrap_err().to_string();
+        assert!(
+            e.contains("at media.b (line 4)")
+                && e.contains("the majorant grid of medium 'b'")
+                && e.contains("more memory"),
+            "{e}"
+        );
+        let e = load((1 << 20) - 1).unwrap_err().to_string();
+        assert!(
+            e.contains("at media.a.majorant_resolution (line 2)")
+                && e.contains("the majorant grid of medium 'a'"),
             "{e}"
         );
     }
