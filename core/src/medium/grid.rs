@@ -3,6 +3,7 @@
 use super::MediumError;
 use crate::geometry::Aabb;
 use glam::Vec3A;
+use std::sync::Arc;
 
 /// A dense grid of non-negative density values over an axis-aligned box in the medium's
 /// (object) space.
@@ -16,12 +17,14 @@ use glam::Vec3A;
 /// Outside the box the density is 0.
 ///
 /// Storage is x fastest: `values[(z · res_y + y) · res_x + x]`, shared: a clone (one per
-/// object a grid medium is placed in) costs no copy of the voxels.
+/// object a grid medium is placed in, one per medium that names the same file) costs no copy of
+/// the voxels. The values stay in the `Vec` they were made in: turning it into an `Arc<[f32]>`
+/// would copy them, and a 512³ grid would briefly take twice its 512 MiB.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DensityGrid {
     res: [usize; 3],
     bounds: Aabb,
-    values: std::sync::Arc<[f32]>,
+    values: Arc<Vec<f32>>,
     max_value: f32,
 }
 
@@ -70,7 +73,7 @@ impl DensityGrid {
         Ok(Self {
             res,
             bounds,
-            values: values.into(),
+            values: Arc::new(values),
             max_value,
         })
     }
@@ -119,6 +122,13 @@ impl DensityGrid {
     #[inline]
     pub fn values(&self) -> &[f32] {
         &self.values
+    }
+
+    /// Identifies the values: grids that share them (clones) give the same number, which a
+    /// memory count uses to count them once.
+    #[inline]
+    pub fn values_id(&self) -> usize {
+        Arc::as_ptr(&self.values) as usize
     }
 
     /// The largest value.
@@ -216,6 +226,17 @@ mod tests {
         assert!(DensityGrid::new([1, 1, 1], flat, vec![1.0]).is_err());
         let err = DensityGrid::new([2, 2, 1], b, vec![0.0, 0.0, -3.0, 0.0]).unwrap_err();
         assert!(err.to_string().contains("(0, 1, 0)"), "{err}");
+    }
+
+    #[test]
+    fn values_are_kept_where_they_were_made_and_shared_by_clones() {
+        // No copy: a 512³ grid read from a file must not take twice its size while it is made.
+        let values = vec![0.5f32; 4 * 3 * 2];
+        let at = values.as_ptr();
+        let g = DensityGrid::new([4, 3, 2], unit_box(), values).unwrap();
+        assert_eq!(g.values().as_ptr(), at);
+        let c = g.clone();
+        assert_eq!((c.values().as_ptr(), c.values_id()), (at, g.values_id()));
     }
 
     #[test]

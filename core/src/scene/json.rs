@@ -578,10 +578,14 @@ fn parse_json_files(
         files,
         line_of: &line_of,
         images: RefCell::default(),
+        grids: RefCell::default(),
         desc: SceneDesc::default(),
     }
     .convert(file)
 }
+
+/// Density grids read so far, by canonical path and the `grid` asked for: (grid, file bytes).
+type GridCache = HashMap<(PathBuf, Option<String>), (crate::medium::LoadedGrid, u64)>;
 
 struct Converter<'a> {
     base: &'a Path,
@@ -592,6 +596,8 @@ struct Converter<'a> {
     line_of: &'a dyn Fn(&str, &str) -> String,
     /// Images decoded so far, by canonical path: (width, height, texels, file bytes).
     images: RefCell<HashMap<PathBuf, (u32, u32, Texels, u64)>>,
+    /// Density grids read so far.
+    grids: RefCell<GridCache>,
     desc: SceneDesc,
 }
 
@@ -798,6 +804,42 @@ impl Converter<'_> {
         );
         self.images.borrow_mut().insert(r.canonical, entry);
         Ok(texture(img.width, img.height, img.texels))
+    }
+
+    /// Reads the density grid `grid` (a `.vdb` grid name) of the file the scene names at `at`
+    /// (`media.NAME.path`), its voxels charged to the scene's memory budget. Media that name
+    /// the same file and grid share one decoded grid, read and charged once.
+    fn grid_file(
+        &self,
+        at: &str,
+        path: &Path,
+        grid: &Option<String>,
+    ) -> Result<crate::medium::LoadedGrid, SceneError> {
+        let needle = path.to_string_lossy();
+        let r = self
+            .files
+            .resolve_path(self.base, path, at)
+            .map_err(|e| self.err(at, e.describe(), &needle))?;
+        let key = (r.canonical.clone(), grid.clone());
+        if let Some((loaded, bytes)) = self.grids.borrow().get(&key) {
+            // Recorded by this name too: a package for a farm must carry it.
+            self.files.note_used(&r, *bytes);
+            return Ok(loaded.clone());
+        }
+        let limits = crate::medium::GridLimits::default();
+        let (r, bytes) = self.read_file(at, path, limits.max_file_bytes)?;
+        let loaded = crate::medium::load_grid_bytes(&bytes, &r.named, grid.as_deref(), &limits)
+            .map_err(|e| self.err(at, e, &needle))?;
+        self.files
+            .charge_memory(
+                std::mem::size_of_val(loaded.density.values()) as u64,
+                &show(&needle),
+            )
+            .map_err(|e| self.err(at, e, &needle))?;
+        self.grids
+            .borrow_mut()
+            .insert(key, (loaded.clone(), bytes.len() as u64));
+        Ok(loaded)
     }
 
     /// Loads the glTF file the scene includes at `at`; a file that is already being loaded
@@ -1314,18 +1356,7 @@ impl Converter<'_> {
             } => {
                 let majorant_resolution = self.majorant(name, &at, majorant_resolution)?;
                 let field = format!("{at}.path");
-                let limits = crate::medium::GridLimits::default();
-                let (r, bytes) = self.read_file(&field, path, limits.max_file_bytes)?;
-                let path_needle = path.to_string_lossy();
-                let loaded =
-                    crate::medium::load_grid_bytes(&bytes, &r.named, grid.as_deref(), &limits)
-                        .map_err(|e| self.err(&field, e, &path_needle))?;
-                self.files
-                    .charge_memory(
-                        loaded.density.values().len() as u64 * 4,
-                        &show(&path_needle),
-                    )
-                    .map_err(|e| self.err(&field, e, &path_needle))?;
+                let loaded = self.grid_file(&field, path, grid)?;
                 Some(GridDesc {
                     density: loaded.density,
                     transform: loaded.transform,
@@ -2385,6 +2416,46 @@ mod tests {
                 && e.contains("the majorant grid of medium 'a'"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn media_naming_one_grid_file_share_its_voxels() {
+        // A Mitsuba 3 .vol file of 4×4×4 voxels (256 bytes decoded), named by three media.
+        let d = Dir::new("grids");
+        let mut vol = b"VOL\x03".to_vec();
+        for v in [1i32, 4, 4, 4, 1] {
+            vol.extend(v.to_le_bytes());
+        }
+        for v in [0f32, 0., 0., 1., 1., 1.].into_iter().chain([0.5; 64]) {
+            vol.extend(v.to_le_bytes());
+        }
+        std::fs::write(d.0.join("scene/smoke.vol"), vol).unwrap();
+        let scene = d.0.join("scene/scene.json");
+        let medium = r#"{"type": "grid", "path": "smoke.vol", "majorant_resolution": [1, 1, 1],
+                         "sigma_a": [1, 1, 1], "sigma_s": [1, 1, 1]}"#;
+        std::fs::write(
+            &scene,
+            format!(r#"{{"media": {{"a": {medium}, "b": {medium}, "c": {medium}}}}}"#),
+        )
+        .unwrap();
+        // The voxels once, three majorant grids of one cell.
+        let files = SceneFiles::trusted().with_memory_limit(256 + 3 * 4);
+        let desc = load_json_files(&scene, &files).unwrap();
+        let ids: Vec<_> = desc
+            .media
+            .iter()
+            .map(|m| m.density.as_ref().unwrap().density.values_id())
+            .collect();
+        assert_eq!(ids, [ids[0]; 3]);
+        let used = files.used();
+        let grid_files = used
+            .iter()
+            .filter(|u| u.path.ends_with("smoke.vol"))
+            .count();
+        assert_eq!(grid_files, 1, "{used:?}");
+        let files = SceneFiles::trusted().with_memory_limit(256 + 3 * 4 - 1);
+        let e = load_json_files(&scene, &files).unwrap_err().to_string();
+        assert!(e.contains("more memory"), "{e}");
     }
 
     #[test]

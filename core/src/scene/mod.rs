@@ -175,6 +175,9 @@ impl Scene {
                 .map(AreaLight::memory_bytes)
                 .sum::<usize>();
         let environment = self.environment.as_ref().map_or(0, |e| e.memory_bytes());
+        // Grids placed by several objects, or read from one file by several media, share their
+        // voxels and majorants: each is counted once.
+        let mut seen_grids = std::collections::HashSet::new();
         let media = vec(&self.media)
             + self
                 .media
@@ -182,9 +185,17 @@ impl Scene {
                 .map(|m| match m {
                     crate::medium::Medium::Grid(g) => {
                         let [x, y, z] = g.majorant_grid().resolution();
-                        size_of_val(g.as_ref())
-                            + size_of_val(g.density().values())
-                            + x * y * z * size_of::<f32>()
+                        let density = if seen_grids.insert(g.density().values_id()) {
+                            size_of_val(g.density().values())
+                        } else {
+                            0
+                        };
+                        let majorant = if seen_grids.insert(g.majorant_grid().cells_id()) {
+                            x * y * z * size_of::<f32>()
+                        } else {
+                            0
+                        };
+                        size_of_val(g.as_ref()) + density + majorant
                     }
                     crate::medium::Medium::Homogeneous(_) => 0,
                 })
