@@ -14,6 +14,7 @@ pub mod ray;
 pub mod sphere;
 #[cfg(test)]
 mod testutil;
+pub mod transform;
 pub mod triangle;
 
 pub use interaction::{Hit, Interaction};

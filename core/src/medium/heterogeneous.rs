@@ -4,6 +4,7 @@ use super::grid::DensityGrid;
 use super::majorant::{clip_unit_cube, DdaIter, MajorantGrid, MajorantIter, DEFAULT_MAJORANT_RES};
 use super::phase::HenyeyGreenstein;
 use super::{check_coefficient, MediumError, MediumProperties};
+use crate::geometry::transform::Degenerate;
 use crate::geometry::Aabb;
 use glam::{Affine3A, Vec3A};
 
@@ -62,13 +63,14 @@ impl GridMedium {
     }
 
     /// The same medium placed in the world by `world_from_medium`, which must be finite and
-    /// invertible.
+    /// invertible in f32 by the test scene objects' transforms pass ([`Degenerate::of`]: scales
+    /// from about 10⁻¹² to 10¹², whatever the determinant).
     pub fn with_transform(mut self, world_from_medium: Affine3A) -> Result<Self, MediumError> {
-        let det = world_from_medium.matrix3.determinant();
-        if !(world_from_medium.is_finite() && det.abs() > 1e-12 && det.is_finite()) {
-            return Err(MediumError::Transform(format!(
-                "the transform is not invertible (determinant {det})"
-            )));
+        if !world_from_medium.is_finite() {
+            return Err(MediumError::Transform("transform is not finite".into()));
+        }
+        if let Some(d) = Degenerate::of_affine(&world_from_medium) {
+            return Err(MediumError::Transform(d.to_string()));
         }
         self.world_from_medium = world_from_medium;
         self.unit_from_world = unit_from_box(self.density.bounds()) * world_from_medium.inverse();
@@ -241,5 +243,34 @@ mod tests {
             .unwrap()
             .with_transform(flat)
             .is_err());
+    }
+
+    #[test]
+    fn small_placements_are_taken_as_scene_transforms_are() {
+        // An object at a scale of 10⁻⁴ holding a grid (a determinant of 10⁻¹²), and a grid of
+        // rotated 10⁻⁴ voxels in it: f32 inverts both, as it does the object's own transform.
+        let m = || GridMedium::new(grid(), Vec3A::ONE, Vec3A::ZERO, 0.0).unwrap();
+        let small = Affine3A::from_scale(glam::Vec3::splat(1e-4));
+        let turned = small * Affine3A::from_rotation_z(0.5);
+        for placement in [small, turned, small * turned] {
+            let g = m().with_transform(placement).unwrap();
+            let centre = placement.transform_point3a(Vec3A::new(0.5, 0.5, 0.5));
+            assert_eq!(
+                g.properties(centre).sigma_a,
+                Vec3A::splat(3.0),
+                "{placement}"
+            );
+        }
+        // Past what f32 inverts (scales below about 10⁻¹²): the scene transforms' message.
+        let e = m()
+            .with_transform(Affine3A::from_scale(glam::Vec3::splat(1e-13)))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("too small to invert in f32"), "{e}");
+        let e = m()
+            .with_transform(Affine3A::from_scale(glam::Vec3::splat(f32::NAN)))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("not finite"), "{e}");
     }
 }

@@ -1167,6 +1167,27 @@ impl Converter<'_> {
             } else {
                 None
             };
+            // The grid this object holds is placed by its transform: the two together must be
+            // invertible, as the object's transform is.
+            if let Some(mi) = media.and_then(|m| m.interior) {
+                let medium = &self.desc.media[mi];
+                if let Some(grid) = &medium.density {
+                    if let Some(d) = Degenerate::of(&(transform * Mat4::from(grid.transform))) {
+                        let (field, needle) = match o.transform {
+                            Some(_) => (format!("{at}.transform"), "\"transform\"".to_string()),
+                            None => (format!("{at}.interior"), format!("\"{}\"", medium.name)),
+                        };
+                        return Err(self.err(
+                            &field,
+                            format!(
+                                "placing the grid of medium '{}', which it holds: {d}",
+                                medium.name
+                            ),
+                            &needle,
+                        ));
+                    }
+                }
+            }
             self.desc.objects.push(ObjectDesc {
                 name,
                 shape,
@@ -1357,6 +1378,14 @@ impl Converter<'_> {
                 let majorant_resolution = self.majorant(name, &at, majorant_resolution)?;
                 let field = format!("{at}.path");
                 let loaded = self.grid_file(&field, path, grid)?;
+                if let Some(d) = Degenerate::of_affine(&loaded.transform) {
+                    let needle = path.to_string_lossy();
+                    return Err(self.err(
+                        &field,
+                        format!("{}: the grid's index-to-world map: {d}", show(&needle)),
+                        &needle,
+                    ));
+                }
                 Some(GridDesc {
                     density: loaded.density,
                     transform: loaded.transform,
@@ -2456,6 +2485,59 @@ mod tests {
         let files = SceneFiles::trusted().with_memory_limit(256 + 3 * 4 - 1);
         let e = load_json_files(&scene, &files).unwrap_err().to_string();
         assert!(e.contains("more memory"), "{e}");
+    }
+
+    #[test]
+    fn grid_placements_are_checked_as_transforms_naming_the_json_path() {
+        use crate::medium::vdb::tests::{write_vdb, Write};
+        let d = Dir::new("placements");
+        // A .vdb grid of a few voxels whose index-to-world map turns them by 30° about z and
+        // scales them by `voxel`.
+        let write = |name: &str, voxel: f64| {
+            let (s, c) = (voxel * 0.5, voxel * 0.75f64.sqrt());
+            let w = Write {
+                affine: Some([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, voxel]]),
+                translation: [0.0; 3],
+                ..Default::default()
+            };
+            let voxels = (0..4).map(|i| ([i, 1, 2], 0.5)).collect();
+            std::fs::write(d.0.join("scene").join(name), write_vdb(&voxels, &w)).unwrap();
+        };
+        write("small.vdb", 1e-4);
+        write("tiny.vdb", 1e-13);
+        let scene = |file: &str, transform: &str| {
+            let json = format!(
+                r#"{{"media": {{"m": {{"type": "grid", "path": "{file}",
+                                      "sigma_a": [1, 1, 1], "sigma_s": [1, 1, 1]}}}},
+                    "materials": {{"b": {{"type": "interface"}}}},
+                    "objects": [{{"shape": {{"type": "box", "min": [-1, -1, -1], "max": [1, 1, 1]}},
+                                 "material": "b", "interior": "m"{transform}}}]}}"#
+            );
+            let path = d.0.join("scene/scene.json");
+            std::fs::write(&path, json).unwrap();
+            load_json(&path)
+        };
+        // Voxels of 10⁻⁴ in an object at a scale of 10⁻⁴ (a determinant of 10⁻²⁴): f32
+        // inverts them, as it does the object's own transform.
+        let desc = scene("small.vdb", r#", "transform": {"scale": 1e-4}"#).unwrap();
+        crate::Scene::build(&desc).unwrap();
+        // Past what f32 inverts: the object's transform is named, or the grid file.
+        let e = scene("small.vdb", r#", "transform": {"scale": 1e-9}"#)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("at objects[0].transform (line 5)")
+                && e.contains("grid of medium 'm'")
+                && e.contains("too small to invert"),
+            "{e}"
+        );
+        let e = scene("tiny.vdb", "").unwrap_err().to_string();
+        assert!(
+            e.contains("at media.m.path (line 1)")
+                && e.contains("\"tiny.vdb\": the grid's index-to-world map")
+                && e.contains("too small to invert"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -825,4 +825,4 @@ pub fn read_vdb(
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

@@ -8,11 +8,14 @@ use std::collections::BTreeMap;
 
 /// Options of the test writer.
 #[derive(Clone, Copy)]
-struct Write {
-    compression: u32,
-    background: f32,
-    scale: f64,
-    translation: [f64; 3],
+pub(crate) struct Write {
+    pub(crate) compression: u32,
+    pub(crate) background: f32,
+    pub(crate) scale: f64,
+    pub(crate) translation: [f64; 3],
+    /// An `AffineMap` instead of the `ScaleTranslateMap` of `scale`: the world images of the
+    /// index axes (with `translation`).
+    pub(crate) affine: Option<[[f64; 3]; 3]>,
 }
 
 impl Default for Write {
@@ -22,6 +25,7 @@ impl Default for Write {
             background: 0.0,
             scale: 0.5,
             translation: [1.0, -2.0, 3.0],
+            affine: None,
         }
     }
 }
@@ -71,7 +75,7 @@ type Node5 = BTreeMap<usize, BTreeMap<usize, Vec<([i32; 3], f32)>>>;
 
 /// A `.vdb` file with one float grid named "density" holding `voxels` (all active), in
 /// leaves under one internal node per 128³ and 4096³ block.
-fn write_vdb(voxels: &BTreeMap<[i32; 3], f32>, w: &Write) -> Vec<u8> {
+pub(crate) fn write_vdb(voxels: &BTreeMap<[i32; 3], f32>, w: &Write) -> Vec<u8> {
     // Group the voxels by root child, internal node and leaf.
     let key = |p: [i32; 3], total: u32| p.map(|v| v & !((1 << total) - 1));
     let mut tree: BTreeMap<[i32; 3], Node5> = BTreeMap::new();
@@ -104,9 +108,27 @@ fn write_vdb(voxels: &BTreeMap<[i32; 3], f32>, w: &Write) -> Vec<u8> {
     put_str(&mut out, "class");
     put_str(&mut out, "string");
     put_str(&mut out, "fog volume");
-    put_str(&mut out, "ScaleTranslateMap");
-    for v in w.translation.iter().chain(&[w.scale; 3]).chain(&[0.0; 12]) {
-        out.extend_from_slice(&v.to_le_bytes());
+    if let Some(axes) = w.affine {
+        // Row-vector 4×4: the axes' images, then the translation.
+        put_str(&mut out, "AffineMap");
+        let [x, y, z] = axes;
+        let t = w.translation;
+        for v in [x, y, z, t]
+            .iter()
+            .zip([0.0, 0.0, 0.0, 1.0])
+            .flat_map(|(r, w)| {
+                let mut row = r.to_vec();
+                row.push(w);
+                row
+            })
+        {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+    } else {
+        put_str(&mut out, "ScaleTranslateMap");
+        for v in w.translation.iter().chain(&[w.scale; 3]).chain(&[0.0; 12]) {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
     }
     out.extend_from_slice(&1u32.to_le_bytes());
     out.extend_from_slice(&w.background.to_le_bytes());
@@ -156,7 +178,7 @@ fn write_vdb(voxels: &BTreeMap<[i32; 3], f32>, w: &Write) -> Vec<u8> {
 }
 
 /// A blob of smoke spread over two internal nodes and two root children.
-fn smoke() -> BTreeMap<[i32; 3], f32> {
+pub(crate) fn smoke() -> BTreeMap<[i32; 3], f32> {
     let mut v = BTreeMap::new();
     for i in -6..10 {
         for j in 120..136 {
