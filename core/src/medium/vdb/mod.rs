@@ -690,13 +690,37 @@ pub fn read_vdb(
             }),
     };
     let Some(d) = chosen else {
-        return Err(invalid(match name {
-            Some(n) => format!("no grid named '{n}' (the file has {})", listing()),
-            None => format!(
-                "no grid named 'density' and not exactly one float grid (the file has {})",
-                listing()
-            ),
-        }));
+        // Without a name: 'density' is missing or not a float grid, and there is no single
+        // float grid to fall back on. Say which, and which grids could be named instead.
+        let floats: Vec<String> = grids
+            .iter()
+            .filter(|d| is_float(d))
+            .map(|d| format!("'{}'", d.name))
+            .collect();
+        let instead = if floats.is_empty() {
+            "the file has no float grid".to_string()
+        } else {
+            format!(
+                "its float grids are {}: name one with `grid`",
+                floats.join(", ")
+            )
+        };
+        return Err(invalid(
+            match (name, grids.iter().find(|d| d.name == "density")) {
+                (Some(n), _) => format!("no grid named '{n}' (the file has {})", listing()),
+                (None, Some(density)) => format!(
+                    "the grid named 'density' is not a float grid (it is {}); {instead}",
+                    density.type_name
+                ),
+                (None, None) if grids.is_empty() => "the file has no grids".to_string(),
+                (None, None) => {
+                    format!(
+                        "no grid named 'density', and {instead} (the file has {})",
+                        listing()
+                    )
+                }
+            },
+        ));
     };
     if !is_float(d) {
         return Err(GridFormatError::Unsupported(format!(

@@ -408,7 +408,18 @@ fn hostile_counts_are_refused_before_allocating() {
             let at = 65 + 4 + 7 + 4;
             b[at..at + 16].copy_from_slice(b"Tree_vec3s_5_4_3");
         },
-        "no grid named 'density'",
+        "the grid named 'density' is not a float grid (it is Tree_vec3s_5_4_3); the file has \
+         no float grid",
+    );
+    // The same grid under another name and type: no 'density' at all.
+    check(
+        &|b| {
+            let at = 65 + 4;
+            b[at..at + 7].copy_from_slice(b"tension");
+            b[at + 7 + 4..at + 7 + 4 + 16].copy_from_slice(b"Tree_vec3s_5_4_3");
+        },
+        "no grid named 'density', and the file has no float grid (the file has 'tension' \
+         (Tree_vec3s_5_4_3))",
     );
     // A tiny voxel limit: the sparse tree alone exceeds it.
     assert!(matches!(
