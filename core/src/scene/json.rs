@@ -1068,6 +1068,14 @@ impl Converter<'_> {
             md.two_sided = m.two_sided;
             check_radiance("emission", md.emission.into())
                 .map_err(|e| self.err(&format!("{at}.emission"), e, name))?;
+            if matches!(md.bsdf, BsdfDesc::Interface) && md.emission != Vec3::ZERO {
+                return Err(self.err(
+                    &format!("{at}.emission"),
+                    "an interface (a medium boundary) neither scatters nor emits: remove \
+                     `emission`, or give a glowing surface a material of its own",
+                    "\"emission\"",
+                ));
+            }
             mat_index.insert(name.clone(), self.desc.materials.len());
             self.desc.materials.push(md);
         }
@@ -2538,6 +2546,25 @@ mod tests {
                 && e.contains("too small to invert"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn an_interface_with_emission_is_refused() {
+        let e = parse(
+            r#"{"materials": {
+                "glow": {"type": "emitter", "emission": [1, 1, 1]},
+                "boundary": {"type": "interface",
+                             "emission": [5, 5, 5]}}}"#,
+        )
+        .unwrap_err();
+        assert!(
+            e.contains("at materials.boundary.emission (line 4)")
+                && e.contains("neither scatters nor emits"),
+            "{e}"
+        );
+        // Zero emission is no emission.
+        parse(r#"{"materials": {"boundary": {"type": "interface", "emission": [0, 0, 0]}}}"#)
+            .unwrap();
     }
 
     #[test]
