@@ -429,6 +429,8 @@ pub enum Write<'a> {
         /// Registration time.
         registered_ms: u64,
     },
+    /// A worker forgotten (its failure counts on jobs stay).
+    ForgetWorker(&'a str),
 }
 
 /// Applies one change inside a transaction.
@@ -498,6 +500,9 @@ fn apply(tx: &Connection, w: &Write<'_>) -> rusqlite::Result<()> {
                 "INSERT OR REPLACE INTO workers (id, name, threads, registered_ms) VALUES (?1, ?2, ?3, ?4)",
                 params![id, name, threads, registered_ms as i64],
             )?;
+        }
+        Write::ForgetWorker(id) => {
+            tx.execute("DELETE FROM workers WHERE id = ?1", params![id])?;
         }
     }
     Ok(())

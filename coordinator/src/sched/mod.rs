@@ -50,6 +50,9 @@ use std::sync::Arc;
 use std::time::Duration;
 use workers::{WorkerRec, Workers};
 
+/// How long a worker that is not heard from stays registered: a day.
+pub const FORGET_WORKERS_AFTER_MS: u64 = 24 * 3600 * 1000;
+
 /// Scheduling knobs.
 #[derive(Clone, Debug)]
 pub struct SchedConfig {
@@ -332,12 +335,24 @@ impl Sched {
     /// Registers a worker at `now` and returns its id.
     pub fn register(&mut self, name: &str, threads: u32, now: Now) -> Result<String, SchedError> {
         let id = self.ids.next("w-");
-        self.store.write(&[Write::Worker {
+        // A worker that restarts registers again: its earlier registrations under the same
+        // name that are no longer live (and hold no lease) are forgotten, rather than listed
+        // for ever.
+        let earlier = self
+            .workers
+            .forgettable(Some(name), &self.leased_by(), 0, now.wall_ms);
+        let mut writes = vec![Write::Worker {
             id: &id,
             name,
             threads,
             registered_ms: now.wall_ms,
-        }])?;
+        }];
+        writes.extend(earlier.iter().map(|w| Write::ForgetWorker(w)));
+        self.store.write(&writes)?;
+        for w in &earlier {
+            self.workers.remove(w);
+            self.gone.remove(w);
+        }
         self.workers.insert(
             id.clone(),
             WorkerRec {
@@ -880,6 +895,24 @@ impl Sched {
                 }
             }
         }
+        // Workers not heard from for a day are forgotten (their failure counts on jobs stay).
+        let quiet = self.workers.forgettable(
+            None,
+            &self.leased_by(),
+            FORGET_WORKERS_AFTER_MS,
+            now.wall_ms,
+        );
+        if !quiet.is_empty() {
+            let writes: Vec<Write> = quiet.iter().map(|w| Write::ForgetWorker(w)).collect();
+            self.store.write(&writes)?;
+            for w in &quiet {
+                self.workers.remove(w);
+                self.gone.remove(w);
+            }
+            self.events.emit(|| Event::Resync {
+                reason: format!("{} workers not heard from for a day forgotten", quiet.len()),
+            });
+        }
         // Workers that went quiet, or came back.
         let (gone, back) = self.workers.liveness_changes(&self.gone, now.wall_ms);
         for w in gone {
@@ -895,6 +928,14 @@ impl Sched {
             });
         }
         Ok(n)
+    }
+
+    /// The workers holding a lease.
+    fn leased_by(&self) -> HashSet<&str> {
+        self.leases
+            .values()
+            .filter_map(|(job, idx)| self.jobs.get(job)?.lease_of(*idx).map(|(w, _)| w))
+            .collect()
     }
 
     /// Cancels a job at `now` if it is not finished. Returns its status, or `None` if unknown.

@@ -433,6 +433,48 @@ fn after_a_restart_workers_count_as_live_until_they_could_have_called_in() {
 }
 
 #[test]
+fn workers_registering_again_replace_their_old_registration_and_quiet_ones_are_forgotten() {
+    let dir = tempfile::tempdir().unwrap();
+    let start = t0();
+    let names = |s: &Sched| -> Vec<String> {
+        let mut n: Vec<String> = s.worker_list(t0()).into_iter().map(|w| w.name).collect();
+        n.sort();
+        n
+    };
+    let (a, b) = {
+        let mut s = open(dir.path(), start);
+        let a = s.register("a", 1, start).unwrap();
+        let b = s.register("b", 1, start).unwrap();
+        s.new_job("s".into(), small(1), 0, start).unwrap();
+        s.lease(&b, start).unwrap().unwrap();
+        (a, b)
+    };
+    // The coordinator restarts; a's process restarted too and registers again under its name:
+    // the registration it had, not heard from since, is forgotten. b, which holds a lease,
+    // is kept.
+    let restart = start.after(secs(10));
+    let mut s = open(dir.path(), restart);
+    let a2 = s.register("a", 1, restart).unwrap();
+    let b2 = s.register("b", 1, restart).unwrap();
+    assert_eq!(names(&s), ["a", "b", "b"]);
+    assert!(matches!(s.lease(&a, restart), Err(SchedError::NoWorker(_))));
+    // Two live workers of one name are both kept.
+    let a3 = s.register("a", 1, restart).unwrap();
+    assert_eq!(names(&s), ["a", "a", "b", "b"]);
+    // A day without a word: forgotten, the store too; the others were seen since.
+    let day = restart.after(Duration::from_millis(FORGET_WORKERS_AFTER_MS) + secs(120));
+    s.lease(&a2, day).unwrap();
+    s.lease(&b2, day).unwrap();
+    s.expire(day).unwrap();
+    let left: Vec<String> = s.worker_list(day).into_iter().map(|w| w.id).collect();
+    assert!(left.contains(&a2) && left.contains(&b2), "{left:?}");
+    assert!(!left.contains(&a3) && !left.contains(&b), "{left:?}");
+    drop(s);
+    let s = open(dir.path(), day);
+    assert_eq!(names(&s), ["a", "b"]);
+}
+
+#[test]
 fn restart_resumes_without_redoing_finished_tasks() {
     let dir = tempfile::tempdir().unwrap();
     let t0 = t0();

@@ -94,6 +94,40 @@ impl Workers {
         (newly_gone, back)
     }
 
+    /// Workers to forget at `now_ms`, holding none of `leased`: with `name`, those of that
+    /// name not live or not heard from since this coordinator started (a worker registering
+    /// again under its name after it, or the coordinator, restarted); without, those not
+    /// live and not heard from for `after_ms`. Sorted.
+    pub fn forgettable(
+        &self,
+        name: Option<&str>,
+        leased: &std::collections::HashSet<&str>,
+        after_ms: u64,
+        now_ms: u64,
+    ) -> Vec<String> {
+        let mut out: Vec<String> = self
+            .recs
+            .iter()
+            .filter(|(id, w)| {
+                let quiet = now_ms.saturating_sub(w.last_seen_ms.max(self.started_ms));
+                let live = self.is_live(w, now_ms);
+                !leased.contains(id.as_str())
+                    && match name {
+                        Some(n) => w.name == n && (!live || w.last_seen_ms < self.started_ms),
+                        None => !live && quiet > after_ms,
+                    }
+            })
+            .map(|(id, _)| id.clone())
+            .collect();
+        out.sort();
+        out
+    }
+
+    /// Forgets worker `id`.
+    pub fn remove(&mut self, id: &str) {
+        self.recs.remove(id);
+    }
+
     /// Whether `id` is live at `now_ms`.
     pub fn is_live_id(&self, id: &str, now_ms: u64) -> bool {
         self.recs.get(id).is_some_and(|w| self.is_live(w, now_ms))
