@@ -877,21 +877,42 @@ function workersPage(main) {
   document.title = "Workers · raytile";
   const body = h("tbody", { id: "workers-body" });
   let workers = [];
+  // Rows are kept and their cells updated in place; the current-task links only when the
+  // task changes (a focused link survives the refresh).
+  const rows = new Map();
+  const classes = ["", "", "", "num", "num", "num opt", "num opt", "num", ""];
   const render = () => {
-    body.replaceChildren(...workers.map((w) => h("tr", { "data-worker": w.id },
-      h("td", {}, w.name, h("span", { class: "muted" }, " " + w.id)),
-      h("td", {}, h("span", { class: "state state-" + w.state }, w.state)),
-      h("td", {}, w.current.length ? w.current.map((c, i) => [i ? ", " : "",
-        h("a", { href: "/jobs/" + encodeURIComponent(c.job) }, c.job),
-        " tile " + tileText(c.tile) + " pass " + c.pass]) : "—"),
-      h("td", { class: "num" }, w.tasks_done),
-      h("td", { class: "num" }, fmtRate(w.samples_per_second)),
-      h("td", { class: "num opt" }, w.threads || "all"),
-      h("td", { class: "num opt" }, w.render_version),
-      h("td", { class: "num" }, w.failures),
-      h("td", {}, fmtAgo(w.last_seen_ms)))));
+    const ids = new Set(workers.map((w) => w.id));
+    for (const id of rows.keys()) if (!ids.has(id)) rows.delete(id);
+    const trs = workers.map((w) => {
+      let r = rows.get(w.id);
+      if (!r) {
+        const tds = classes.map((c) => h("td", { class: c || null }));
+        tds[0].append(w.name, h("span", { class: "muted" }, " " + w.id));
+        r = { tr: h("tr", { "data-worker": w.id }, tds), tds, current: null };
+        rows.set(w.id, r);
+      }
+      const c = r.tds;
+      c[1].replaceChildren(h("span", { class: "state state-" + w.state }, w.state));
+      const current = JSON.stringify(w.current);
+      if (r.current !== current) {
+        r.current = current;
+        c[2].replaceChildren(...(w.current.length ? w.current.flatMap((t, i) => [i ? ", " : "",
+          h("a", { href: "/jobs/" + encodeURIComponent(t.job) }, t.job),
+          " tile " + tileText(t.tile) + " pass " + t.pass]) : ["—"]));
+      }
+      c[3].textContent = w.tasks_done;
+      c[4].textContent = fmtRate(w.samples_per_second);
+      c[5].textContent = w.threads || "all";
+      c[6].textContent = w.render_version;
+      c[7].textContent = w.failures;
+      c[8].textContent = fmtAgo(w.last_seen_ms);
+      return r.tr;
+    });
     if (!workers.length) {
-      body.append(h("tr", {}, h("td", { colspan: 9, class: "muted" }, "No worker has registered.")));
+      body.replaceChildren(h("tr", {}, h("td", { colspan: 9, class: "muted" }, "No worker has registered.")));
+    } else if (trs.length !== body.children.length || trs.some((tr, i) => body.children[i] !== tr)) {
+      body.replaceChildren(...trs);
     }
   };
   const refresh = throttle(async () => {
