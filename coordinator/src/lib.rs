@@ -254,8 +254,9 @@ pub struct Inner {
     pub image_slots: Arc<tokio::sync::Semaphore>,
     shutdown_tx: watch::Sender<bool>,
     /// The data directory's `lock` file, locked while the coordinator runs (see
-    /// [`lock_data_dir`]).
-    _lock: Option<std::fs::File>,
+    /// [`lock_data_dir`]); given up when [`run`] ends, even while a clone of the state lives on
+    /// in a task being torn down.
+    lock: Mutex<Option<std::fs::File>>,
 }
 
 impl std::ops::Deref for AppState {
@@ -306,7 +307,7 @@ impl AppState {
             parse_slots,
             image_slots,
             shutdown_tx,
-            _lock: lock,
+            lock: Mutex::new(lock),
         })))
     }
 
@@ -440,5 +441,8 @@ pub async fn run(
         }
     };
     checker.abort();
+    let _ = checker.await;
+    // A coordinator restarted in the same process may open the data directory at once.
+    drop(state.lock.lock().unwrap_or_else(|e| e.into_inner()).take());
     res
 }
