@@ -1159,6 +1159,29 @@ impl Converter<'_> {
                     &format!("\"{name}\""),
                 ));
             }
+            // A flat shape encloses no volume: a ray that crossed it into its `interior` would
+            // stay in that medium for ever (behind a disk, everything drawn black).
+            let flat = match &o.shape {
+                JShape::Disk { .. } => Some("disk"),
+                JShape::Rectangle { .. } => Some("rectangle"),
+                JShape::Polygon { .. } => Some("polygon"),
+                _ => None,
+            };
+            if let (Some(kind), true) = (flat, o.interior.is_some() || o.exterior.is_some()) {
+                let field = if o.interior.is_some() {
+                    "interior"
+                } else {
+                    "exterior"
+                };
+                return Err(self.err(
+                    &format!("{at}.{field}"),
+                    format!(
+                        "a {kind} encloses no volume: media take a closed surface (a sphere, a \
+                         box, a closed mesh) or a plane (a half-space)"
+                    ),
+                    &format!("\"{field}\""),
+                ));
+            }
             let media = if o.interior.is_some() || o.exterior.is_some() {
                 let side = |field: &str, n: &Option<String>| {
                     n.as_deref()
@@ -2565,6 +2588,32 @@ mod tests {
         // Zero emission is no emission.
         parse(r#"{"materials": {"boundary": {"type": "interface", "emission": [0, 0, 0]}}}"#)
             .unwrap();
+    }
+
+    #[test]
+    fn media_on_a_flat_shape_are_refused() {
+        let scene = |shape: &str, side: &str| {
+            format!(
+                r#"{{"materials": {{"b": {{"type": "interface"}}}},
+  "media": {{"m": {{"type": "homogeneous", "sigma_a": [1, 1, 1], "sigma_s": [0, 0, 0]}}}},
+  "objects": [{{"shape": {shape}, "material": "b", "{side}": "m"}}]}}"#
+            )
+        };
+        let disk = r#"{"type": "disk", "radius": 1}"#;
+        let rect = r#"{"type": "rectangle", "corner": [0, 0, 0], "edge_u": [1, 0, 0], "edge_v": [0, 1, 0]}"#;
+        for (shape, kind) in [(disk, "disk"), (rect, "rectangle")] {
+            for side in ["interior", "exterior"] {
+                let e = parse(&scene(shape, side)).unwrap_err();
+                assert!(
+                    e.contains(&format!("at objects[0].{side}"))
+                        && e.contains(&format!("a {kind} encloses no volume")),
+                    "{e}"
+                );
+            }
+        }
+        // A closed shape, and a plane (a half-space), may hold a medium.
+        parse(&scene(r#"{"type": "sphere"}"#, "interior")).unwrap();
+        parse(&scene(r#"{"type": "plane"}"#, "interior")).unwrap();
     }
 
     #[test]
