@@ -562,8 +562,8 @@ async fn register(
     State(state): State<AppState>,
     Json(req): Json<proto::RegisterRequest>,
 ) -> Result<Json<proto::Registered>, AppError> {
-    if req.name.len() > 256 {
-        return Err(AppError::invalid("name", "must be at most 256 bytes"));
+    if req.name.is_empty() || req.name.len() > 256 {
+        return Err(AppError::invalid("name", "must be 1 to 256 bytes"));
     }
     if req.render_version != raytile_core::RENDER_VERSION {
         // Tiles from another renderer version would not match the rest of the frame bit for

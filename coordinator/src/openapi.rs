@@ -155,7 +155,7 @@ fn schemas() -> Value {
             "priority": {"type": "integer", "minimum": i32::MIN, "maximum": i32::MAX}}},
         "JobList": {"type": "object", "required": ["jobs"], "properties": {"jobs": {"type": "array", "items": {"$ref": "#/components/schemas/JobStatus"}}}},
         "RegisterRequest": {"type": "object", "required": ["name", "threads"], "properties": {
-            "name": {"type": "string", "maxLength": 256}, "threads": u32_in(0, u32::MAX),
+            "name": {"type": "string", "minLength": 1, "maxLength": 256}, "threads": u32_in(0, u32::MAX),
             "render_version": {"description": "the worker's renderer version; a mismatch with the coordinator's is refused with 409", "type": "integer", "minimum": 0, "maximum": u32::MAX, "example": raytile_core::RENDER_VERSION}}},
         "Registered": {"type": "object", "required": ["worker_id", "lease_timeout_ms", "heartbeat_ms"], "properties": {
             "worker_id": {"type": "string"}, "lease_timeout_ms": {"type": "integer"}, "heartbeat_ms": {"type": "integer"}}},

@@ -1459,3 +1459,21 @@ async fn a_data_directory_serves_one_coordinator_at_a_time() {
     drop(first);
     assert!(AppState::open(Config::new(dir.path())).is_ok());
 }
+
+#[tokio::test]
+async fn a_worker_needs_a_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let st = test_state(dir.path(), None);
+    let reg = |name: &str| {
+        format!(
+            r#"{{"name": "{name}", "threads": 1, "render_version": {}}}"#,
+            raytile_core::RENDER_VERSION
+        )
+    };
+    for bad in ["", &"x".repeat(257)] {
+        let (code, e) = call(&st, post("/v1/workers", reg(bad))).await;
+        assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{e}");
+        assert_eq!(e["error"]["field"], "name", "{e}");
+    }
+    assert_eq!(register_worker(&st).await.0, StatusCode::OK);
+}
