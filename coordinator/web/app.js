@@ -201,7 +201,7 @@ function dispatch(data, lastId) {
 
 // Reads the event stream (server-sent events: `id:` and `data:` lines, an empty line ends an
 // event) until it ends. Read with fetch rather than an EventSource, which cannot send the
-// token's header.
+// token's header. Returns what to show while it waits to open the stream again.
 async function readEvents(signal) {
   const headers = { Accept: "text/event-stream" };
   const t = token();
@@ -209,9 +209,16 @@ async function readEvents(signal) {
   const r = await fetch("/v1/events", { headers, signal, cache: "no-store" });
   if (r.status === 401) {
     await askToken(!!t);
-    return;
+    return "reconnecting…";
   }
-  if (!r.ok || !r.body) return;
+  if (!r.ok || !r.body) {
+    // A refusal says why (a coordinator without a token opened by a host name, say).
+    try {
+      return "refused: " + (await r.json()).error.message;
+    } catch (_) {
+      return "reconnecting…";
+    }
+  }
   setLive(true, "live");
   const reader = r.body.pipeThrough(new TextDecoderStream()).getReader();
   let text = "";
@@ -219,7 +226,7 @@ async function readEvents(signal) {
   let lastId = null;
   for (;;) {
     const { value, done } = await reader.read();
-    if (done) return;
+    if (done) return "reconnecting…";
     text += value;
     let from = 0;
     for (let nl = text.indexOf("\n"); nl >= 0; nl = text.indexOf("\n", from)) {
@@ -251,13 +258,14 @@ function connectEvents() {
   stream = ctl;
   (async () => {
     while (!ctl.signal.aborted) {
+      let shown = "reconnecting…";
       try {
-        await readEvents(ctl.signal);
+        shown = await readEvents(ctl.signal);
       } catch (e) {
         if (!ctl.signal.aborted) console.error(e);
       }
       if (ctl.signal.aborted) return;
-      setLive(false, "reconnecting…");
+      setLive(false, shown);
       await new Promise((resolve) => setTimeout(resolve, 1500));
     }
   })();

@@ -329,7 +329,9 @@ async fn browser(driver: &Driver) -> fantoccini::Client {
     let mut opts = serde_json::json!({"args": [
         "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
         "--window-size=1280,800", "--no-first-run", "--disable-extensions",
-        "--disable-background-networking", "--disable-component-update"]});
+        "--disable-background-networking", "--disable-component-update",
+        // A host name for loopback, to open a coordinator by a name rather than an address.
+        "--host-resolver-rules=MAP farm.test 127.0.0.1"]});
     if Path::new("/usr/bin/chromium").exists() {
         opts["binary"] = "/usr/bin/chromium".into();
     }
@@ -619,6 +621,19 @@ async fn the_web_page_submits_watches_and_cancels() {
         "return document.querySelector('#main h1').textContent === 'Not found'",
     )
     .await;
+
+    // A coordinator without a token answers only requests to an address or localhost (DNS
+    // rebinding): opened by another name, the page loads but says why it gets no data.
+    let port = base.rsplit(':').next().unwrap();
+    c.goto(&format!("http://farm.test:{port}/")).await.unwrap();
+    let said = until(
+        &c,
+        20,
+        "the refusal",
+        "const t = document.getElementById('live').textContent; return t.startsWith('refused') && t",
+    )
+    .await;
+    assert!(said.as_str().unwrap().contains("127.0.0.1"), "{said}");
 
     // A coordinator with a token: the page asks for it once, keeps it for the session, and
     // sends it in a header on every request, the event stream's too (no cookie, which would
