@@ -89,7 +89,8 @@ pub fn read_vol(bytes: &[u8], limits: &GridLimits) -> Result<DensityGrid, GridFo
         values.push(match channels {
             1 => ch(0),
             3 => 0.212_671 * ch(0) + 0.715_160 * ch(1) + 0.072_169 * ch(2),
-            _ => (0..6).map(ch).sum::<f32>() / 6.0,
+            // In f64: six finite values near f32's largest would sum to infinity in f32.
+            _ => ((0..6).map(|i| f64::from(ch(i))).sum::<f64>() / 6.0) as f32,
         });
     }
     let bounds = Aabb::new(Vec3A::new(b[0], b[1], b[2]), Vec3A::new(b[3], b[4], b[5]));
@@ -172,6 +173,10 @@ mod tests {
             &[1.0, 2.0, 3.0, 4.0, 5.0, 9.0],
         );
         assert_eq!(read_vol(&bytes, &limits()).unwrap().voxel(0, 0, 0), 4.0);
+        // Six values near f32's largest: their mean, not an overflow to infinity.
+        let big = f32::MAX / 2.0;
+        let bytes = vol_bytes([1, 1, 1], 6, [0.0, 0.0, 0.0, 1.0, 1.0, 1.0], &[big; 6]);
+        assert_eq!(read_vol(&bytes, &limits()).unwrap().voxel(0, 0, 0), big);
     }
 
     #[test]

@@ -1456,6 +1456,13 @@ impl Converter<'_> {
                         &needle,
                     ));
                 }
+                if !(1..=16).contains(octaves) {
+                    return Err(self.err(
+                        &format!("{at}.octaves"),
+                        format!("{octaves} octaves: from 1 to 16"),
+                        &needle,
+                    ));
+                }
                 let majorant_resolution = self.majorant(name, &at, majorant_resolution)?;
                 self.files
                     .charge_memory(voxels * 4, &format!("noise medium '{name}'"))
@@ -2476,6 +2483,26 @@ mod tests {
                 && e.contains("the majorant grid of medium 'a'"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn noise_octaves_outside_1_to_16_are_refused() {
+        let json = |octaves: u32| {
+            format!(
+                r#"{{"media": {{"n": {{"type": "noise", "resolution": [2, 2, 2], "octaves": {octaves},
+                   "sigma_a": [1, 1, 1], "sigma_s": [1, 1, 1]}}}}}}"#
+            )
+        };
+        for bad in [0, 17, 1_000_000_000] {
+            let e = parse(&json(bad)).unwrap_err();
+            assert!(
+                e.contains("at media.n.octaves") && e.contains("from 1 to 16"),
+                "{e}"
+            );
+        }
+        for good in [1, 16] {
+            parse(&json(good)).unwrap();
+        }
     }
 
     #[test]
