@@ -86,5 +86,6 @@ pub use settings::{
 /// meet the scene, not two pixels' worth of the scene's extent: every `sppm` image changes.
 /// The debug integrators (`normals`, `albedo`, `depth`, `ao`) pass through `interface`
 /// surfaces (medium boundaries), as `path` does, and their occlusion rays too: their images of
-/// scenes with interfaces change.
+/// scenes with interfaces change. A 6-channel `.vol` voxel's mean is summed in f64: densities
+/// read from such files may move by a unit in the last place.
 pub const RENDER_VERSION: u32 = 12;
