@@ -50,6 +50,10 @@ use std::sync::Arc;
 use std::time::Duration;
 use workers::{WorkerRec, Workers};
 
+/// Leases of ended jobs whose reason is kept for a heartbeat that comes after they were
+/// forgotten (beyond, the reasons are dropped and such a heartbeat hears "unknown").
+const ENDED_LEASES_KEPT: usize = 4096;
+
 /// How long a worker that is not heard from stays registered: a day.
 pub const FORGET_WORKERS_AFTER_MS: u64 = 24 * 3600 * 1000;
 
@@ -154,6 +158,8 @@ pub struct Sched {
     rates: HashMap<String, Throughput>,
     /// Workers reported gone (not live) on the event stream.
     gone: HashSet<String>,
+    /// Why each lease forgotten with its job ended (memory only, bounded).
+    ended_leases: HashMap<String, String>,
     events: Events,
 }
 
@@ -223,6 +229,7 @@ impl Sched {
             throughput: Throughput::default(),
             rates: HashMap::new(),
             gone: HashSet::new(),
+            ended_leases: HashMap::new(),
             events: Events::new(),
         };
         for (id, name, threads, registered_ms) in s.store.workers()? {
@@ -446,7 +453,8 @@ impl Sched {
     pub fn heartbeat(&mut self, lease: &str, now: Now) -> Heartbeat {
         let stop = |reason: String| Heartbeat::Stop { reason };
         let Some((job_id, idx)) = self.leases.get(lease).cloned() else {
-            return stop("unknown or expired lease".into());
+            let why = self.ended_leases.remove(lease);
+            return stop(why.unwrap_or_else(|| "unknown or expired lease".into()));
         };
         let Some(job) = self.jobs.get_mut(&job_id) else {
             return stop("job gone".into());
@@ -844,10 +852,23 @@ impl Sched {
         }
         self.counters.expired += n as u64;
         // Leases of jobs that ended or were purged stop nothing any more: forget them (memory
-        // only; a heartbeat on one is told to stop all the same).
+        // only), keeping why for a heartbeat on one.
         let jobs = &self.jobs;
+        let ended = &mut self.ended_leases;
         self.leases
-            .retain(|_, (j, _)| jobs.get(j.as_str()).is_some_and(|j| !j.is_final()));
+            .retain(|lease, (j, _)| match jobs.get(j.as_str()) {
+                Some(job) if !job.is_final() => true,
+                job => {
+                    let why = job.map_or("job deleted".into(), |j| {
+                        format!("job {}", j.life().state.name())
+                    });
+                    ended.insert(lease.clone(), why);
+                    false
+                }
+            });
+        if self.ended_leases.len() > ENDED_LEASES_KEPT {
+            self.ended_leases.clear();
+        }
         // Jobs every live worker is blocked from (the last one blocked may have gone since).
         let block = self.cfg.block_worker_after;
         let error = format!(
@@ -970,7 +991,13 @@ impl Sched {
         if let Some(life) = job.next_life(JobEvent::Cancel, now.wall_ms) {
             job.set_life(life);
         }
-        self.leases.retain(|_, (j, _)| j != job_id);
+        let ended = &mut self.ended_leases;
+        self.leases.retain(|lease, (j, _)| {
+            if j == job_id {
+                ended.insert(lease.clone(), "job deleted".into());
+            }
+            j != job_id
+        });
         self.events.emit(|| Event::JobPurged { job: job_id.into() });
         Ok(Some(job.status()))
     }

@@ -817,8 +817,24 @@ fn leases_of_cancelled_jobs_are_forgotten_at_the_next_expiry_tick() {
     assert_eq!(s.leases.len(), 1);
     assert_eq!(s.expire(now).unwrap(), 0);
     assert!(s.leases.is_empty());
-    assert!(matches!(s.heartbeat(&g.lease, now), Heartbeat::Stop { .. }));
+    // The heartbeat still hears why.
+    assert_eq!(
+        s.heartbeat(&g.lease, now),
+        Heartbeat::Stop {
+            reason: "job cancelled".into()
+        }
+    );
     assert!(!s.fail(&g.lease, "late", now).unwrap());
+    // A purged job's lease, too.
+    let job = s.new_job("s".into(), small(1), 0, now).unwrap().id;
+    let g = s.lease(&w, now).unwrap().unwrap();
+    s.purge(&job, now).unwrap();
+    assert_eq!(
+        s.heartbeat(&g.lease, now),
+        Heartbeat::Stop {
+            reason: "job deleted".into()
+        }
+    );
 }
 
 /// The progress the events carry is counted incrementally; it must agree with the status
