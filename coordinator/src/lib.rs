@@ -345,15 +345,15 @@ fn lock_data_dir(dir: &std::path::Path) -> anyhow::Result<Option<std::fs::File>>
         .write(true)
         .open(&path)
         .with_context(|| format!("creating {}", path.display()))?;
-    match file.try_lock() {
-        Ok(()) => Ok(Some(file)),
-        Err(std::fs::TryLockError::WouldBlock) => anyhow::bail!(
+    match try_lock(&file) {
+        Ok(true) => Ok(Some(file)),
+        Ok(false) => anyhow::bail!(
             "{} is in use by another coordinator (which holds {}): give each coordinator a \
              --data-dir of its own",
             dir.display(),
             path.display()
         ),
-        Err(std::fs::TryLockError::Error(e)) => {
+        Err(e) => {
             tracing::warn!(
                 "cannot lock {}: {e}; nothing stops a second coordinator on this data directory",
                 path.display()
@@ -361,6 +361,31 @@ fn lock_data_dir(dir: &std::path::Path) -> anyhow::Result<Option<std::fs::File>>
             Ok(None)
         }
     }
+}
+
+/// Takes an exclusive advisory lock (flock) on `file` without waiting: whether it got it.
+/// (std's `File::try_lock` needs Rust 1.89; the workspace builds with 1.85.)
+#[cfg(unix)]
+fn try_lock(file: &std::fs::File) -> std::io::Result<bool> {
+    use std::os::fd::AsRawFd;
+    // SAFETY: flock on a file descriptor this function borrows; no memory is passed.
+    if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } == 0 {
+        return Ok(true);
+    }
+    let e = std::io::Error::last_os_error();
+    if e.kind() == std::io::ErrorKind::WouldBlock {
+        Ok(false)
+    } else {
+        Err(e)
+    }
+}
+
+#[cfg(not(unix))]
+fn try_lock(_file: &std::fs::File) -> std::io::Result<bool> {
+    Err(std::io::Error::new(
+        std::io::ErrorKind::Unsupported,
+        "no file locks here",
+    ))
 }
 
 /// Refuses a non-loopback address without a token unless `insecure`.
