@@ -142,6 +142,11 @@ pub fn load_grid_bytes(
         ))));
     }
     if grid_kind(path)? == "vol" {
+        if let Some(name) = grid_name {
+            return Err(format(GridFormatError::Unsupported(format!(
+                "`grid` ('{name}') names a grid of a .vdb file; a .vol file holds one: remove it"
+            ))));
+        }
         let density = super::vol::read_vol(bytes, limits).map_err(format)?;
         Ok(LoadedGrid {
             density,
@@ -292,6 +297,11 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.starts_with("smoke.vol"), "{e}");
+        // A grid name means a .vdb file: on a .vol file it is refused, not ignored.
+        let e = load_grid_bytes(b"VOL", Path::new("smoke.vol"), Some("density"), &limits)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("a .vol file holds one"), "{e}");
         let e = load_grid_bytes(b"", Path::new("smoke.txt"), None, &limits)
             .unwrap_err()
             .to_string();
