@@ -499,6 +499,7 @@ struct ImageQuery {
 
 async fn job_image(
     State(state): State<AppState>,
+    method: Method,
     Path(id): Path<String>,
     Query(q): Query<ImageQuery>,
 ) -> Result<Response, AppError> {
@@ -511,6 +512,11 @@ async fn job_image(
     })?;
     if state.sched().layout(&id).is_none() {
         return Err(no_job(&id));
+    }
+    if method == Method::HEAD {
+        // The headers a GET would send, but for the length, which only encoding the frame
+        // would tell (HTTP lets a HEAD answer leave it out).
+        return Ok([(header::CONTENT_TYPE, compose::content_type(format))].into_response());
     }
     // A frame takes memory in proportion to its pixels while it is composed and encoded: a
     // bounded number at once, the other requests wait here holding nothing.

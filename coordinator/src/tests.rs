@@ -1441,6 +1441,17 @@ async fn image_requests_wait_for_a_slot_and_are_answered_busy_after_the_wait() {
         call(&st, get("/v1/jobs/nope/image")).await.0,
         StatusCode::NOT_FOUND
     );
+    // HEAD makes no image, so it needs no slot: its headers come at once, without a body.
+    let head = |uri: &str| Request::head(uri).body(Body::empty()).unwrap();
+    let resp = app(st.clone()).oneshot(head(&uri)).await.unwrap();
+    assert_eq!(resp.status(), StatusCode::OK);
+    assert_eq!(resp.headers()["content-type"], "image/x-exr");
+    let body = axum::body::to_bytes(resp.into_body(), usize::MAX).await;
+    assert!(body.unwrap().is_empty());
+    let resp = app(st.clone()).oneshot(head("/v1/jobs/nope/image")).await;
+    assert_eq!(resp.unwrap().status(), StatusCode::NOT_FOUND);
+    let resp = app(st.clone()).oneshot(head(&format!("{uri}x"))).await;
+    assert_eq!(resp.unwrap().status(), StatusCode::UNPROCESSABLE_ENTITY);
 }
 
 #[tokio::test]
