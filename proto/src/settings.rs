@@ -548,13 +548,40 @@ pub struct RenderOverrides {
     #[serde(skip_serializing_if = "Option::is_none")]
     #[cfg_attr(
         feature = "clap",
-        arg(long, value_name = "DEG", allow_negative_numbers = true)
+        arg(long, value_name = "DEG", allow_negative_numbers = true, value_parser = f32_arg)
     )]
+    #[serde(deserialize_with = "f32_in_range")]
     pub environment_rotation: Option<f32>,
     /// Multiplies the environment (map or colour).
     #[serde(skip_serializing_if = "Option::is_none")]
-    #[cfg_attr(feature = "clap", arg(long, value_name = "X"))]
+    #[cfg_attr(feature = "clap", arg(long, value_name = "X", value_parser = f32_arg))]
+    #[serde(deserialize_with = "f32_in_range")]
     pub environment_strength: Option<f32>,
+}
+
+/// Why a number does not fit an f32: it is finite but beyond the largest f32, which a plain
+/// f32 field would read as infinity and then report as "inf" instead of what was given.
+fn beyond_f32(x: f64) -> Option<String> {
+    (x.is_finite() && (x as f32).is_infinite())
+        .then(|| format!("{x:e} is beyond the range of a 32-bit float (about ±3.4e38)"))
+}
+
+/// Reads an optional f32 as a JSON number, refusing a finite one beyond f32's range with the
+/// number as sent (the range checks that follow see only finite values or NaN).
+pub fn f32_in_range<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<f32>, D::Error> {
+    let v: Option<f64> = Deserialize::deserialize(d)?;
+    match v.map(|x| beyond_f32(x).map_or(Ok(x as f32), Err)) {
+        Some(Err(why)) => Err(serde::de::Error::custom(why)),
+        Some(Ok(x)) => Ok(Some(x)),
+        None => Ok(None),
+    }
+}
+
+/// Reads an f32 command-line value as [`f32_in_range`] reads a JSON one.
+#[cfg(feature = "clap")]
+fn f32_arg(s: &str) -> Result<f32, String> {
+    let x: f64 = s.trim().parse().map_err(|e| format!("'{s}': {e}"))?;
+    beyond_f32(x).map_or(Ok(x as f32), Err)
 }
 
 /// Reads a camera choice: a name (string), an index (integer ≥ 0, kept as its decimal
@@ -1010,6 +1037,30 @@ mod tests {
             ),
         ] {
             assert_eq!(o.check().unwrap_err().field, field);
+        }
+    }
+
+    /// A number beyond f32's range is refused with the number as sent, not as "inf"; numbers
+    /// within it read as they did.
+    #[test]
+    fn numbers_beyond_f32_are_refused_as_sent() {
+        let read = |j: &str| serde_json::from_str::<RenderOverrides>(j);
+        let e = read(r#"{"environment_strength": 1e308}"#).unwrap_err();
+        assert!(e.to_string().contains("1e308 is beyond"), "{e}");
+        let e = read(r#"{"environment_rotation": -4e38}"#).unwrap_err();
+        assert!(e.to_string().contains("-4e38 is beyond"), "{e}");
+        let o = read(r#"{"environment_strength": 3.4e38, "environment_rotation": 0.1}"#).unwrap();
+        assert_eq!(o.environment_strength, Some(3.4e38));
+        assert_eq!(o.environment_rotation, Some(0.1));
+        assert_eq!(read("{}").unwrap(), RenderOverrides::default());
+        assert_eq!(
+            read(r#"{"environment_strength": null}"#).unwrap(),
+            RenderOverrides::default()
+        );
+        #[cfg(feature = "clap")]
+        {
+            assert!(f32_arg("1e308").unwrap_err().contains("1e308 is beyond"));
+            assert_eq!(f32_arg("2.5"), Ok(2.5));
         }
     }
 }
