@@ -206,6 +206,7 @@ impl Loader<'_> {
                         vals.view().index()
                     )
                 })?;
+            let mut previous = None;
             for s in 0..scount {
                 let ib = ibytes.get(s * isize..(s + 1) * isize).unwrap_or(&[]);
                 let target = to_u32(idt, ib) as usize;
@@ -214,6 +215,15 @@ impl Loader<'_> {
                         "{label}: accessor {ai}: sparse index {target} is out of range ({count} elements)"
                     ));
                 }
+                // The specification requires it; an index given twice would leave the element
+                // to whichever value a reader takes last.
+                if let Some(p) = previous.filter(|&p| target <= p) {
+                    return Err(format!(
+                        "{label}: accessor {ai}: sparse indices must strictly increase, \
+                         got {target} after {p}"
+                    ));
+                }
+                previous = Some(target);
                 if let Some(slot) = out.get_mut(target) {
                     *slot = element(vbytes.get(s * elem..).unwrap_or(&[]));
                 }

@@ -541,6 +541,7 @@ impl<'a> Loader<'a> {
 
     fn load_scene(&mut self) -> Result<(), String> {
         let doc = self.doc;
+        check_forest(doc)?;
         let roots: Vec<gltf::Node> = match doc.default_scene().or_else(|| doc.scenes().next()) {
             Some(scene) => scene.nodes().collect(),
             None => {
@@ -909,4 +910,52 @@ fn default_camera(desc: &SceneDesc) -> CameraDesc {
         },
         aspect: None,
     }
+}
+
+/// glTF requires the nodes to form a forest: no node with two parents, no cycle, checked over
+/// every node as validators do (also those no scene shows, which the walk from a scene's roots
+/// would never meet).
+fn check_forest(doc: &gltf::Document) -> Result<(), String> {
+    let n = doc.nodes().len();
+    let mut parent: Vec<Option<usize>> = vec![None; n];
+    for node in doc.nodes() {
+        for c in node.children() {
+            match parent.get_mut(c.index()) {
+                Some(p @ None) => *p = Some(node.index()),
+                Some(Some(other)) => {
+                    return Err(format!(
+                        "node {} has two parents (nodes {other} and {}): glTF nodes form trees",
+                        c.index(),
+                        node.index()
+                    ))
+                }
+                None => {}
+            }
+        }
+    }
+    // With one parent at most, a node whose chain of parents never ends is in a cycle or
+    // below one. Each node's chain is followed once: 0 not seen, 1 on the chain being
+    // followed, 2 known to end.
+    let mut state = vec![0u8; n];
+    let mut chain = Vec::new();
+    for start in 0..n {
+        let mut i = start;
+        while state[i] == 0 {
+            state[i] = 1;
+            chain.push(i);
+            match parent[i] {
+                Some(p) => i = p,
+                None => break,
+            }
+        }
+        if state[i] == 1 && parent[i].is_some() {
+            return Err(format!(
+                "node {i} is its own ancestor: the node hierarchy has a cycle"
+            ));
+        }
+        for j in chain.drain(..) {
+            state[j] = 2;
+        }
+    }
+    Ok(())
 }

@@ -782,6 +782,26 @@ fn sparse_normalized_and_interleaved_accessors() {
         &one_prim(d, json!({"attributes": {"POSITION": 0}}), json!({})),
         &["sparse index 7"],
     );
+
+    // Sparse indices that repeat or go back.
+    for order in [[1u8, 1], [2, 1]] {
+        let mut d = Doc::default();
+        d.positions(&TRI);
+        let idx = d.view(&[order[0], order[1], 0, 0]);
+        let vals = d.view(&[0u8; 24]);
+        d.accessors[0]["sparse"] = json!({
+            "count": 2,
+            "indices": {"bufferView": idx, "componentType": 5121},
+            "values": {"bufferView": vals},
+        });
+        expect_err(
+            &one_prim(d, json!({"attributes": {"POSITION": 0}}), json!({})),
+            &[
+                "sparse indices must strictly increase",
+                &format!("got {} after {}", order[1], order[0]),
+            ],
+        );
+    }
 }
 
 /// `KHR_mesh_quantization` as gltfpack writes it: integer positions placed by the node's
@@ -966,7 +986,31 @@ fn malformed_data_is_refused() {
     let cyc = d.finish(
         json!({"scenes": [{"nodes": [0]}], "nodes": [{"children": [1]}, {"children": [0]}]}),
     );
-    expect_err(&cyc, &["node 0", "twice"]);
+    expect_err(&cyc, &["cycle"]);
+    // A cycle no scene reaches, a node that is its own child, a node with two parents.
+    for (nodes, needles) in [
+        (
+            json!([{}, {"children": [2]}, {"children": [1]}]),
+            &["node 1", "cycle"][..],
+        ),
+        (json!([{}, {"children": [1]}]), &["node 1", "cycle"]),
+        (
+            json!([{"children": [2]}, {"children": [2]}, {}]),
+            &["node 2 has two parents"],
+        ),
+    ] {
+        let mut d = Doc::default();
+        d.positions(&TRI);
+        expect_err(
+            &d.finish(json!({"scenes": [{"nodes": [0]}], "nodes": nodes})),
+            needles,
+        );
+    }
+    // A scene that names a node twice.
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    let twice = d.finish(json!({"scenes": [{"nodes": [0, 0]}], "nodes": [{}]}));
+    expect_err(&twice, &["node 0", "twice"]);
     expect_err(b"{\"asset\": ", &["invalid JSON"]);
     expect_err(b"[]", &["not an object"]);
     // Buffer shorter than byteLength.
