@@ -584,6 +584,31 @@ fn parse_json_files(
     .convert(file)
 }
 
+/// How many edges of a triangle mesh belong to one triangle, or to more than two (a closed
+/// surface has none). Vertices at the same position count as one, so a mesh whose seams
+/// repeat vertices (for normals or texture coordinates) is closed if its surface is.
+fn open_edges(positions: &[[f32; 3]], indices: &[[u32; 3]]) -> usize {
+    let mut first: HashMap<[u32; 3], u32> = HashMap::with_capacity(positions.len());
+    let weld: Vec<u32> = (0..positions.len() as u32)
+        .map(|i| {
+            *first
+                .entry(positions[i as usize].map(f32::to_bits))
+                .or_insert(i)
+        })
+        .collect();
+    let mut edges: HashMap<(u32, u32), u32> = HashMap::with_capacity(indices.len() * 3 / 2);
+    for t in indices {
+        // Indices were checked against the positions; an unwelded one cannot occur.
+        let v = t.map(|i| weld.get(i as usize).copied().unwrap_or(i));
+        for (a, b) in [(v[0], v[1]), (v[1], v[2]), (v[2], v[0])] {
+            if a != b {
+                *edges.entry((a.min(b), a.max(b))).or_default() += 1;
+            }
+        }
+    }
+    edges.values().filter(|&&n| n != 2).count()
+}
+
 /// Density grids read so far, by canonical path and the `grid` asked for: (grid, file bytes).
 type GridCache = HashMap<(PathBuf, Option<String>), (crate::medium::LoadedGrid, u64)>;
 
@@ -1181,6 +1206,31 @@ impl Converter<'_> {
                     ),
                     &format!("\"{field}\""),
                 ));
+            }
+            // An open surface bounds no volume either, but a surface with a few holes (or a
+            // mesh whose seams are not welded) renders well enough where rays rarely pass the
+            // openings: warned of, not refused.
+            if o.interior.is_some() || o.exterior.is_some() {
+                let open = match &o.shape {
+                    JShape::Cylinder { .. } => Some("a cylinder has no caps".to_string()),
+                    JShape::Cone { .. } => Some("a cone has no caps".to_string()),
+                    JShape::Paraboloid { .. } => Some("a paraboloid has no cap".to_string()),
+                    JShape::Hyperboloid { .. } => Some("a hyperboloid has no caps".to_string()),
+                    JShape::Mesh {
+                        positions, indices, ..
+                    } => match open_edges(positions, indices) {
+                        0 => None,
+                        n => Some(format!("the mesh has {n} edges on one triangle only")),
+                    },
+                    _ => None,
+                };
+                if let Some(why) = open {
+                    self.desc.warnings.push(format!(
+                        "{at} ('{name}'): {why}, so it encloses no volume: a ray that leaves \
+                         its medium through an opening stays in that medium (close the \
+                         surface, e.g. with disks or a closed mesh)"
+                    ));
+                }
             }
             let media = if o.interior.is_some() || o.exterior.is_some() {
                 let side = |field: &str, n: &Option<String>| {
@@ -2641,6 +2691,52 @@ mod tests {
         // A closed shape, and a plane (a half-space), may hold a medium.
         parse(&scene(r#"{"type": "sphere"}"#, "interior")).unwrap();
         parse(&scene(r#"{"type": "plane"}"#, "interior")).unwrap();
+    }
+
+    /// Media on an open surface (a quadric without caps, a mesh with holes) are rendered, with
+    /// a warning naming the object and why; a closed mesh, welded or not at its seams, is not
+    /// warned of.
+    #[test]
+    fn media_on_an_open_surface_are_warned_of() {
+        let scene = |shape: &str| {
+            format!(
+                r#"{{"materials": {{"b": {{"type": "interface"}}}},
+  "media": {{"m": {{"type": "homogeneous", "sigma_a": [1, 1, 1], "sigma_s": [0, 0, 0]}}}},
+  "objects": [{{"name": "o", "shape": {shape}, "material": "b", "interior": "m"}}]}}"#
+            )
+        };
+        let warned = |shape: &str| {
+            let d = parse(&scene(shape)).unwrap();
+            d.warnings
+                .iter()
+                .find(|w| w.contains("objects[0] ('o')") && w.contains("encloses no volume"))
+                .cloned()
+        };
+        let cyl = r#"{"type": "cylinder", "radius": 1, "y_min": 0, "y_max": 1}"#;
+        assert!(warned(cyl).unwrap().contains("a cylinder has no caps"));
+        // A tetrahedron: indexed, and with every face's vertices repeated.
+        let p = ["[0,0,0]", "[1,0,0]", "[0,1,0]", "[0,0,1]"];
+        let faces = [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
+        let closed = format!(
+            r#"{{"type": "mesh", "positions": [{}], "indices": {faces:?}}}"#,
+            p.join(",")
+        );
+        assert_eq!(warned(&closed), None);
+        let split: Vec<&str> = faces.iter().flatten().map(|&i| p[i]).collect();
+        let unwelded = format!(
+            r#"{{"type": "mesh", "positions": [{}], "indices": [[0,1,2],[3,4,5],[6,7,8],[9,10,11]]}}"#,
+            split.join(",")
+        );
+        assert_eq!(warned(&unwelded), None);
+        let open = format!(
+            r#"{{"type": "mesh", "positions": [{}], "indices": {:?}}}"#,
+            p.join(","),
+            &faces[..3]
+        );
+        assert!(warned(&open)
+            .unwrap()
+            .contains("the mesh has 3 edges on one triangle only"));
+        assert_eq!(warned(r#"{"type": "sphere"}"#), None);
     }
 
     #[test]
