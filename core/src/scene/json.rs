@@ -855,6 +855,20 @@ impl Converter<'_> {
         let (r, bytes) = self.read_file(at, path, limits.max_file_bytes)?;
         let loaded = crate::medium::load_grid_bytes(&bytes, &r.named, grid.as_deref(), &limits)
             .map_err(|e| self.err(at, e, &needle))?;
+        // The same grid by another name (`"grid": "density"` and no `grid`, which picks it):
+        // held and charged once.
+        let same = self
+            .grids
+            .borrow()
+            .iter()
+            .find(|((p, _), (g, _))| *p == r.canonical && *g == loaded)
+            .map(|(_, (g, _))| g.clone());
+        if let Some(shared) = same {
+            self.grids
+                .borrow_mut()
+                .insert(key, (shared.clone(), bytes.len() as u64));
+            return Ok(shared);
+        }
         self.files
             .charge_memory(
                 std::mem::size_of_val(loaded.density.values()) as u64,
@@ -2593,6 +2607,56 @@ mod tests {
         let files = SceneFiles::trusted().with_memory_limit(256 + 3 * 4 - 1);
         let e = load_json_files(&scene, &files).unwrap_err().to_string();
         assert!(e.contains("more memory"), "{e}");
+    }
+
+    /// A `.vdb` grid named `density` is the one a medium naming no grid picks: two media that
+    /// name it both ways share it, held and charged once.
+    #[test]
+    fn a_grid_named_and_picked_by_default_is_held_once() {
+        use crate::medium::vdb::tests::{write_vdb, Write};
+        let d = Dir::new("grid-names");
+        let voxels = (0..4).map(|i| ([i, 1, 2], 0.5)).collect();
+        std::fs::write(
+            d.0.join("scene/smoke.vdb"),
+            write_vdb(&voxels, &Write::default()),
+        )
+        .unwrap();
+        let scene = d.0.join("scene/scene.json");
+        let medium = |grid: &str| {
+            format!(
+                r#"{{"type": "grid", "path": "smoke.vdb", "majorant_resolution": [1, 1, 1]{grid},
+                    "sigma_a": [1, 1, 1], "sigma_s": [1, 1, 1]}}"#
+            )
+        };
+        let load = |media: &str, memory: u64| {
+            std::fs::write(&scene, format!(r#"{{"media": {{{media}}}}}"#)).unwrap();
+            load_json_files(&scene, &SceneFiles::trusted().with_memory_limit(memory))
+        };
+        // The least memory one medium on the grid loads with.
+        let one = format!(r#""a": {}"#, medium(""));
+        let (mut need, mut hi) = (0u64, 1 << 20);
+        while need < hi {
+            let mid = (need + hi) / 2;
+            if load(&one, mid).is_ok() {
+                hi = mid;
+            } else {
+                need = mid + 1;
+            }
+        }
+        assert!(need > 0 && load(&one, need).is_ok());
+        let both = format!(
+            r#""a": {}, "b": {}"#,
+            medium(""),
+            medium(r#", "grid": "density""#)
+        );
+        // One more majorant cell (4 bytes), no second grid.
+        let desc = load(&both, need + 4).unwrap();
+        let ids: Vec<_> = desc
+            .media
+            .iter()
+            .map(|m| m.density.as_ref().unwrap().density.values_id())
+            .collect();
+        assert_eq!(ids, [ids[0]; 2]);
     }
 
     #[test]
