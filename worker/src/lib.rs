@@ -308,6 +308,7 @@ impl Worker {
     async fn report_failure(&mut self, lease: &proto::Lease, error: String) {
         tracing::warn!(job = %lease.job, task = lease.task, "task failed: {error}");
         self.cfg.stats.failures.fetch_add(1, Ordering::Relaxed);
+        let error = without_local_paths(&error, &self.cfg.cache_dir, &lease.scene);
         let body = proto::FailureReport { error };
         for _ in 0..5 {
             match self.client.report_failure(&lease.lease_id, &body).await {
@@ -554,6 +555,20 @@ impl Worker {
     }
 }
 
+/// `error` as the job's owner should read it: paths of the worker's cache are named as paths
+/// of the scene's folder (`textures/a.png`, not `/var/cache/raytile/ID/root/textures/a.png`),
+/// and the cache folder itself as "the worker's cache". The log keeps the full message.
+fn without_local_paths(error: &str, cache_dir: &std::path::Path, scene: &str) -> String {
+    let root = cache_dir.join(scene).join("root");
+    let (root, cache) = (root.display().to_string(), cache_dir.display().to_string());
+    let mut out = error.replace(&format!("{root}/"), "");
+    out = out.replace(&root, "the scene's folder");
+    if !cache.is_empty() {
+        out = out.replace(&cache, "the worker's cache");
+    }
+    out
+}
+
 /// Server errors (5xx) after which a result upload is given up.
 const UPLOAD_SERVER_ERRORS: u32 = 5;
 
@@ -655,7 +670,7 @@ fn load_and_build(file: &Path, limits: SceneLoadLimits) -> anyhow::Result<Scene>
         limits.max_file_bytes,
         limits.max_scene_bytes,
     )
-    .map_err(|e| anyhow!("scene folder {}: {e}", file.display()))?
+    .map_err(|e| anyhow!("the folder of {}: {e}", file.display()))?
     .with_memory_limit(limits.max_memory);
     let f = file.to_path_buf();
     match std::panic::catch_unwind(move || -> Result<Scene, raytile_core::SceneError> {
@@ -672,6 +687,20 @@ fn load_and_build(file: &Path, limits: SceneLoadLimits) -> anyhow::Result<Scene>
 mod tests {
     use super::*;
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+    /// A failure the job's owner reads names files of the scene, not of the worker's disk.
+    #[test]
+    fn failure_messages_name_scene_files_not_cache_paths() {
+        let cache = std::path::Path::new("/srv/raytile-cache");
+        let msg = "scene: /srv/raytile-cache/s1/root/textures/a.png: image too large; \
+                   /srv/raytile-cache/s1/root: denied; \
+                   creating /srv/raytile-cache: read-only";
+        assert_eq!(
+            without_local_paths(msg, cache, "s1"),
+            "scene: textures/a.png: image too large; the scene's folder: denied; \
+             creating the worker's cache: read-only"
+        );
+    }
 
     /// Serves `answers` in order, one per connection, reading each request to its end;
     /// returns the base URL and a counter of requests served.
