@@ -897,9 +897,12 @@ impl Converter<'_> {
             .map_err(refused)
             .and_then(|bytes| {
                 // The including scene states its own light: an unlit model gets no default
-                // environment of its own (which the merge would drop, warning and all).
+                // environment of its own (which the merge would drop, warning and all). Nor
+                // a camera of its own: the scene's cameras are its own and those the file
+                // has (without any, the renderer frames the whole scene).
                 let opts = super::gltf::GltfOptions {
                     default_light: false,
+                    default_camera: false,
                     ..Default::default()
                 };
                 super::gltf::load_gltf_bytes(&bytes, &r.named, &opts, self.files)
@@ -2356,6 +2359,8 @@ mod tests {
         let dark = load("");
         assert!(dark.environment.is_none());
         assert_eq!(dark.warnings, [UNLIT_WARNING]);
+        // Nor does a model without a camera bring one: the scene's cameras are its own.
+        assert!(lit.cameras.is_empty(), "{:?}", lit.cameras);
     }
 
     /// A projective node matrix in an included glTF file is refused naming the include's JSON

@@ -85,6 +85,8 @@ pub struct GltfOptions {
     /// punctual light and no shown surface that emits without an emissive texture (emissive
     /// textures are decals and screens, not lamps). Default: true.
     pub default_light: bool,
+    /// Add a camera framing the model (named `default`) when the file has none. Default: true.
+    pub default_camera: bool,
     /// Upper bound on the memory the loader allocates for decoded vertex, index and texel
     /// data and objects, in bytes; larger scenes are refused. Default: 8 GiB.
     pub memory_limit: usize,
@@ -94,6 +96,7 @@ impl Default for GltfOptions {
     fn default() -> Self {
         Self {
             default_light: true,
+            default_camera: true,
             memory_limit: 8 << 30,
         }
     }
@@ -828,7 +831,7 @@ impl<'a> Loader<'a> {
 
     /// Default camera and default light.
     fn finish(&mut self, opts: &GltfOptions) -> Result<(), String> {
-        if self.desc.cameras.is_empty() {
+        if self.desc.cameras.is_empty() && opts.default_camera {
             let camera = default_camera(&self.desc);
             self.desc.cameras.push(camera);
         }
