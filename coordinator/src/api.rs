@@ -330,6 +330,12 @@ async fn create_job(
         .map_err(|e| AppError::invalid(e.field, e.message))?;
     m.check_camera(settings.camera.as_deref())
         .map_err(|e| AppError::invalid("camera", e))?;
+    // What a worker would refuse after its third try, refused now.
+    if let Some(facts) = &m.sppm {
+        facts
+            .check(&settings)
+            .map_err(|e| AppError::invalid("integrator", e))?;
+    }
     let lim = &state.cfg.limits;
     lim.check_job(&settings)
         .map_err(|e| AppError::invalid(e.field, e.message))?;

@@ -9,6 +9,7 @@ use crate::AppState;
 use futures_util::StreamExt;
 use raytile_core::scene::desc::RenderDefaults;
 use raytile_core::scene::files;
+use raytile_core::scene::job::SppmFacts;
 use raytile_proto::scene::{self as pkg, SceneFormat, UnpackLimits};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
@@ -28,6 +29,8 @@ pub struct LoadedScene {
     /// The names of the scene's cameras, in order (`None`: not known, a job's camera is then
     /// not checked).
     pub cameras: Option<Vec<String>>,
+    /// What decides whether `sppm` can render the scene (`None`: not known, not checked).
+    pub sppm: Option<SppmFacts>,
 }
 
 /// Why the loader refused a scene.
@@ -90,6 +93,7 @@ pub fn core_scene_loader(limits: SceneLimits) -> SceneLoader {
         match std::panic::catch_unwind(load) {
             Ok(Ok(desc)) => Ok(LoadedScene {
                 cameras: Some(desc.cameras.iter().map(|c| c.name.clone()).collect()),
+                sppm: Some(SppmFacts::of(&desc)),
                 defaults: desc.render,
                 warnings: desc.warnings,
             }),
@@ -118,6 +122,10 @@ pub struct SceneMeta {
     /// that did not record them.
     #[serde(default)]
     pub cameras: Option<Vec<String>>,
+    /// What decides whether `sppm` can render the scene; `None` for scenes stored by a
+    /// coordinator that did not record it (a worker then refuses such a job).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sppm: Option<SppmFacts>,
 }
 
 impl SceneMeta {
@@ -409,6 +417,7 @@ fn store_scene(
         defaults: loaded.defaults,
         warnings: loaded.warnings,
         cameras: loaded.cameras,
+        sppm: loaded.sppm,
     };
     let text = serde_json::to_vec_pretty(&m).map_err(AppError::internal)?;
     std::fs::write(stage.path().join("meta.json"), text).map_err(AppError::internal)?;

@@ -1323,6 +1323,69 @@ fn result_sums_are_held_to_what_a_pass_can_make() {
     }
 }
 
+/// A job `sppm` cannot render (an unbounded plane under the sun, or under an environment the
+/// job brings) is refused when it is submitted, naming `integrator`, as a worker would refuse
+/// it; the same scene renders with `path`, and a plane under a lamp with `sppm`.
+#[tokio::test]
+async fn sppm_jobs_workers_would_refuse_are_refused_at_submission() {
+    let dir = tempfile::tempdir().unwrap();
+    let st = AppState::open(Config::new(dir.path())).unwrap();
+    let scene = |light: &str| {
+        format!(
+            r#"{{"materials": {{"d": {{"type": "diffuse"}}}},
+  "objects": [{{"shape": {{"type": "plane"}}, "material": "d"}}],
+  "lights": [{{"type": "{light}", "direction": [0, -1, 0], "position": [0, 1, 0],
+              "irradiance": [1, 1, 1], "intensity": [1, 1, 1]}}]}}"#
+        )
+    };
+    let upload = |text: String| {
+        let st = st.clone();
+        async move {
+            let (code, body) = call(&st, post("/v1/scenes", text)).await;
+            assert!(code.is_success(), "{body}");
+            body["id"].as_str().unwrap().to_string()
+        }
+    };
+    // Fields the other light ignores are refused: keep each light's own.
+    let sun = upload(
+        scene("directional")
+            .replace(r#""position": [0, 1, 0],"#, "")
+            .replace(r#", "intensity": [1, 1, 1]"#, ""),
+    )
+    .await;
+    let lamp = upload(
+        scene("point")
+            .replace(r#""direction": [0, -1, 0], "#, "")
+            .replace(r#""irradiance": [1, 1, 1], "#, ""),
+    )
+    .await;
+    let job = |scene: &str, extra: &str| {
+        let st = st.clone();
+        let body = format!(r#"{{"scene": "{scene}", "width": 8, "height": 8{extra}}}"#);
+        async move { call(&st, post("/v1/jobs", body)).await }
+    };
+    for (scene, extra) in [
+        (&sun, r#", "integrator": "sppm""#),
+        (&lamp, r#", "integrator": "sppm", "environment": "1,1,1""#),
+    ] {
+        let (code, body) = job(scene, extra).await;
+        assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{extra}: {body}");
+        assert_eq!(body["error"]["field"], "integrator", "{body}");
+        let message = body["error"]["message"].as_str().unwrap();
+        assert!(
+            message.contains("sppm cannot render an unbounded plane"),
+            "{message}"
+        );
+    }
+    for (scene, extra) in [
+        (&sun, r#", "integrator": "path""#),
+        (&lamp, r#", "integrator": "sppm""#),
+    ] {
+        let (code, body) = job(scene, extra).await;
+        assert_eq!(code, StatusCode::CREATED, "{extra}: {body}");
+    }
+}
+
 /// A job's camera is checked against the scene's cameras: a name, or an index given as a JSON
 /// integer or a string of digits; one the scene does not have is a 422 naming `camera` with
 /// the cameras it has.

@@ -175,6 +175,72 @@ fn sppm_refuses_an_unbounded_plane_under_the_sun_or_the_sky() {
     assert!(e.contains("sppm cannot render an unbounded plane"), "{e}");
 }
 
+/// What a farm's coordinator checks from a scene's description (`SppmFacts`) refuses exactly
+/// the jobs a worker's `RenderJob::new` refuses: scenes with and without a plane, under the
+/// sun, the sky, a lamp or the default light an unlit glTF model gets, and jobs that bring
+/// their own environment, none, or turn the default light off.
+#[test]
+fn the_facts_a_coordinator_keeps_refuse_what_a_worker_refuses() {
+    use raytile_core::scene::job::SppmFacts;
+    use raytile_core::scene::{json::parse_json, Scene};
+    use raytile_core::EnvironmentChoice as Env;
+    let plane = r#"{"type": "plane", "point": [0, -1, 0], "normal": [0, 1, 0]}"#;
+    let rect = r#"{"type": "rectangle", "corner": [-5, -1, 5], "edge_u": [10, 0, 0], "edge_v": [0, 0, -10]}"#;
+    let sun = r#""lights": [{"type": "directional", "direction": [0, -1, 0.2], "irradiance": [1, 1, 1]}]"#;
+    let sky = r#""environment": {"type": "constant", "radiance": [1, 1, 1]}"#;
+    let lamp = r#""lights": [{"type": "point", "position": [0, 3, 0], "intensity": [1, 1, 1]}]"#;
+    let mut descs = Vec::new();
+    for floor in [plane, rect] {
+        for lights in [sun, sky, lamp] {
+            let text = format!(
+                r#"{{"materials": {{"d": {{"type": "diffuse"}}}},
+  "objects": [{{"shape": {{"type": "sphere", "radius": 0.5}}, "material": "d"}},
+              {{"shape": {floor}, "material": "d"}}],
+  {lights}}}"#
+            );
+            descs.push(parse_json(&text, ".".as_ref(), "t.json".as_ref()).unwrap());
+        }
+        // Unlit, with the default light a glTF loader adds.
+        let mut unlit = descs.last().unwrap().clone();
+        unlit.lights.clear();
+        unlit.environment = descs[1].environment.clone();
+        unlit.default_environment = true;
+        descs.push(unlit);
+    }
+    let mut refused = 0;
+    for desc in &descs {
+        let facts = SppmFacts::of(desc);
+        let scene = Scene::build(desc).unwrap();
+        for env in [None, Some(Env::None), Some(Env::Constant([0.5; 3]))] {
+            for (integrator, default_light) in [
+                (IntegratorKind::Sppm, true),
+                (IntegratorKind::Sppm, false),
+                (IntegratorKind::Path, true),
+            ] {
+                let s = RenderSettings {
+                    environment: env.clone(),
+                    default_light,
+                    ..settings(8, 8, 1, integrator)
+                };
+                let worker = RenderJob::new(&scene, &s)
+                    .map(drop)
+                    .map_err(|e| e.to_string());
+                let coordinator = facts.check(&s);
+                assert_eq!(
+                    coordinator.is_err(),
+                    worker.is_err(),
+                    "{env:?} {s:?}: {worker:?}"
+                );
+                if let (Err(c), Err(w)) = (&coordinator, &worker) {
+                    assert!(w.contains(c.as_str()), "{w} / {c}");
+                    refused += 1;
+                }
+            }
+        }
+    }
+    assert!(refused >= 8, "{refused}");
+}
+
 #[test]
 fn the_initial_radius_follows_what_the_camera_sees_not_the_scenes_extent() {
     // scenes/caustic.json's glass ball over a floor, with the floor 4 m or 2 km wide, or with

@@ -82,33 +82,86 @@ impl JobCache {
     }
 }
 
-/// Refuses `sppm` on a scene whose unbounded plane a directional light or an environment
+/// Why `sppm` refuses a scene whose unbounded plane a directional light or an environment
 /// lights: their photons start on a disk of the bounding sphere of the finite objects and never
 /// reach the plane beyond it, so the plane's share of indirect light would be missing from the
 /// image (without an error). `path` and `bdpt` render such scenes.
+const SPPM_UNBOUNDED: &str = "sppm cannot render an unbounded plane lit by a directional light \
+     or an environment (its photons start on a disk around the scene's finite objects and never \
+     reach the plane beyond it): use path or bdpt, or a rectangle for the plane";
+
+/// Refuses `sppm` where it cannot render the scene (see [`SPPM_UNBOUNDED`]).
 fn check_sppm_lighting(
     scene: &Scene,
     settings: &RenderSettings,
     environment: bool,
 ) -> Result<(), SceneError> {
-    let infinite_light = environment
-        || scene
-            .lights
-            .iter()
-            .any(|l| matches!(l, Light::Directional { .. }));
+    let directional = scene
+        .lights
+        .iter()
+        .any(|l| matches!(l, Light::Directional { .. }));
     if settings.integrator == crate::IntegratorKind::Sppm
-        && infinite_light
+        && (environment || directional)
         && scene.aggregate.has_unbounded()
     {
-        return Err(SceneError::Invalid(
-            "render setting integrator: sppm cannot render an unbounded plane lit by a \
-             directional light or an environment (its photons start on a disk around the \
-             scene's finite objects and never reach the plane beyond it): use path or bdpt, or \
-             a rectangle for the plane"
-                .into(),
-        ));
+        return Err(SceneError::Invalid(format!(
+            "render setting integrator: {SPPM_UNBOUNDED}"
+        )));
     }
     Ok(())
+}
+
+/// What of a scene decides whether `sppm` can render it under given settings, known from its
+/// description before it is built: a farm's coordinator keeps it with a scene and refuses a
+/// job its workers would refuse.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct SppmFacts {
+    /// An unbounded shape (a plane).
+    pub unbounded: bool,
+    /// A directional light.
+    pub directional_light: bool,
+    /// An environment of the scene's own.
+    pub environment: bool,
+    /// That environment is the default one a loader added to an unlit scene.
+    pub default_environment: bool,
+}
+
+impl SppmFacts {
+    /// The facts of `desc`.
+    pub fn of(desc: &super::SceneDesc) -> SppmFacts {
+        SppmFacts {
+            // The one shape without bounds, which the scene's builder keeps out of the BVH.
+            unbounded: desc
+                .objects
+                .iter()
+                .any(|o| matches!(o.shape, super::desc::ShapeDesc::Plane { .. })),
+            directional_light: desc
+                .lights
+                .iter()
+                .any(|l| matches!(l, super::desc::LightDesc::Directional { .. })),
+            environment: desc.environment.is_some(),
+            default_environment: desc.default_environment,
+        }
+    }
+
+    /// Refuses `sppm` where a render with `settings` would be refused: the message, for the
+    /// setting `integrator`.
+    pub fn check(&self, settings: &RenderSettings) -> Result<(), String> {
+        // The environment the job would have, as [`RenderJob::new`] chooses it.
+        let environment = match &settings.environment {
+            // The default light is dropped when the job turns it off.
+            None => self.environment && (settings.default_light || !self.default_environment),
+            Some(EnvironmentChoice::None) => false,
+            Some(_) => true,
+        };
+        if settings.integrator == crate::IntegratorKind::Sppm
+            && (environment || self.directional_light)
+            && self.unbounded
+        {
+            return Err(SPPM_UNBOUNDED.to_string());
+        }
+        Ok(())
+    }
 }
 
 impl RenderJob {
