@@ -2,7 +2,7 @@
 
     python bench/raytile_rows.py --stderr LOG --wall SECONDS --exr OUT.exr --spp N --threads T
 
-raytile prints a summary on stderr such as `256x256, 64 spp, 1.23 s, 3.4 Msamples/s`;
+raytile prints a summary on stderr such as `raytile: 256x256, 64 spp, path integrator, 1.23 s render (1.31 s total), 3.4 Msamples/s -> FILE`;
 the render time is the first `N s` on the last line naming spp (else the last `N s`).
 """
 
