@@ -6,7 +6,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use raytile_core::film::{self, OutputOptions, ToneMap};
 use raytile_core::scene::files::SceneFiles;
 use raytile_core::scene::gltf::{no_light_warning, NO_LIGHT_WARNING};
-use raytile_core::scene::job::pick_camera;
+use raytile_core::scene::job::{pick_camera, SppmFacts};
 use raytile_core::{load_scene, RenderJob, RenderOverrides, RenderProgress, Scene, SettingsError};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -66,6 +66,20 @@ impl RenderProgress for Progress {
     }
 }
 
+/// A job's refusal as the command line says it: "render setting environment: ..." names its
+/// flag (`--environment: ...`); other errors (the scene's, a map file's) stay as they are.
+fn setting_as_flag(e: raytile_core::SceneError) -> anyhow::Error {
+    let text = e.to_string();
+    let flag = text
+        .strip_prefix("render setting ")
+        .and_then(|rest| rest.split_once(": "))
+        .filter(|(field, _)| RenderOverrides::FIELDS.contains(field));
+    match flag {
+        Some((field, message)) => anyhow!("--{}: {message}", field.replace('_', "-")),
+        None => e.into(),
+    }
+}
+
 /// Runs `raytile render`.
 pub fn run(args: RenderArgs) -> Result<()> {
     let start = Instant::now();
@@ -78,6 +92,10 @@ pub fn run(args: RenderArgs) -> Result<()> {
         let names: Vec<&str> = desc.cameras.iter().map(|c| c.name.as_str()).collect();
         pick_camera(&names, settings.camera.as_deref()).map_err(flag_error)?;
     }
+    // What sppm cannot render, said before the scene is built, naming the flag.
+    SppmFacts::of(&desc)
+        .check(&settings)
+        .map_err(|e| anyhow!("--integrator: {e}"))?;
     for w in &desc.warnings {
         // The default light's warning says what this render does in its place.
         if w == NO_LIGHT_WARNING {
@@ -96,7 +114,8 @@ pub fn run(args: RenderArgs) -> Result<()> {
     let built = start.elapsed().as_secs_f64() - loaded;
     // An environment map given on the command line is read as given (relative to the
     // current folder).
-    let job = RenderJob::with_files(&scene, &settings, &SceneFiles::trusted(), Path::new("."))?;
+    let job = RenderJob::with_files(&scene, &settings, &SceneFiles::trusted(), Path::new("."))
+        .map_err(setting_as_flag)?;
     let total = settings.width as u64 * settings.height as u64 * settings.spp as u64;
     let bar = std::io::stderr().is_terminal().then(|| {
         let b = ProgressBar::new(total);

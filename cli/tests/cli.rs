@@ -102,6 +102,64 @@ fn render_reports_a_camera_the_scene_does_not_have_as_the_flag() {
     }
 }
 
+/// What a job cannot render is the flag's error: `sppm` under the sun over an unbounded
+/// plane (`classic.json`), and a constant environment too bright for its strength; `cluster`
+/// hears the same from its coordinator when the job is submitted, not from its workers.
+#[test]
+fn render_and_cluster_report_a_job_they_cannot_render_as_the_flag() {
+    let dir = std::env::temp_dir().join(format!("raytile-cli-flags-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = dir.join("x.png");
+    let cases: [(&[&str], &str); 2] = [
+        (
+            &["--integrator", "sppm"],
+            "raytile: --integrator: sppm cannot render an unbounded plane",
+        ),
+        (
+            &["--environment", "1,1,1", "--environment-strength", "1e31"],
+            "raytile: --environment: 1,1,1 times environment_strength 1e31 must be at most 1e30",
+        ),
+    ];
+    for (flags, says) in cases {
+        let o = raytile()
+            .args(["render", &scene("classic.json"), "-o"])
+            .arg(&out)
+            .args(["--width", "8", "--height", "8", "--spp", "1"])
+            .args(flags)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert!(err.starts_with(says) && err.lines().count() == 1, "{err}");
+    }
+    let o = raytile()
+        .args(["cluster", "--workers", "1", "--threads", "1", "--render"])
+        .arg(scene("classic.json"))
+        .arg("-o")
+        .arg(&out)
+        .args([
+            "--width",
+            "8",
+            "--height",
+            "8",
+            "--spp",
+            "1",
+            "--integrator",
+            "sppm",
+        ])
+        .env_remove("RAYTILE_TOKEN")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("raytile: --integrator: sppm cannot render an unbounded plane"),
+        "{err}"
+    );
+    assert!(!out.exists());
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// Thread and worker counts no machine has are refused by the flag parser, at once, before a
 /// thread is started (rather than spawning four billion of them).
 #[test]
