@@ -326,20 +326,20 @@ fn cameras_must_have_a_view_and_a_lens() {
     };
     refused(
         r#", "type": "orthographic", "half_height": 0"#,
-        &["cameras[1].half_height", "positive"],
+        &["cameras[0].half_height", "positive"],
     );
     refused(
         r#", "type": "orthographic", "half_height": -2"#,
-        &["cameras[1].half_height"],
+        &["cameras[0].half_height"],
     );
     refused(
         r#", "aperture": -0.1"#,
-        &["cameras[1].aperture", "non-negative"],
+        &["cameras[0].aperture", "non-negative"],
     );
-    refused(r#", "focus_distance": -3"#, &["cameras[1].focus_distance"]);
+    refused(r#", "focus_distance": -3"#, &["cameras[0].focus_distance"]);
     refused(
         r#", "aperture": 0.1, "focus_distance": 0"#,
-        &["cameras[1].focus_distance", "positive"],
+        &["cameras[0].focus_distance", "positive"],
     );
     // A pinhole, and a focus distance of 0 with it, are fine.
     let ok = r#"{"cameras": [{"position": [0, 0, 3], "look_at": [0, 0, 0], "aperture": 0, "focus_distance": 0},

@@ -386,7 +386,21 @@ fn an_exterior_grid_held_by_several_objects_is_refused() {
   ],
   "camera": {"position": [0, 0, 5], "look_at": [0, 0, 0]}
 }"#;
-    let desc = parse_json(json, Path::new("."), Path::new("test.json")).unwrap();
+    // The JSON loader names the field and its line.
+    let msg = parse_json(json, Path::new("."), Path::new("test.json"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        msg.contains("at objects[2].exterior (line 7)") && msg.contains("held by several objects"),
+        "{msg}"
+    );
+    // A description made otherwise is refused when it is built.
+    let held_twice = json.replace(r#", "exterior": "smoke""#, "");
+    let mut desc = parse_json(&held_twice, Path::new("."), Path::new("test.json")).unwrap();
+    desc.objects[2].media = Some(raytile_core::scene::desc::ObjectMedia {
+        interior: None,
+        exterior: Some(0),
+    });
     let Err(err) = Scene::build(&desc) else {
         panic!("an ambiguous exterior grid is an error");
     };

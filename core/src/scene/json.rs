@@ -1294,6 +1294,7 @@ impl Converter<'_> {
                 media,
             });
         }
+        self.check_grid_exteriors(&f.objects)?;
         // Lights.
         for (i, l) in f.lights.iter().enumerate() {
             let at = format!("lights[{i}]");
@@ -1400,8 +1401,14 @@ impl Converter<'_> {
             });
         }
         // Cameras: `camera` first, then `cameras`.
+        let single = usize::from(f.camera.is_some());
         for (i, c) in f.camera.iter().chain(f.cameras.iter()).enumerate() {
-            let cam = self.camera(c, i)?;
+            // Errors name the value in the file: `camera`, or its place in `cameras`.
+            let at = match i.checked_sub(single) {
+                None => "camera".to_string(),
+                Some(k) => format!("cameras[{k}]"),
+            };
+            let cam = self.camera(c, i, &at)?;
             self.desc
                 .cameras
                 .insert(self.desc.cameras.len().min(i), cam);
@@ -1611,13 +1618,49 @@ impl Converter<'_> {
         }
     }
 
-    fn camera(&self, c: &JCamera, i: usize) -> Result<CameraDesc, SceneError> {
-        let at = format!("cameras[{i}]");
+    /// A grid medium is placed by the object that holds it as its interior, so an `exterior`
+    /// may name a grid only when one object holds it (or it is the scene's medium, placed by
+    /// the world): refused here, naming the JSON path, rather than when the scene is built.
+    fn check_grid_exteriors(&self, objects: &[JObject]) -> Result<(), SceneError> {
+        let holders = |name: &str| {
+            objects
+                .iter()
+                .filter(|o| o.interior.as_deref() == Some(name))
+                .count()
+        };
+        for (i, o) in objects.iter().enumerate() {
+            let Some(ext) = o.exterior.as_deref() else {
+                continue;
+            };
+            let grid = self
+                .desc
+                .media
+                .iter()
+                .position(|m| m.name == ext)
+                .filter(|&mi| {
+                    self.desc.media[mi].density.is_some() && self.desc.medium != Some(mi)
+                });
+            if grid.is_some() && holders(ext) > 1 {
+                return Err(self.err(
+                    &format!("objects[{i}].exterior"),
+                    format!(
+                        "medium '{ext}' is a grid held by several objects (as their \
+                         `interior`), which place it each their own way: an exterior may name \
+                         a grid only when it is the scene's medium or one object's interior"
+                    ),
+                    "\"exterior\"",
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    fn camera(&self, c: &JCamera, i: usize, at: &str) -> Result<CameraDesc, SceneError> {
         let (pos, target, up) = (v3(c.position), v3(c.look_at), v3(c.up));
         let fwd = target - pos;
         if !(pos.is_finite() && target.is_finite() && up.is_finite() && fwd.is_finite()) {
             return Err(self.err(
-                &at,
+                at,
                 "camera position, look_at and up must be finite (at most about 3.4e38 in size)",
                 "\"look_at\"",
             ));
@@ -1626,7 +1669,7 @@ impl Converter<'_> {
         let (f, u) = (fwd.normalize_or_zero(), up.normalize_or_zero());
         if f == Vec3::ZERO || u == Vec3::ZERO || f.cross(u).length_squared() <= 1e-12 {
             return Err(self.err(
-                &at,
+                at,
                 "camera position, look_at and up must be distinct and not collinear",
                 "\"look_at\"",
             ));
@@ -2121,6 +2164,17 @@ mod tests {
         let e = parse(r#"{"cameras": [{"position": [0, 1e39, 5], "look_at": [0, 0, 0]}]}"#)
             .unwrap_err();
         assert!(e.contains("at cameras[0]") && e.contains("finite"), "{e}");
+        // The single `camera` by its own name, and `cameras` by their places in the list.
+        let e = parse(
+            r#"{"camera": {"position": [0, 0, 5], "look_at": [0, 0, 0]},
+                "cameras": [{"position": [0, 0, 5], "look_at": [0, 0, 0]},
+                            {"position": [0, 0, 5], "look_at": [0, 0, 0], "fov": 500}]}"#,
+        )
+        .unwrap_err();
+        assert!(e.contains("at cameras[1].fov (line 3)"), "{e}");
+        let e = parse(r#"{"camera": {"position": [0, 0, 5], "look_at": [0, 0, 0], "fov": -1}}"#)
+            .unwrap_err();
+        assert!(e.contains("at camera.fov (line 1)"), "{e}");
         // A tiny scene: a camera a micrometre from what it looks at is fine.
         let d =
             parse(r#"{"cameras": [{"position": [0, 0, 1e-6], "look_at": [0, 0, 0]}]}"#).unwrap();
