@@ -3,6 +3,9 @@
 use std::path::Path;
 use std::process::Command;
 
+/// The smallest render worth the name: 8 × 8 pixels, one sample.
+const TINY: [&str; 6] = ["--width", "8", "--height", "8", "--spp", "1"];
+
 fn raytile() -> Command {
     Command::new(env!("CARGO_BIN_EXE_raytile"))
 }
@@ -124,7 +127,7 @@ fn render_and_cluster_report_a_job_they_cannot_render_as_the_flag() {
         let o = raytile()
             .args(["render", &scene("classic.json"), "-o"])
             .arg(&out)
-            .args(["--width", "8", "--height", "8", "--spp", "1"])
+            .args(TINY)
             .args(flags)
             .output()
             .unwrap();
@@ -137,16 +140,8 @@ fn render_and_cluster_report_a_job_they_cannot_render_as_the_flag() {
         .arg(scene("classic.json"))
         .arg("-o")
         .arg(&out)
-        .args([
-            "--width",
-            "8",
-            "--height",
-            "8",
-            "--spp",
-            "1",
-            "--integrator",
-            "sppm",
-        ])
+        .args(TINY)
+        .args(["--integrator", "sppm"])
         .env_remove("RAYTILE_TOKEN")
         .output()
         .unwrap();
@@ -739,16 +734,8 @@ fn the_default_light_warning_says_what_the_render_does() {
             .arg(&model)
             .arg("-o")
             .arg(&out)
-            .args([
-                "--width",
-                "8",
-                "--height",
-                "8",
-                "--spp",
-                "1",
-                "--threads",
-                "1",
-            ])
+            .args(TINY)
+            .args(["--threads", "1"])
             .args(extra)
             .output()
             .unwrap();
