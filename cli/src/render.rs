@@ -6,7 +6,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use raytile_core::film::{self, OutputOptions, ToneMap};
 use raytile_core::scene::files::SceneFiles;
 use raytile_core::scene::gltf::{no_light_warning, NO_LIGHT_WARNING};
-use raytile_core::scene::job::{pick_camera, SppmFacts};
+use raytile_core::scene::job::pick_camera;
 use raytile_core::{load_scene, RenderJob, RenderOverrides, RenderProgress, Scene, SettingsError};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -93,7 +93,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         pick_camera(&names, settings.camera.as_deref()).map_err(flag_error)?;
     }
     // What sppm cannot render, said before the scene is built, naming the flag.
-    SppmFacts::of(&desc)
+    desc.sppm_facts()
         .check(&settings)
         .map_err(|e| anyhow!("--integrator: {e}"))?;
     for w in &desc.warnings {

@@ -93,7 +93,7 @@ pub fn core_scene_loader(limits: SceneLimits) -> SceneLoader {
         match std::panic::catch_unwind(load) {
             Ok(Ok(desc)) => Ok(LoadedScene {
                 cameras: Some(desc.cameras.iter().map(|c| c.name.clone()).collect()),
-                sppm: Some(SppmFacts::of(&desc)),
+                sppm: Some(desc.sppm_facts()),
                 defaults: desc.render,
                 warnings: desc.warnings,
             }),

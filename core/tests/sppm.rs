@@ -181,7 +181,6 @@ fn sppm_refuses_an_unbounded_plane_under_the_sun_or_the_sky() {
 /// their own environment, none, or turn the default light off.
 #[test]
 fn the_facts_a_coordinator_keeps_refuse_what_a_worker_refuses() {
-    use raytile_core::scene::job::SppmFacts;
     use raytile_core::scene::{json::parse_json, Scene};
     use raytile_core::EnvironmentChoice as Env;
     let plane = r#"{"type": "plane", "point": [0, -1, 0], "normal": [0, 1, 0]}"#;
@@ -209,7 +208,7 @@ fn the_facts_a_coordinator_keeps_refuse_what_a_worker_refuses() {
     }
     let mut refused = 0;
     for desc in &descs {
-        let facts = SppmFacts::of(desc);
+        let facts = desc.sppm_facts();
         let scene = Scene::build(desc).unwrap();
         for env in [None, Some(Env::None), Some(Env::Constant([0.5; 3]))] {
             for (integrator, default_light) in [

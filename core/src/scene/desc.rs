@@ -362,6 +362,24 @@ pub enum BsdfDesc {
 }
 
 impl SceneDesc {
+    /// What decides whether `sppm` can render the scene (checked by
+    /// [`super::job::SppmFacts::check`] against a job's settings).
+    pub fn sppm_facts(&self) -> super::job::SppmFacts {
+        super::job::SppmFacts {
+            // The one shape without bounds, which the scene's builder keeps out of the BVH.
+            unbounded: self
+                .objects
+                .iter()
+                .any(|o| matches!(o.shape, ShapeDesc::Plane { .. })),
+            directional_light: self
+                .lights
+                .iter()
+                .any(|l| matches!(l, LightDesc::Directional { .. })),
+            environment: self.environment.is_some(),
+            default_environment: self.default_environment,
+        }
+    }
+
     /// Whether anything in the scene gives light: a light, an environment, or an object whose
     /// material emits.
     pub fn is_lit(&self) -> bool {

@@ -112,8 +112,8 @@ fn check_sppm_lighting(
 }
 
 /// What of a scene decides whether `sppm` can render it under given settings, known from its
-/// description before it is built: a farm's coordinator keeps it with a scene and refuses a
-/// job its workers would refuse.
+/// description before it is built ([`crate::scene::SceneDesc::sppm_facts`]): a farm's
+/// coordinator keeps it with a scene and refuses a job its workers would refuse.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct SppmFacts {
     /// An unbounded shape (a plane).
@@ -127,23 +127,6 @@ pub struct SppmFacts {
 }
 
 impl SppmFacts {
-    /// The facts of `desc`.
-    pub fn of(desc: &super::SceneDesc) -> SppmFacts {
-        SppmFacts {
-            // The one shape without bounds, which the scene's builder keeps out of the BVH.
-            unbounded: desc
-                .objects
-                .iter()
-                .any(|o| matches!(o.shape, super::desc::ShapeDesc::Plane { .. })),
-            directional_light: desc
-                .lights
-                .iter()
-                .any(|l| matches!(l, super::desc::LightDesc::Directional { .. })),
-            environment: desc.environment.is_some(),
-            default_environment: desc.default_environment,
-        }
-    }
-
     /// Refuses `sppm` where a render with `settings` would be refused: the message, for the
     /// setting `integrator`.
     pub fn check(&self, settings: &RenderSettings) -> Result<(), String> {
