@@ -106,10 +106,11 @@ fn render_reports_a_camera_the_scene_does_not_have_as_the_flag() {
 }
 
 /// What a job cannot render is the flag's error: `sppm` under the sun over an unbounded
-/// plane (`classic.json`), and a constant environment too bright for its strength; `cluster`
-/// hears the same from its coordinator when the job is submitted, not from its workers.
+/// plane (`classic.json`), and a constant environment too bright for its strength.
+/// (`cluster_reports_the_coordinators_refusal_as_the_flag` checks that `cluster` hears the
+/// first from its coordinator.)
 #[test]
-fn render_and_cluster_report_a_job_they_cannot_render_as_the_flag() {
+fn render_reports_a_job_it_cannot_render_as_the_flag() {
     let dir = std::env::temp_dir().join(format!("raytile-cli-flags-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let out = dir.join("x.png");
@@ -135,22 +136,6 @@ fn render_and_cluster_report_a_job_they_cannot_render_as_the_flag() {
         assert_eq!(o.status.code(), Some(1), "{err}");
         assert!(err.starts_with(says) && err.lines().count() == 1, "{err}");
     }
-    let o = raytile()
-        .args(["cluster", "--workers", "1", "--threads", "1", "--render"])
-        .arg(scene("classic.json"))
-        .arg("-o")
-        .arg(&out)
-        .args(TINY)
-        .args(["--integrator", "sppm"])
-        .env_remove("RAYTILE_TOKEN")
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(1), "{err}");
-    assert!(
-        err.contains("raytile: --integrator: sppm cannot render an unbounded plane"),
-        "{err}"
-    );
     assert!(!out.exists());
     std::fs::remove_dir_all(&dir).ok();
 }
@@ -281,27 +266,50 @@ fn submit_refuses_bad_flags_and_outputs_before_uploading() {
     assert!(err.contains("cannot reach the coordinator"), "{err}");
 }
 
-/// A setting only the coordinator can refuse (it needs the scene's own spp) is still reported
-/// as the flag.
+/// A setting only the coordinator can refuse (it needs the scene's own spp), or a job only it
+/// knows the workers would refuse, is still reported as the flag.
 #[test]
 fn cluster_reports_the_coordinators_refusal_as_the_flag() {
     let dir = std::env::temp_dir().join(format!("raytile-cli-cluster-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let o = raytile()
-        .args(["cluster", "--workers", "1", "--threads", "1", "--render"])
-        .arg(scene("cornell-box.json"))
-        .arg("-o")
-        .arg(dir.join("x.png"))
-        .args(["--spp", "4", "--passes", "5"])
-        .env_remove("RAYTILE_TOKEN")
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(1), "{err}");
-    assert!(
-        err.contains("raytile: --passes: must be between 1 and spp (4), got 5"),
-        "{err}"
-    );
+    // The second: sppm under the sun over an unbounded plane, which the workers would refuse.
+    let cases: [(&str, &[&str], &str); 2] = [
+        (
+            "cornell-box.json",
+            &["--spp", "4", "--passes", "5"],
+            "raytile: --passes: must be between 1 and spp (4), got 5",
+        ),
+        (
+            "classic.json",
+            &[
+                "--width",
+                "8",
+                "--height",
+                "8",
+                "--spp",
+                "1",
+                "--integrator",
+                "sppm",
+            ],
+            "raytile: --integrator: sppm cannot render an unbounded plane",
+        ),
+    ];
+    for (name, flags, says) in cases {
+        let out = dir.join("x.png");
+        let o = raytile()
+            .args(["cluster", "--workers", "1", "--threads", "1", "--render"])
+            .arg(scene(name))
+            .arg("-o")
+            .arg(&out)
+            .args(flags)
+            .env_remove("RAYTILE_TOKEN")
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert!(err.contains(says), "{err}");
+        assert!(!out.exists());
+    }
     std::fs::remove_dir_all(&dir).ok();
 }
 
