@@ -214,6 +214,7 @@ impl From<JsonRejection> for AppError {
                 // the offending field first.
                 let message = std::error::Error::source(&e)
                     .map_or_else(|| e.body_text(), ToString::to_string);
+                let message = raytile_proto::json::plain_message(&message);
                 let field = message
                     .split_once(": ")
                     .map(|(f, _)| f.to_string())
@@ -269,7 +270,7 @@ impl<T: serde::de::DeserializeOwned, S: Send + Sync> FromRequestParts<S> for Que
         let de = serde_urlencoded::Deserializer::new(form_urlencoded::parse(q.as_bytes()));
         serde_path_to_error::deserialize(de).map(Query).map_err(
             |e: serde_path_to_error::Error<_>| {
-                let inner = e.inner().to_string();
+                let inner = raytile_proto::json::plain_message(&e.inner().to_string());
                 let path = e.path().to_string();
                 // A duplicate names its field in the message, not in the path.
                 let field = if path == "." {

@@ -272,7 +272,7 @@ async fn wrong_json_is_answered_with_serdes_message_naming_the_field() {
             "/v1/workers",
             r#""x""#.into(),
             "body",
-            r#"body: invalid type: string "x", expected struct RegisterRequest at line 1 column 3"#,
+            r#"body: invalid type: string "x", expected an object at line 1 column 3"#,
         ),
     ] {
         let (code, b) = call(&st, post(uri, body.clone())).await;

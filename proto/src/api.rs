@@ -72,7 +72,8 @@ impl TryFrom<serde_json::Map<String, serde_json::Value>> for JobRequest {
             name: &str,
             v: serde_json::Value,
         ) -> Result<T, String> {
-            serde_json::from_value(v).map_err(|e| format!("{name}: {e}"))
+            crate::json::from_objects(v)
+                .map_err(|e| format!("{name}: {}", crate::json::plain_message(&e.to_string())))
         }
         let scene = m.remove("scene").ok_or("missing field `scene`")?;
         let scene = field("scene", scene)?;
@@ -80,10 +81,11 @@ impl TryFrom<serde_json::Map<String, serde_json::Value>> for JobRequest {
             Some(v) => field("priority", v)?,
             None => None,
         };
-        let overrides = serde_path_to_error::deserialize(serde_json::Value::Object(m)).map_err(
+        let body = crate::json::Objects(serde_json::Value::Object(m));
+        let overrides = serde_path_to_error::deserialize(body).map_err(
             |e: serde_path_to_error::Error<serde_json::Error>| {
                 let path = e.path().to_string();
-                let inner = e.inner().to_string();
+                let inner = crate::json::plain_message(&e.inner().to_string());
                 if inner.starts_with("unknown field") {
                     // serde's list would lack `scene` and `priority`.
                     format!(

@@ -5,6 +5,7 @@
 //! - [`settings`]: `RenderSettings` as a job carries it, the `RenderOverrides` users give, and
 //!   their validation.
 //! - [`api`]: every JSON request and response body of the HTTP API.
+//! - [`json`]: reading JSON people write: structs from objects only, serde's messages in JSON's words.
 //! - [`tile`]: the binary tile-result format workers upload (little-endian, length-checked).
 //! - [`scene`]: scene packages: format detection; with the `package` feature, content ids, safe
 //!   archive extraction and packing.
@@ -16,6 +17,7 @@
 pub mod api;
 #[cfg(feature = "client")]
 pub mod client;
+pub mod json;
 pub mod scene;
 pub mod settings;
 #[cfg(feature = "signal")]

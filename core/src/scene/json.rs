@@ -138,6 +138,7 @@ enum JCameraKind {
 
 #[derive(Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+#[serde(expecting = "an object with a `type` naming a texture (image or checker)")]
 enum JTexture {
     Image {
         path: PathBuf,
@@ -173,6 +174,7 @@ struct JMaterial {
 /// before the rest comes here), so that an unknown one is an error, not a typo ignored.
 #[derive(Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+#[serde(expecting = "a material with a `type`")]
 enum JBsdf {
     Diffuse {
         #[serde(default = "grey")]
@@ -258,6 +260,7 @@ struct JTransform {
 
 #[derive(Deserialize)]
 #[serde(untagged)]
+#[serde(expecting = "expected a number or an array of 3 numbers")]
 enum JScale {
     Uniform(f32),
     Axes([f32; 3]),
@@ -285,6 +288,7 @@ struct JObject {
 /// of a grid).
 #[derive(Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+#[serde(expecting = "an object with a `type` naming a medium")]
 enum JMedium {
     Homogeneous {
         sigma_a: Rgb,
@@ -365,6 +369,7 @@ const MAX_NOISE_VOXELS: u64 = 128 * 128 * 128;
 
 #[derive(Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+#[serde(expecting = "an object with a `type` naming a shape")]
 enum JShape {
     Sphere {
         #[serde(default)]
@@ -449,6 +454,7 @@ enum JShape {
 
 #[derive(Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+#[serde(expecting = "an object with a `type` naming a light")]
 enum JLight {
     Point {
         position: [f32; 3],
@@ -484,6 +490,7 @@ fn default_spot() -> f32 {
 
 #[derive(Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+#[serde(expecting = "an object with a `type` naming an environment")]
 enum JEnvironment {
     Constant {
         radiance: Rgb,
@@ -542,12 +549,15 @@ fn parse_json_files(
     // Some editors start a UTF-8 file with a byte order mark, which JSON parsers refuse.
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut de = serde_json::Deserializer::from_str(text);
-    let file: File = serde_path_to_error::deserialize(&mut de).map_err(|e| {
+    // Every struct from a JSON object only (serde would also take an array of its fields).
+    let objects = raytile_proto::json::Objects(&mut de);
+    let file: File = serde_path_to_error::deserialize(objects).map_err(|e| {
         let inner = e.inner();
         let path = e.path().to_string();
         let msg = inner.to_string();
         // serde_json appends " at line L column C" itself; keep one copy.
-        let mut msg = msg.split(" at line ").next().unwrap_or(&msg).to_string();
+        let mut msg =
+            raytile_proto::json::plain_message(msg.split(" at line ").next().unwrap_or(&msg));
         if path.starts_with("materials.") && msg.starts_with("unknown field") {
             // serde lists only the fields of the material's type.
             msg.push_str(" (and every material takes `emission` and `two_sided`)");

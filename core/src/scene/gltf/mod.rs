@@ -26,6 +26,7 @@ use super::desc::{
 use super::files::{folder_of, SceneFiles};
 use super::SceneError;
 use glam::{Mat4, Quat, Vec3};
+use raytile_proto::json::Objects;
 use serde_json::Value;
 use std::borrow::Cow;
 use std::collections::HashMap;
@@ -428,15 +429,19 @@ fn load_inner(
     let mut warnings = Vec::new();
     check_extensions(&raw, &mut warnings)?;
     // Errors name the JSON path of the value they are about, as well as serde's message.
-    let invalid = |e: serde_path_to_error::Error<serde_json::Error>| match e.path().to_string() {
-        path if path == "." => format!("invalid glTF: {}", e.inner()),
-        path => format!("invalid glTF at {path}: {}", e.inner()),
+    // Every struct from a JSON object only (serde would also take an array of its fields).
+    let invalid = |e: serde_path_to_error::Error<serde_json::Error>| {
+        let message = raytile_proto::json::plain_message(&e.inner().to_string());
+        match e.path().to_string() {
+            path if path == "." => format!("invalid glTF: {message}"),
+            path => format!("invalid glTF at {path}: {message}"),
+        }
     };
     let mut root: gltf::json::Root = if add_scene_nodes(&mut raw) {
-        serde_path_to_error::deserialize(&raw).map_err(invalid)?
+        serde_path_to_error::deserialize(Objects(&raw)).map_err(invalid)?
     } else {
         let mut json = serde_json::Deserializer::from_slice(json);
-        serde_path_to_error::deserialize(&mut json).map_err(invalid)?
+        serde_path_to_error::deserialize(Objects(&mut json)).map_err(invalid)?
     };
     // Already checked against raytile's own list; the gltf crate's list lacks some we support.
     root.extensions_required.clear();
