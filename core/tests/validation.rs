@@ -561,3 +561,120 @@ fn material_parameters_must_be_in_their_ranges() {
         assert!(e.contains("material 'm'") && e.contains(field), "{e}");
     }
 }
+
+/// The error of loading the JSON scene `text`.
+fn whole_json_error(text: &str) -> String {
+    match parse_json(text, Path::new("."), Path::new("scene.json")) {
+        Ok(_) => panic!("accepted: {text}"),
+        Err(e) => e.to_string(),
+    }
+}
+
+#[test]
+fn json_values_of_the_wrong_shape_are_refused_in_jsons_words() {
+    let cases: [(&str, &[&str]); 5] = [
+        // A named choice given as a number.
+        (
+            r#", "render": {"integrator": 3}"#,
+            &[
+                "at render.integrator",
+                "integer `3`, expected one of `path`, ",
+            ],
+        ),
+        // An object written as an array of its fields (serde would read it in field order).
+        (
+            r#", "cameras": [[[0, 0, 3], [0, 0, 0]]]"#,
+            &[
+                "at cameras[0] (line",
+                "invalid type: array, expected an object",
+            ],
+        ),
+        (
+            r#", "render": [8, 8]"#,
+            &["at render (line", "invalid type: array, expected an object"],
+        ),
+        // An array longer than its value.
+        (
+            r#", "cameras": [{"position": [0, 0, 3, 1]}]"#,
+            &["at cameras[0].position", "too many elements"],
+        ),
+        // A tagged value that is not an object.
+        (
+            r#", "environment": true"#,
+            &[
+                "at environment",
+                "expected an object with a `type` naming an environment",
+            ],
+        ),
+    ];
+    for (extra, needles) in cases {
+        let e = json_error(extra);
+        for n in needles {
+            assert!(e.contains(n), "{extra}: error {e:?} does not mention {n:?}");
+        }
+        for rust in ["struct", "enum", "sequence"] {
+            assert!(
+                !e.contains(rust),
+                "{extra}: error {e:?} names a Rust {rust}"
+            );
+        }
+    }
+    let e = whole_json_error(
+        r#"{"materials": {"w": {"type": "diffuse"}},
+            "objects": [{"shape": {"type": "sphere"}, "material": "w",
+                         "transform": {"scale": [1, 1]}}]}"#,
+    );
+    assert!(
+        e.contains("at objects[0].transform.scale") && e.contains("a number or an array of 3"),
+        "{e}"
+    );
+}
+
+#[test]
+fn values_beyond_f32_are_refused_where_they_are_written() {
+    // An environment's rotation (the command line's flag refuses it too).
+    refused(
+        r#", "environment": {"type": "map", "path": "sky.hdr", "rotation": 1e39}"#,
+        &["environment.rotation", "finite number of degrees"],
+    );
+    let scene = |shape: &str, material: &str| {
+        format!(
+            r#"{{"materials": {{"w": {material}}},
+                "objects": [{{"shape": {shape}, "material": "w"}}]}}"#
+        )
+    };
+    let diffuse = r#"{"type": "diffuse"}"#;
+    let emitter = r#"{"type": "emitter", "emission": [1, 1, 1]}"#;
+    // A mesh vertex that overflowed, named by its place.
+    let e = whole_json_error(&scene(
+        r#"{"type": "mesh", "positions": [[0, 0, 0], [1e39, 0, 0], [0, 1, 0]],
+            "indices": [[0, 1, 2]]}"#,
+        diffuse,
+    ));
+    assert!(
+        e.contains("scene.json") && e.contains("objects[0].shape.positions[1]"),
+        "{e}"
+    );
+    // A polygon whose area overflows is too large, not degenerate.
+    let e = whole_json_error(&scene(
+        r#"{"type": "polygon", "vertices": [[0, 0, 0], [3e38, 0, 0], [0, 3e38, 0]]}"#,
+        diffuse,
+    ));
+    assert!(e.contains("too large") && !e.contains("degenerate"), "{e}");
+    // An emitting disk, rectangle or sphere whose area overflows cannot be sampled: too large,
+    // not the wrong kind of shape.
+    for shape in [
+        r#"{"type": "disk", "radius": 2e19}"#,
+        r#"{"type": "sphere", "radius": 1e19}"#,
+        r#"{"type": "rectangle", "corner": [0, 0, 0], "edge_u": [3e19, 0, 0], "edge_v": [0, 3e19, 0]}"#,
+    ] {
+        let e = whole_json_error(&scene(shape, emitter));
+        assert!(
+            e.contains("too large to be an area light") && !e.contains("use a mesh"),
+            "{shape}: {e}"
+        );
+    }
+    // A plane still cannot be one.
+    let e = whole_json_error(&scene(r#"{"type": "plane"}"#, emitter));
+    assert!(e.contains("cannot be an area light"), "{e}");
+}

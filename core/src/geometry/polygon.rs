@@ -91,6 +91,12 @@ impl Polygon {
             .map(|v| (*v - centroid).length())
             .fold(0.0f32, f32::max);
         let twice_area = newell.length();
+        if !(size.is_finite() && twice_area.is_finite()) {
+            return Err(format!(
+                "polygon is too large: its size or area overflows 32-bit floats (vertices up \
+                 to {size} from their centre)"
+            ));
+        }
         let has_area = twice_area.is_finite() && twice_area > 1e-6 * size * size;
         if !has_area {
             return Err(format!(

@@ -386,11 +386,8 @@ impl Scene {
                     Emitter::Triangles { tris, uvs }
                 }
                 ObjectKind::Analytic(a) => {
-                    if a.sample(Vec2::splat(0.5)).is_none() {
-                        return Err(invalid(format!(
-                            "object {oi} ('{}'): {NOT_AN_AREA_LIGHT}",
-                            o.name
-                        )));
+                    if let Some(why) = analytic_emit_refusal(a) {
+                        return Err(invalid(format!("object {oi} ('{}'): {why}", o.name)));
                     }
                     Emitter::Shape(Box::new(PlacedShape {
                         shape: a.clone(),
@@ -628,12 +625,30 @@ fn build_mesh(mi: usize, m: MeshDesc) -> Result<Mesh, SceneError> {
 pub(crate) const NOT_AN_AREA_LIGHT: &str = "this shape cannot be an area light (planes and \
     quadrics cannot be sampled); use a mesh, sphere, box, disk, rectangle or polygon";
 
-/// Whether an object of this shape can be an area light: not a plane or a quadric, which cannot
-/// be sampled. A shape whose parameters are wrong counts as one: the builder refuses it for them.
-pub(crate) fn can_emit(shape: &ShapeDesc) -> bool {
+/// Why an emissive shape whose area overflows f32 is refused.
+pub(crate) const LIGHT_TOO_LARGE: &str = "this shape is too large to be an area light (its \
+    surface area overflows 32-bit floats)";
+
+/// Why an object of this shape cannot be an area light, if it cannot: a plane or a quadric
+/// cannot be sampled ([`NOT_AN_AREA_LIGHT`]), and a shape whose area overflows has no density
+/// ([`LIGHT_TOO_LARGE`]). A shape whose parameters are wrong passes: the builder refuses it for
+/// them.
+pub(crate) fn emit_refusal(shape: &ShapeDesc) -> Option<&'static str> {
     match shape {
-        ShapeDesc::Mesh { .. } => true,
-        s => build_analytic(s).map_or(true, |a| a.sample(Vec2::splat(0.5)).is_some()),
+        ShapeDesc::Mesh { .. } => None,
+        s => build_analytic(s)
+            .ok()
+            .and_then(|a| analytic_emit_refusal(&a)),
+    }
+}
+
+fn analytic_emit_refusal(a: &Analytic) -> Option<&'static str> {
+    if matches!(a, Analytic::Plane(_) | Analytic::Quadric(_)) {
+        return Some(NOT_AN_AREA_LIGHT);
+    }
+    match a.sample(Vec2::splat(0.5)) {
+        Some(s) if s.pdf_area > 0.0 && s.pdf_area.is_finite() => None,
+        _ => Some(LIGHT_TOO_LARGE),
     }
 }
 

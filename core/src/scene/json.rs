@@ -5,7 +5,6 @@
 //! `serde_path_to_error` for the path), semantic ones (an unknown material name, a degenerate
 //! shape) from the conversion below, with the line of the offending value where it can be found.
 
-use super::build::NOT_AN_AREA_LIGHT;
 use super::desc::*;
 use super::files::{folder_of, show, FileError, Resolved, SceneFiles};
 use super::SceneError;
@@ -1201,13 +1200,14 @@ impl Converter<'_> {
             };
             let shape = self.shape(&o.shape, &name, &at)?;
             let m = &self.desc.materials[material];
-            if m.emits() && !super::build::can_emit(&shape) {
+            if let Some(why) = m
+                .emits()
+                .then(|| super::build::emit_refusal(&shape))
+                .flatten()
+            {
                 return Err(self.err(
                     &at,
-                    format!(
-                        "its material '{}' emits light, but {NOT_AN_AREA_LIGHT}",
-                        m.name
-                    ),
+                    format!("its material '{}' emits light, but {why}", m.name),
                     &format!("\"{name}\""),
                 ));
             }
@@ -1390,6 +1390,13 @@ impl Converter<'_> {
                             "environment.scale",
                             "scale must be finite and non-negative",
                             "\"scale\"",
+                        ));
+                    }
+                    if !rotation.is_finite() {
+                        return Err(self.err(
+                            "environment.rotation",
+                            format!("must be a finite number of degrees, got {rotation}"),
+                            "\"rotation\"",
                         ));
                     }
                     let mut texture = self.image("environment.path", path)?;
@@ -1864,6 +1871,19 @@ impl Converter<'_> {
                     indices: indices.clone(),
                 };
                 let n = mesh.positions.len();
+                for (key, list) in [("positions", positions), ("normals", normals)] {
+                    if let Some(k) = list.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+                        return Err(self.err(
+                            &format!("{at}.shape.{key}[{k}]"),
+                            format!(
+                                "{:?} is not finite (JSON numbers beyond about 3.4e38 are too \
+                                 large for 32-bit floats)",
+                                list[k]
+                            ),
+                            &format!("\"{key}\""),
+                        ));
+                    }
+                }
                 if let Some(bad) = mesh.indices.iter().flatten().find(|&&i| i as usize >= n) {
                     return Err(self.err(
                         &format!("{at}.shape.indices"),

@@ -155,11 +155,7 @@ impl Loader<'_> {
                     .collect();
             }
             None => {
-                if accessor.sparse().is_none() {
-                    return Err(format!(
-                        "{label}: accessor {ai} has neither a buffer view nor sparse values"
-                    ));
-                }
+                // All zeros (glTF 2.0, 3.6.2.1), with the sparse values below if it has any.
                 if count > MAX_VIEWLESS_COUNT {
                     return Err(format!(
                         "{label}: accessor {ai} without a buffer view claims {count} elements (at most {MAX_VIEWLESS_COUNT})"

@@ -1006,6 +1006,13 @@ fn malformed_data_is_refused() {
             needles,
         );
     }
+    // A node that lists one child twice is not that child's two parents.
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    expect_err(
+        &d.finish(json!({"scenes": [{"nodes": [0]}], "nodes": [{"children": [1, 1]}, {}]})),
+        &["node 0 lists node 1 among its children twice"],
+    );
     // A scene that names a node twice.
     let mut d = Doc::default();
     d.positions(&TRI);
@@ -1696,4 +1703,59 @@ fn vertex_colours_multiply_the_base_colour() {
     let (l, r) = halves(&lit, n);
     assert!(l.x > 0.2 && l.y < 0.1 * l.x && l.z < 0.1 * l.x, "{l}");
     assert!(r.min_element() > 0.2, "{r}");
+}
+
+#[test]
+fn an_accessor_without_a_buffer_view_or_sparse_values_is_zeros() {
+    let mut d = Doc::default();
+    d.positions(&TRI);
+    d.accessors
+        .push(json!({"componentType": 5126, "type": "VEC2", "count": 3}));
+    let bytes = one_prim(
+        d,
+        json!({"attributes": {"POSITION": 0, "TEXCOORD_0": 1}}),
+        json!({}),
+    );
+    let s = load(&bytes).unwrap();
+    assert_eq!(s.meshes[0].uvs[0], vec![glam::Vec2::ZERO; 3]);
+}
+
+#[test]
+fn extension_lists_hold_names() {
+    for (list, needles) in [
+        (
+            json!([["KHR_lights_punctual"]]),
+            &["extensionsRequired[0]", "extension name"][..],
+        ),
+        (json!([5123]), &["extensionsRequired[0]", "got 5123"]),
+        (json!([""]), &["extensionsRequired[0]", "non-empty"]),
+        (
+            json!("KHR_lights_punctual"),
+            &["extensionsRequired:", "an array"],
+        ),
+    ] {
+        expect_err(
+            &tri_scene(json!({}), json!({"extensionsRequired": list})),
+            needles,
+        );
+    }
+    expect_err(
+        &tri_scene(json!({}), json!({"extensionsUsed": [null]})),
+        &["extensionsUsed[0]"],
+    );
+}
+
+#[test]
+fn objects_written_as_arrays_are_refused_where_they_are() {
+    // serde's derived structs would read an array of the fields in order.
+    expect_err(
+        &tri_scene(json!({}), json!({"cameras": [["perspective"]]})),
+        &["cameras[0]", "invalid type: array, expected an object"],
+    );
+    expect_err(
+        &tri_scene(json!({}), json!({"asset": ["2.0"]})),
+        &["at asset", "expected an object"],
+    );
+    let e = load(&tri_scene(json!({}), json!({"asset": ["2.0"]}))).unwrap_err();
+    assert!(!e.contains("struct"), "{e}");
 }
