@@ -801,10 +801,17 @@ async fn upload_result(
     headers: HeaderMap,
     body: Body,
 ) -> Result<Json<proto::ResultReply>, AppError> {
-    let (tile, task_pass, pass_samples, splat_pixels) = {
-        let s = state.sched();
+    let (tile, task_pass, pass_samples, splat_pixels, settled) = {
+        let mut s = state.sched();
         let (tile, pass) = s.task_for_upload(&job, task)?;
-        (tile, pass, s.pass_samples(&job, pass), s.splat_pixels(&job))
+        let settled = s.settled(&job, task);
+        (
+            tile,
+            pass,
+            s.pass_samples(&job, pass),
+            s.splat_pixels(&job),
+            settled,
+        )
     };
     let expected = proto::tile::encoded_len(&tile);
     // A bdpt result carries at most one splat per pixel of the frame after its pixels.
@@ -817,15 +824,24 @@ async fn upload_result(
     if declared.is_some_and(|n| n > limit) {
         return Err(AppError::TooLarge(limit));
     }
-    // The size is known from the task: read at most that much.
-    let mut buf = Vec::with_capacity(expected);
+    // The size is known from the task: read at most that much. A result for a task already
+    // done or a job that is over is read and dropped, not held (the answer does not depend on
+    // it, and a worker expects its whole body to be read).
+    let mut buf = Vec::with_capacity(if settled.is_some() { 0 } else { expected });
+    let mut read = 0u64;
     let mut stream = body.into_data_stream();
     while let Some(chunk) = stream.next().await {
         let chunk = chunk.map_err(|e| AppError::bad("body", format!("reading body: {e}")))?;
-        if (buf.len() + chunk.len()) as u64 > limit {
+        read += chunk.len() as u64;
+        if read > limit {
             return Err(AppError::TooLarge(limit));
         }
-        buf.extend_from_slice(&chunk);
+        if settled.is_none() {
+            buf.extend_from_slice(&chunk);
+        }
+    }
+    if let Some(outcome) = settled {
+        return Ok(Json(reply(outcome)));
     }
     let (acc, pass) =
         proto::tile::decode(&buf).map_err(|e| AppError::invalid("body", e.to_string()))?;
@@ -862,7 +878,12 @@ async fn upload_result(
     };
     let now = state.now();
     let outcome = state.sched().complete(&job, task, delivery, now)?;
-    Ok(Json(match outcome {
+    Ok(Json(reply(outcome)))
+}
+
+/// The answer to a result upload.
+fn reply(outcome: ResultOutcome) -> proto::ResultReply {
+    match outcome {
         ResultOutcome::Accepted => proto::ResultReply {
             accepted: true,
             duplicate: false,
@@ -878,7 +899,7 @@ async fn upload_result(
             duplicate: false,
             job_finished: true,
         },
-    }))
+    }
 }
 
 #[cfg(test)]

@@ -223,9 +223,14 @@ impl From<JsonRejection> for AppError {
                             && f.chars()
                                 .all(|c| c.is_ascii_alphanumeric() || "_.".contains(c))
                     });
+                // A member missing from the body itself names that member.
+                let missing = message
+                    .strip_prefix("missing field `")
+                    .and_then(|m| m.split_once('`'))
+                    .map(|(f, _)| f.to_string());
                 AppError::Invalid {
                     // A body of the wrong shape altogether (an array, a string) names the body.
-                    field: field.or_else(|| Some("body".into())),
+                    field: field.or(missing).or_else(|| Some("body".into())),
                     message,
                 }
             }

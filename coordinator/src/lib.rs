@@ -266,6 +266,24 @@ impl std::ops::Deref for AppState {
     }
 }
 
+/// Removes what `dir` holds, logging what cannot be removed.
+fn clear_dir(dir: &std::path::Path) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let path = e.path();
+        let gone = match e.file_type() {
+            Ok(t) if t.is_dir() => std::fs::remove_dir_all(&path),
+            _ => std::fs::remove_file(&path),
+        };
+        match gone {
+            Ok(()) => tracing::info!(path = %path.display(), "removed an unfinished upload"),
+            Err(err) => tracing::warn!(path = %path.display(), "cannot remove: {err}"),
+        }
+    }
+}
+
 impl AppState {
     /// Opens the data directory and restores every job.
     pub fn open(cfg: Config) -> anyhow::Result<AppState> {
@@ -274,6 +292,10 @@ impl AppState {
                 .with_context(|| format!("creating {}", cfg.data_dir.join(d).display()))?;
         }
         let lock = lock_data_dir(&cfg.data_dir)?;
+        // Uploads and unpackings in progress live in tmp/ until they are renamed into scenes/:
+        // what a killed coordinator left there is no use to anyone (the lock above says no
+        // other coordinator is writing it).
+        clear_dir(&cfg.data_dir.join("tmp"));
         let store = store::Store::open(&cfg.data_dir).context("opening the database")?;
         let now = (cfg.clock)();
         let grace = cfg.startup_grace.max(cfg.lease_timeout);

@@ -1551,3 +1551,31 @@ async fn a_worker_needs_a_name() {
     }
     assert_eq!(register_worker(&st).await.0, StatusCode::OK);
 }
+
+/// A body without a member it needs names that member, as a wrong value of it would.
+#[tokio::test]
+async fn a_missing_member_of_a_body_is_the_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let st = AppState::open(Config::new(dir.path())).unwrap();
+    for (uri, field) in [("/v1/jobs", "scene"), ("/v1/workers", "name")] {
+        let (code, e) = call(&st, post(uri, "{}")).await;
+        assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{uri}: {e}");
+        assert_error_body(uri, &e);
+        assert_eq!(e["error"]["field"], field, "{uri}: {e}");
+    }
+}
+
+/// What a killed coordinator left in tmp/ (a partial upload, an unpacking folder) is removed
+/// when the next one opens the data directory.
+#[test]
+fn a_restart_clears_unfinished_uploads() {
+    let dir = tempfile::tempdir().unwrap();
+    drop(AppState::open(Config::new(dir.path())).unwrap());
+    let tmp = dir.path().join("tmp");
+    std::fs::write(tmp.join(".tmpA1b2C3"), vec![7u8; 4096]).unwrap();
+    std::fs::create_dir_all(tmp.join("stage-x/root/textures")).unwrap();
+    std::fs::write(tmp.join("stage-x/root/textures/a.png"), b"png").unwrap();
+    let _st = AppState::open(Config::new(dir.path())).unwrap();
+    let left: Vec<_> = std::fs::read_dir(&tmp).unwrap().collect();
+    assert!(left.is_empty(), "tmp/ holds {left:?}");
+}

@@ -44,7 +44,7 @@ use jobs::Job;
 use metrics::Throughput;
 use raytile_core::{RenderSettings, Tile};
 use raytile_proto::{JobState, JobStatus};
-use state::{JobEvent, JobLife, Outcome, TaskEvent};
+use state::{JobEvent, JobLife, Outcome, TaskEvent, TaskState};
 use std::collections::{HashMap, HashSet};
 use std::sync::Arc;
 use std::time::Duration;
@@ -495,6 +495,28 @@ impl Sched {
             .work(idx as usize)
             .ok_or_else(|| SchedError::NoTask(job.into(), idx))?;
         Ok((work.tile, work.pass))
+    }
+
+    /// What [`Scheduler::complete`] would answer task `idx` of `job` whatever its result holds:
+    /// `Duplicate` for a task already done (or a job done), `JobFinished` for a cancelled or
+    /// failed job; `None` while a result can still be stored. The upload route asks first, so
+    /// that a result nobody can use is not held in memory (it is read and dropped). Counted as
+    /// a duplicate, as `complete` counts it.
+    pub fn settled(&mut self, job: &str, idx: u32) -> Option<ResultOutcome> {
+        let j = self.jobs.get(job)?;
+        let outcome = if j.is_final() {
+            if j.life().state == JobState::Done {
+                ResultOutcome::Duplicate
+            } else {
+                ResultOutcome::JobFinished
+            }
+        } else if matches!(j.tasks().get(idx as usize)?.state, TaskState::Done { .. }) {
+            ResultOutcome::Duplicate
+        } else {
+            return None;
+        };
+        self.counters.duplicates += 1;
+        Some(outcome)
     }
 
     /// The number of samples per pixel in pass `pass` of `job` (0 for an unknown job or pass).

@@ -71,11 +71,27 @@ pub fn sha256_file(path: &Path) -> std::io::Result<String> {
     Ok(hex::encode(h.finalize()))
 }
 
-/// Scene id of a blob with digest `sha256` and the archive entry asked for, if any.
+/// Scene id of a blob with digest `sha256` and the archive entry asked for, if any. The entry
+/// counts by the file it names: `./scene.json` and `a//b.gltf` are `scene.json` and
+/// `a/b.gltf` ([`normal_entry`]).
 pub fn scene_id(sha256: &str, entry: Option<&str>) -> String {
     match entry {
         None => sha256.to_string(),
-        Some(e) => sha256_hex(format!("{sha256}\0{e}").as_bytes()),
+        Some(e) => sha256_hex(format!("{sha256}\0{}", normal_entry(e)).as_bytes()),
+    }
+}
+
+/// An archive entry as the member it names: `.` parts and repeated slashes dropped, parts
+/// joined by `/`. A name that no member can have (absolute, with `..`, a backslash or NUL) or
+/// that names nothing is returned as given, for the unpacking to refuse.
+pub fn normal_entry(entry: &str) -> String {
+    match safe_relative(entry) {
+        Ok(p) if p.components().next().is_some() => p
+            .components()
+            .map(|c| c.as_os_str().to_string_lossy())
+            .collect::<Vec<_>>()
+            .join("/"),
+        _ => entry.to_string(),
     }
 }
 
@@ -600,6 +616,26 @@ mod tests {
             Some(SceneFormat::Tar)
         );
         assert_eq!(sniff(b"hello"), None);
+    }
+
+    #[test]
+    fn an_entry_is_named_the_same_however_it_is_spelt() {
+        let id = scene_id("ab", Some("scene.json"));
+        for spelling in [
+            "./scene.json",
+            "././scene.json",
+            ".//scene.json",
+            "scene.json",
+        ] {
+            assert_eq!(scene_id("ab", Some(spelling)), id, "{spelling}");
+        }
+        assert_eq!(normal_entry("a//b/./c.gltf"), "a/b/c.gltf");
+        assert_ne!(scene_id("ab", Some("a/scene.json")), id);
+        assert_ne!(scene_id("ab", None), id);
+        // Names no member has are kept for the unpacking to refuse.
+        for bad in ["../x.json", "/x.json", ".", ""] {
+            assert_eq!(normal_entry(bad), bad);
+        }
     }
 
     #[test]
