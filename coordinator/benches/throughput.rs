@@ -84,8 +84,8 @@ async fn main() -> anyhow::Result<()> {
                     splats: Vec::new(),
                 };
                 http.put(format!(
-                    "{base}/v1/jobs/{}/tasks/{}/result?worker={}",
-                    l.job, l.task, reg.worker_id
+                    "{base}/v1/jobs/{}/tasks/{}/result?worker={}&lease={}",
+                    l.job, l.task, reg.worker_id, l.lease_id
                 ))
                 .body(proto::tile::encode(&acc, l.pass))
                 .send()

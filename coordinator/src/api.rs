@@ -792,6 +792,9 @@ struct TaskPath {
 struct ResultQuery {
     /// Worker id, for the per-worker share.
     worker: Option<String>,
+    /// The lease the result was rendered under: a refused result counts as a failure of the
+    /// worker only when it names the lease that worker holds.
+    lease: Option<String>,
 }
 
 async fn upload_result(
@@ -858,9 +861,13 @@ async fn upload_result(
             let now = state.now();
             let changed = {
                 let mut s = state.sched();
+                // Named by its lease, not by the worker id alone: anyone may write a worker's
+                // id, only its holder knows the lease.
                 match s.lease_held_by(&job, task, &worker) {
-                    Some(lease) => s.fail(&lease, &message, now)?,
-                    None => false,
+                    Some(lease) if q.lease.as_deref() == Some(lease.as_str()) => {
+                        s.fail(&lease, &message, now)?
+                    }
+                    _ => false,
                 }
             };
             if changed {

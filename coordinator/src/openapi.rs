@@ -259,10 +259,11 @@ pub fn document() -> Value {
                 json!({"200": {"description": EVENTS_DESCRIPTION, "content": {"text/event-stream": {"schema": {"type": "string"}}}}}))},
             "/v1/jobs/{id}/tasks/{task}/result": {"put": with_body(binary_body(), op("Upload a tile result (workers): binary, see docs/farm.md",
                 json!([job_id, {"name": "task", "in": "path", "required": true, "description": "Task index", "schema": {"type": "integer", "minimum": 0, "maximum": u32::MAX}},
-                    {"name": "worker", "in": "query", "schema": {"type": "string"}}]),
+                    {"name": "worker", "in": "query", "schema": {"type": "string"}},
+                    {"name": "lease", "in": "query", "description": "The lease the result was rendered under", "schema": {"type": "string"}}]),
                 Inputs { params: true, writes: true, ..none },
                 json!({"200": ok_json("Accepted, or ignored as duplicate/late (duplicate: true) or for a finished job (job_finished: true)", "ResultReply"),
-                    "404": err("Unknown job or task"), "413": err("Larger than the tile"), "422": err("Malformed result, wrong tile/pass, or a pixel sum that is NaN, infinite or out of what the pass can make, or more dropped samples than the tile's pixels times the pass's samples (then the task is queued again, counting a failure of the worker holding its lease)")})))},
+                    "404": err("Unknown job or task"), "413": err("Larger than the tile"), "422": err("Malformed result, wrong tile/pass, or a pixel sum that is NaN, infinite or out of what the pass can make, or more dropped samples than the tile's pixels times the pass's samples (then the task is queued again, counting a failure of the worker holding its lease when the upload names that lease)")})))},
             "/v1/workers": {
                 "post": with_body(json_body("RegisterRequest"), op("Register a worker", json!([]), Inputs { json: true, writes: true, ..none },
                     json!({"200": ok_json("Registered", "Registered"), "409": err("Another renderer version: run one release on the whole farm")}))),

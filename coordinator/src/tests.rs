@@ -1156,7 +1156,7 @@ async fn results_with_non_finite_sums_are_refused_and_the_task_is_queued_again()
     let (_, w) = register_worker(&st).await;
     let worker = w["worker_id"].as_str().unwrap().to_string();
     let lease_uri = format!("/v1/workers/{worker}/lease");
-    let upload = |task: u64, worker: &str, pixels: Vec<[f32; 4]>| {
+    let upload = |task: u64, worker: &str, lease: &str, pixels: Vec<[f32; 4]>| {
         let acc = TileAccum {
             tile: raytile_proto::Tile {
                 x0: 0,
@@ -1169,7 +1169,7 @@ async fn results_with_non_finite_sums_are_refused_and_the_task_is_queued_again()
             splats: Vec::new(),
         };
         Request::put(format!(
-            "/v1/jobs/{job}/tasks/{task}/result?worker={worker}"
+            "/v1/jobs/{job}/tasks/{task}/result?worker={worker}&lease={lease}"
         ))
         .body(Body::from(encode(&acc, 0)))
         .unwrap()
@@ -1180,15 +1180,23 @@ async fn results_with_non_finite_sums_are_refused_and_the_task_is_queued_again()
         let (code, lease) = call(&st, post(&lease_uri, "")).await;
         assert_eq!(code, StatusCode::OK, "{lease}");
         task = lease["task"].as_u64().unwrap();
+        let lease_id = lease["lease_id"].as_str().unwrap();
         let mut pixels = good.clone();
         pixels[6][k] = bad;
-        // From a worker that does not hold the lease: refused, the lease stays.
-        let (code, body) = call(&st, upload(task, "someone-else", pixels.clone())).await;
-        assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
-        let (_, status) = call(&st, get(&format!("/v1/jobs/{job}"))).await;
-        assert_eq!(status["tasks_leased"], 1, "{status}");
+        // From a worker that does not hold the lease, or naming the holder without its lease
+        // (anyone can write a worker's id): refused, the lease stays, nobody is blamed.
+        for (who, lease) in [
+            ("someone-else", lease_id),
+            (worker.as_str(), ""),
+            (worker.as_str(), "l-forged"),
+        ] {
+            let (code, body) = call(&st, upload(task, who, lease, pixels.clone())).await;
+            assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+            let (_, status) = call(&st, get(&format!("/v1/jobs/{job}"))).await;
+            assert_eq!(status["tasks_leased"], 1, "{who} {lease}: {status}");
+        }
         // From the lease holder: refused naming the pixel, the task queued again.
-        let (code, body) = call(&st, upload(task, &worker, pixels)).await;
+        let (code, body) = call(&st, upload(task, &worker, lease_id, pixels)).await;
         assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
         assert_error_body("non-finite result", &body);
         assert_eq!(body["error"]["field"], "body");
@@ -1212,7 +1220,8 @@ async fn results_with_non_finite_sums_are_refused_and_the_task_is_queued_again()
     // Two failures of the one task (below the limit of three): a good result completes it.
     let (code, lease) = call(&st, post(&lease_uri, "")).await;
     assert_eq!(code, StatusCode::OK, "{lease}");
-    let (code, body) = call(&st, upload(task, &worker, good.clone())).await;
+    let lease_id = lease["lease_id"].as_str().unwrap();
+    let (code, body) = call(&st, upload(task, &worker, lease_id, good.clone())).await;
     assert_eq!(
         (code, &body["accepted"]),
         (StatusCode::OK, &true.into()),
@@ -1240,7 +1249,7 @@ async fn results_claiming_more_dropped_samples_than_the_pass_has_are_refused() {
     let (_, w) = register_worker(&st).await;
     let worker = w["worker_id"].as_str().unwrap().to_string();
     let lease_uri = format!("/v1/workers/{worker}/lease");
-    let upload = |bad_samples: u64| {
+    let upload = |bad_samples: u64, lease: &str| {
         let acc = TileAccum {
             tile: raytile_proto::Tile {
                 x0: 0,
@@ -1252,14 +1261,16 @@ async fn results_claiming_more_dropped_samples_than_the_pass_has_are_refused() {
             bad_samples,
             splats: Vec::new(),
         };
-        Request::put(format!("/v1/jobs/{job}/tasks/0/result?worker={worker}"))
-            .body(Body::from(encode(&acc, 0)))
-            .unwrap()
+        Request::put(format!(
+            "/v1/jobs/{job}/tasks/0/result?worker={worker}&lease={lease}"
+        ))
+        .body(Body::from(encode(&acc, 0)))
+        .unwrap()
     };
     for bad in [1 << 60, u64::MAX] {
         let (code, lease) = call(&st, post(&lease_uri, "")).await;
         assert_eq!(code, StatusCode::OK, "{lease}");
-        let (code, body) = call(&st, upload(bad)).await;
+        let (code, body) = call(&st, upload(bad, lease["lease_id"].as_str().unwrap())).await;
         assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
         assert_error_body("too many dropped samples", &body);
         assert_eq!(body["error"]["field"], "body");
@@ -1277,9 +1288,9 @@ async fn results_claiming_more_dropped_samples_than_the_pass_has_are_refused() {
         );
     }
     // Every sample of the pass dropped is a result the pass can make.
-    let (code, _) = call(&st, post(&lease_uri, "")).await;
+    let (code, lease) = call(&st, post(&lease_uri, "")).await;
     assert_eq!(code, StatusCode::OK);
-    let (code, body) = call(&st, upload(24)).await;
+    let (code, body) = call(&st, upload(24, lease["lease_id"].as_str().unwrap())).await;
     assert_eq!(
         (code, &body["accepted"]),
         (StatusCode::OK, &true.into()),

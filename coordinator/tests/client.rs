@@ -146,7 +146,13 @@ async fn the_client_speaks_every_route_it_knows() {
         };
         let body = raytile_proto::tile::encode(&acc, lease.pass);
         let reply = api
-            .upload_result(&lease.job, lease.task, &reg.worker_id, body)
+            .upload_result(
+                &lease.job,
+                lease.task,
+                &reg.worker_id,
+                &lease.lease_id,
+                body,
+            )
             .await
             .unwrap();
         assert!(reply.accepted && !reply.duplicate);

@@ -327,19 +327,20 @@ impl Client {
             .await
     }
 
-    /// `PUT /v1/jobs/{job}/tasks/{task}/result?worker=`: uploads a tile result (the bytes of
-    /// [`crate::tile::encode`]).
+    /// `PUT /v1/jobs/{job}/tasks/{task}/result?worker=&lease=`: uploads a tile result (the
+    /// bytes of [`crate::tile::encode`]) rendered under lease `lease_id`.
     pub async fn upload_result(
         &self,
         job: &str,
         task: u32,
         worker_id: &str,
+        lease_id: &str,
         body: Vec<u8>,
     ) -> Result<ResultReply, ClientError> {
         let path = format!("/v1/jobs/{job}/tasks/{task}/result");
         self.json(
             self.request(Method::PUT, &path)
-                .query(&[("worker", worker_id)])
+                .query(&[("worker", worker_id), ("lease", lease_id)])
                 .header(reqwest::header::CONTENT_TYPE, "application/octet-stream")
                 .body(body),
         )

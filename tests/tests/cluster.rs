@@ -333,8 +333,8 @@ mod support {
             let r = self
                 .http
                 .put(format!(
-                    "{}/v1/jobs/{}/tasks/{}/result?worker={}",
-                    self.base, l.job, l.task, self.id
+                    "{}/v1/jobs/{}/tasks/{}/result?worker={}&lease={}",
+                    self.base, l.job, l.task, self.id, l.lease_id
                 ))
                 .body(proto::tile::encode(&acc, l.pass))
                 .send()

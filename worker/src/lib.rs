@@ -531,6 +531,7 @@ impl Worker {
             job: lease.job.clone(),
             task: lease.task,
             worker: self.worker_id.clone().unwrap_or_default(),
+            lease: lease.lease_id.clone(),
         };
         // Upload in the background while the next task renders (the round trip and the
         // coordinator's commit would otherwise idle the render threads), but keep at most one
@@ -591,7 +592,7 @@ async fn upload_result(
     let what = format!("job {} task {}", to.job, to.task);
     loop {
         let r = client
-            .upload_result(&to.job, to.task, &to.worker, bytes.clone())
+            .upload_result(&to.job, to.task, &to.worker, &to.lease, bytes.clone())
             .await;
         match r {
             Ok(reply) => {
@@ -638,6 +639,7 @@ struct ResultTarget {
     job: String,
     task: u32,
     worker: String,
+    lease: String,
 }
 
 /// The job of `settings` on `scene`; an environment map it names is read from the folder of
@@ -760,6 +762,7 @@ mod tests {
             job: "j".into(),
             task: 0,
             worker: "w".into(),
+            lease: "l".into(),
         };
         let client = Client::new(&base, None).unwrap();
         let upload = upload_result(
@@ -790,6 +793,7 @@ mod tests {
             job: "j".into(),
             task: 0,
             worker: "w".into(),
+            lease: "l".into(),
         };
         let client = Client::new(&base, None).unwrap();
         let upload = upload_result(
