@@ -1407,6 +1407,16 @@ impl Converter<'_> {
                             "\"environment\"",
                         )
                     })?;
+                    // Its sampling tables (a CDF and the values per texel, 8 bytes, built from
+                    // 4 bytes of weights per texel freed after) are held beside the image.
+                    let texels = u64::from(texture.width) * u64::from(texture.height);
+                    let what = format!(
+                        "{} as the environment's sampling tables",
+                        show(&path.to_string_lossy())
+                    );
+                    self.files
+                        .charge_memory(12 * texels, &what)
+                        .map_err(|e| self.err("environment.path", e, "\"path\""))?;
                     texture.srgb = false;
                     texture.wrap_v = WrapMode::Clamp;
                     EnvironmentDesc::Map {
@@ -2603,6 +2613,30 @@ mod tests {
         let e = load_json_files(&scene, &files).unwrap_err().to_string();
         assert!(
             e.contains("at textures.b.srgb") && e.contains("\"deep.png\" as data"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn an_environment_maps_sampling_tables_are_charged() {
+        let d = Dir::new("env-memory");
+        let deep = image::ImageBuffer::<image::Rgb<u16>, _>::from_pixel(2, 2, image::Rgb([9; 3]));
+        deep.save(d.0.join("scene/sky.png")).unwrap();
+        let scene = d.0.join("scene/scene.json");
+        std::fs::write(
+            &scene,
+            r#"{"environment": {"type": "map", "path": "sky.png"}}"#,
+        )
+        .unwrap();
+        // The image as f32 values (64 bytes) and its tables (12 bytes a texel).
+        let files = SceneFiles::trusted().with_memory_limit(64 + 48);
+        assert!(load_json_files(&scene, &files).is_ok());
+        let files = SceneFiles::trusted().with_memory_limit(64 + 47);
+        let e = load_json_files(&scene, &files).unwrap_err().to_string();
+        assert!(
+            e.contains("at environment.path")
+                && e.contains("\"sky.png\" as the environment's sampling tables")
+                && e.contains("more memory"),
             "{e}"
         );
     }
