@@ -678,3 +678,53 @@ fn values_beyond_f32_are_refused_where_they_are_written() {
     let e = whole_json_error(&scene(r#"{"type": "plane"}"#, emitter));
     assert!(e.contains("cannot be an area light"), "{e}");
 }
+
+#[test]
+fn errors_inside_a_typed_value_name_its_field_and_line() {
+    let scene = |object: &str, extra: &str| {
+        format!(
+            "{{\"materials\": {{\"w\": {{\"type\": \"diffuse\"}}}},\n\"objects\": [\n{object}\n]{extra}\n}}"
+        )
+    };
+    let ball = r#"{"shape": {"type": "sphere"}, "material": "w"}"#;
+    let cases: [(String, &[&str]); 7] = [
+        (
+            scene(
+                "{\"material\": \"w\", \"shape\": {\"type\": \"sphere\",\n\"radius\": \"1\"}}",
+                "",
+            ),
+            &["at objects[0].shape.radius (line 4)", "invalid type: string \"1\""],
+        ),
+        (
+            scene(r#"{"material": "w", "shape": {"type": "sphre"}}"#, ""),
+            &["at objects[0].shape.type", "unknown variant `sphre`, expected one of `sphere`"],
+        ),
+        (
+            scene(r#"{"material": "w", "shape": {"type": "sphere", "radius": 1, "radius": 2}}"#, ""),
+            &["at objects[0].shape", "duplicate field `radius`"],
+        ),
+        (
+            scene(r#"{"material": "w", "shape": {"radius": 1}}"#, ""),
+            &["at objects[0].shape", "missing field `type`"],
+        ),
+        (
+            scene(r#"{"material": "w", "shape": {"type": 3}}"#, ""),
+            &["at objects[0].shape.type", "expected a string naming a shape, got 3"],
+        ),
+        (
+            scene(ball, ",\n\"environment\": {\"type\": \"constant\",\n\"radiance\": [1, \"x\", 1]}"),
+            &["at environment.radiance[1] (line 6)", "invalid type: string \"x\""],
+        ),
+        (
+            scene(ball, ",\n\"lights\": [{\"type\": \"point\", \"position\": [0, 0, 0], \"intensty\": [1, 1, 1]}]"),
+            &["at lights[0].intensty", "unknown field `intensty`"],
+        ),
+    ];
+    for (text, needles) in &cases {
+        let e = whole_json_error(text);
+        for n in *needles {
+            assert!(e.contains(n), "{text}: error {e:?} does not mention {n:?}");
+        }
+        assert!(!e.contains('\u{1f}'), "{e:?}");
+    }
+}

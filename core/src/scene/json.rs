@@ -21,6 +21,99 @@ use std::sync::Arc;
 
 type Rgb = [f32; 3];
 
+/// A value written `{"type": "kind", ...its fields}`: a shape, a texture, a medium, a light,
+/// an environment. serde's own tagged enums read such a value through a buffer that hides the
+/// path inside it (an error in a sphere's radius was "at objects[0].shape", on the line where the
+/// shape ends). Here the object is read, its `type` taken out, and the rest read as that
+/// variant of the externally tagged enum `T` with the path tracked, so an error names
+/// `objects[0].shape.radius` and its line ([`SUBPATH`]).
+struct Tagged<T>(T);
+
+/// What the values of a [`Tagged`] enum are, for messages ("naming a shape").
+trait Kind: serde::de::DeserializeOwned {
+    const WHAT: &'static str;
+}
+
+/// Marks the path inside a [`Tagged`] value at the start of an error's message:
+/// `SUBPATH + "radius" + SUBPATH + message`. `parse_json_files` adds it to the error's path.
+const SUBPATH: char = '\u{1f}';
+
+impl<'de, T: Kind> Deserialize<'de> for Tagged<T> {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        use serde::de::Error;
+        use serde_json::{Map, Value};
+        struct Fields<T>(std::marker::PhantomData<T>);
+        impl<'de, T: Kind> serde::de::Visitor<'de> for Fields<T> {
+            type Value = Map<String, Value>;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                write!(f, "an object with a `type` naming {}", T::WHAT)
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut map: A,
+            ) -> Result<Self::Value, A::Error> {
+                let mut out = Map::new();
+                while let Some(key) = map.next_key::<String>()? {
+                    if out.contains_key(&key) {
+                        return Err(A::Error::custom(format!("duplicate field `{key}`")));
+                    }
+                    let value = map.next_value()?;
+                    out.insert(key, value);
+                }
+                Ok(out)
+            }
+        }
+        let at = |sub: &str, message: String| {
+            D::Error::custom(format!("{SUBPATH}{sub}{SUBPATH}{message}"))
+        };
+        let mut fields = d.deserialize_map(Fields::<T>(std::marker::PhantomData))?;
+        let kind = match fields.remove("type") {
+            Some(Value::String(kind)) => kind,
+            Some(other) => {
+                return Err(at(
+                    "type",
+                    format!("expected a string naming {}, got {other}", T::WHAT),
+                ))
+            }
+            None => return Err(D::Error::missing_field("type")),
+        };
+        let value = Value::Object(Map::from_iter([(kind, Value::Object(fields))]));
+        let objects = raytile_proto::json::Objects(value);
+        serde_path_to_error::deserialize(objects)
+            .map(Tagged)
+            .map_err(|e: serde_path_to_error::Error<serde_json::Error>| {
+                // The path below the variant's name; an unknown variant is the `type`.
+                let path = e.path().to_string();
+                let sub = if path == "." {
+                    "type"
+                } else {
+                    path.split_once('.').map_or("", |(_, rest)| rest)
+                };
+                at(sub, e.inner().to_string())
+            })
+    }
+}
+
+impl Kind for JTexture {
+    const WHAT: &'static str = "a texture (image or checker)";
+}
+
+impl Kind for JMedium {
+    const WHAT: &'static str = "a medium";
+}
+
+impl Kind for JShape {
+    const WHAT: &'static str = "a shape";
+}
+
+impl Kind for JLight {
+    const WHAT: &'static str = "a light";
+}
+
+impl Kind for JEnvironment {
+    const WHAT: &'static str = "an environment";
+}
+
 /// A map of named entries (textures, materials, media) that refuses a name given twice: JSON
 /// parsers differ on which one wins, and the scene's author meant one of them.
 fn unique_keys<'de, D, V>(d: D) -> Result<BTreeMap<String, V>, D::Error>
@@ -64,17 +157,17 @@ struct File {
     #[serde(default)]
     cameras: Vec<JCamera>,
     #[serde(default, deserialize_with = "unique_keys")]
-    textures: BTreeMap<String, JTexture>,
+    textures: BTreeMap<String, Tagged<JTexture>>,
     #[serde(default, deserialize_with = "unique_keys")]
     materials: BTreeMap<String, JMaterial>,
     #[serde(default)]
     objects: Vec<JObject>,
     #[serde(default)]
-    lights: Vec<JLight>,
+    lights: Vec<Tagged<JLight>>,
     #[serde(default)]
-    environment: Option<JEnvironment>,
+    environment: Option<Tagged<JEnvironment>>,
     #[serde(default, deserialize_with = "unique_keys")]
-    media: BTreeMap<String, JMedium>,
+    media: BTreeMap<String, Tagged<JMedium>>,
     /// The medium outside every object (global fog), where the camera stands.
     #[serde(default)]
     medium: Option<String>,
@@ -136,8 +229,7 @@ enum JCameraKind {
 }
 
 #[derive(Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
-#[serde(expecting = "an object with a `type` naming a texture (image or checker)")]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
 enum JTexture {
     Image {
         path: PathBuf,
@@ -270,7 +362,7 @@ enum JScale {
 struct JObject {
     #[serde(default)]
     name: Option<String>,
-    shape: JShape,
+    shape: Tagged<JShape>,
     #[serde(default)]
     material: Option<String>,
     #[serde(default)]
@@ -286,8 +378,7 @@ struct JObject {
 /// A participating medium; coefficients per metre, multiplied by `scale` (and by the density
 /// of a grid).
 #[derive(Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
-#[serde(expecting = "an object with a `type` naming a medium")]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
 enum JMedium {
     Homogeneous {
         sigma_a: Rgb,
@@ -367,8 +458,7 @@ fn noise_gain() -> f32 {
 const MAX_NOISE_VOXELS: u64 = 128 * 128 * 128;
 
 #[derive(Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
-#[serde(expecting = "an object with a `type` naming a shape")]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
 enum JShape {
     Sphere {
         #[serde(default)]
@@ -452,8 +542,7 @@ enum JShape {
 }
 
 #[derive(Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
-#[serde(expecting = "an object with a `type` naming a light")]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
 enum JLight {
     Point {
         position: [f32; 3],
@@ -488,8 +577,7 @@ fn default_spot() -> f32 {
 }
 
 #[derive(Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
-#[serde(expecting = "an object with a `type` naming an environment")]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
 enum JEnvironment {
     Constant {
         radiance: Rgb,
@@ -552,20 +640,38 @@ fn parse_json_files(
     let objects = raytile_proto::json::Objects(&mut de);
     let file: File = serde_path_to_error::deserialize(objects).map_err(|e| {
         let inner = e.inner();
-        let path = e.path().to_string();
+        let mut path = e.path().to_string();
         let msg = inner.to_string();
         // serde_json appends " at line L column C" itself; keep one copy.
-        let mut msg =
-            raytile_proto::json::plain_message(msg.split(" at line ").next().unwrap_or(&msg));
+        let msg = msg.split(" at line ").next().unwrap_or(&msg);
+        let mut place = format!("line {}, column {}", inner.line(), inner.column());
+        // An error inside a `type`d value: its path there, and the line of the value it names
+        // (serde's position is where the whole value ends).
+        let msg = match msg
+            .strip_prefix(SUBPATH)
+            .and_then(|m| m.split_once(SUBPATH))
+        {
+            Some((sub, m)) => {
+                if !sub.is_empty() {
+                    path = if sub.starts_with('[') {
+                        format!("{path}{sub}")
+                    } else {
+                        format!("{path}.{sub}")
+                    };
+                }
+                if let Some(pos) = value_at(text, &path) {
+                    place = format!("line {}", text[..pos].matches('\n').count() + 1);
+                }
+                m
+            }
+            None => msg,
+        };
+        let mut msg = raytile_proto::json::plain_message(msg);
         if path.starts_with("materials.") && msg.starts_with("unknown field") {
             // serde lists only the fields of the material's type.
             msg.push_str(" (and every material takes `emission` and `two_sided`)");
         }
-        err(format!(
-            "at {path} (line {}, column {}): {msg}",
-            inner.line(),
-            inner.column()
-        ))
+        err(format!("at {path} ({place}): {msg}"))
     })?;
     de.end().map_err(|e| {
         err(format!(
@@ -934,7 +1040,7 @@ impl Converter<'_> {
         let mut spaces = HashSet::new();
         for (name, t) in &f.textures {
             let at = format!("textures.{name}");
-            let desc = match t {
+            let desc = match &t.0 {
                 JTexture::Image {
                     path,
                     srgb,
@@ -1133,7 +1239,7 @@ impl Converter<'_> {
         // Media.
         let mut medium_index = BTreeMap::new();
         for (name, m) in &f.media {
-            let desc = self.medium(name, m)?;
+            let desc = self.medium(name, &m.0)?;
             medium_index.insert(name.clone(), self.desc.media.len());
             self.desc.media.push(desc);
         }
@@ -1166,7 +1272,7 @@ impl Converter<'_> {
                 None => Mat4::IDENTITY,
             };
             let name = o.name.clone().unwrap_or_else(|| format!("object {i}"));
-            if let JShape::Gltf { path } = &o.shape {
+            if let JShape::Gltf { path } = &o.shape.0 {
                 if o.interior.is_some() || o.exterior.is_some() {
                     return Err(self.err(
                         &at,
@@ -1198,7 +1304,7 @@ impl Converter<'_> {
                     return Err(self.err(&at, "missing field `material`", &format!("\"{name}\"")))
                 }
             };
-            let shape = self.shape(&o.shape, &name, &at)?;
+            let shape = self.shape(&o.shape.0, &name, &at)?;
             let m = &self.desc.materials[material];
             if let Some(why) = m
                 .emits()
@@ -1213,7 +1319,7 @@ impl Converter<'_> {
             }
             // A flat shape encloses no volume: a ray that crossed it into its `interior` would
             // stay in that medium for ever (behind a disk, everything drawn black).
-            let flat = match &o.shape {
+            let flat = match &o.shape.0 {
                 JShape::Disk { .. } => Some("disk"),
                 JShape::Rectangle { .. } => Some("rectangle"),
                 JShape::Polygon { .. } => Some("polygon"),
@@ -1238,7 +1344,7 @@ impl Converter<'_> {
             // mesh whose seams are not welded) renders well enough where rays rarely pass the
             // openings: warned of, not refused.
             if o.interior.is_some() || o.exterior.is_some() {
-                let open = match &o.shape {
+                let open = match &o.shape.0 {
                     JShape::Cylinder { .. } => Some("a cylinder has no caps".to_string()),
                     JShape::Cone { .. } => Some("a cone has no caps".to_string()),
                     JShape::Paraboloid { .. } => Some("a paraboloid has no cap".to_string()),
@@ -1309,7 +1415,7 @@ impl Converter<'_> {
         for (i, l) in f.lights.iter().enumerate() {
             let at = format!("lights[{i}]");
             let range = |r: &Option<f32>| r.unwrap_or(f32::INFINITY);
-            let (field, value) = match l {
+            let (field, value) = match &l.0 {
                 JLight::Point { intensity, .. } | JLight::Spot { intensity, .. } => {
                     ("intensity", intensity)
                 }
@@ -1317,7 +1423,7 @@ impl Converter<'_> {
             };
             check_radiance(field, v3(*value).into())
                 .map_err(|e| self.err(&format!("{at}.{field}"), e, &format!("\"{field}\"")))?;
-            let light = match l {
+            let light = match &l.0 {
                 JLight::Point {
                     position,
                     intensity,
@@ -1372,7 +1478,7 @@ impl Converter<'_> {
         }
         // Environment.
         if let Some(env) = &f.environment {
-            self.desc.environment = Some(match env {
+            self.desc.environment = Some(match &env.0 {
                 JEnvironment::Constant { radiance } => {
                     check_radiance("radiance", v3(*radiance).into())
                         .map_err(|e| self.err("environment.radiance", e, "\"radiance\""))?;
