@@ -727,4 +727,51 @@ fn errors_inside_a_typed_value_name_its_field_and_line() {
         }
         assert!(!e.contains('\u{1f}'), "{e:?}");
     }
+    // Materials: their type's fields, and the two every material takes.
+    let material = |m: &str| format!("{{\"materials\": {{\"w\":\n{m}}}}}");
+    for (m, needles) in [
+        (
+            r#"{"type": "diffuse", "albedo": [1, "x", 1]}"#,
+            &[
+                "at materials.w.albedo[1] (line 2)",
+                "invalid type: string \"x\"",
+            ][..],
+        ),
+        (
+            r#"{"type": "diffuse", "albdo": [1, 1, 1]}"#,
+            &[
+                "at materials.w.albdo",
+                "unknown field `albdo`",
+                "every material takes `emission` and `two_sided`",
+            ],
+        ),
+        (
+            r#"{"type": "diffuse", "emission": "x"}"#,
+            &["at materials.w.emission", "invalid type: string"],
+        ),
+        (
+            r#"{"type": "diffuse", "two_sided": 1}"#,
+            &["at materials.w.two_sided", "expected a boolean"],
+        ),
+        (
+            r#"{"albedo": [1, 1, 1]}"#,
+            &["at materials.w (line", "missing field `type`"],
+        ),
+        (
+            r#"{"type": "difuse"}"#,
+            &["at materials.w.type", "unknown variant `difuse`"],
+        ),
+        (
+            r#"["diffuse"]"#,
+            &[
+                "at materials.w",
+                "expected an object with a `type` naming a material",
+            ],
+        ),
+    ] {
+        let e = whole_json_error(&material(m));
+        for n in needles {
+            assert!(e.contains(n), "{m}: error {e:?} does not mention {n:?}");
+        }
+    }
 }

@@ -38,60 +38,113 @@ trait Kind: serde::de::DeserializeOwned {
 /// `SUBPATH + "radius" + SUBPATH + message`. `parse_json_files` adds it to the error's path.
 const SUBPATH: char = '\u{1f}';
 
+/// Reads an object's members into a map, refusing a member given twice; `T` says what the
+/// object should be, for the message when it is not an object.
+struct Fields<T>(std::marker::PhantomData<T>);
+
+impl<'de, T: Kind> serde::de::Visitor<'de> for Fields<T> {
+    type Value = serde_json::Map<String, serde_json::Value>;
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        write!(f, "an object with a `type` naming {}", T::WHAT)
+    }
+    fn visit_map<A: serde::de::MapAccess<'de>>(self, mut map: A) -> Result<Self::Value, A::Error> {
+        let mut out = serde_json::Map::new();
+        while let Some(key) = map.next_key::<String>()? {
+            if out.contains_key(&key) {
+                return Err(serde::de::Error::custom(format!("duplicate field `{key}`")));
+            }
+            let value = map.next_value()?;
+            out.insert(key, value);
+        }
+        Ok(out)
+    }
+}
+
+/// An error at `sub` inside the value being read ([`SUBPATH`]).
+fn error_at<E: serde::de::Error>(sub: &str, message: impl std::fmt::Display) -> E {
+    E::custom(format!("{SUBPATH}{sub}{SUBPATH}{message}"))
+}
+
+/// Reads `T` from `value`, found at `sub` inside the value being read; an error names its
+/// path below `sub`.
+fn read_at<T: serde::de::DeserializeOwned, E: serde::de::Error>(
+    sub: &str,
+    value: serde_json::Value,
+) -> Result<T, E> {
+    serde_path_to_error::deserialize(raytile_proto::json::Objects(value)).map_err(
+        |e: serde_path_to_error::Error<serde_json::Error>| {
+            let below = e.path().to_string();
+            let full = match below.as_str() {
+                "." => sub.to_string(),
+                b if b.starts_with('[') => format!("{sub}{b}"),
+                b => format!("{sub}.{b}"),
+            };
+            error_at(&full, e.inner())
+        },
+    )
+}
+
+/// The variant of `T` that an object's `type` names, read from its other `fields`.
+fn tagged_from<T: Kind, E: serde::de::Error>(
+    mut fields: serde_json::Map<String, serde_json::Value>,
+) -> Result<T, E> {
+    use serde_json::{Map, Value};
+    let kind = match fields.remove("type") {
+        Some(Value::String(kind)) => kind,
+        Some(other) => {
+            return Err(error_at(
+                "type",
+                format!("expected a string naming {}, got {other}", T::WHAT),
+            ))
+        }
+        None => return Err(E::missing_field("type")),
+    };
+    let value = Value::Object(Map::from_iter([(kind, Value::Object(fields))]));
+    let objects = raytile_proto::json::Objects(value);
+    serde_path_to_error::deserialize(objects).map_err(
+        |e: serde_path_to_error::Error<serde_json::Error>| {
+            // The path below the variant's name (which the file does not write); an unknown
+            // variant is an error at the root: the `type`'s.
+            let path = e.path().to_string();
+            let sub = if path == "." {
+                "type"
+            } else {
+                path.split_once('.').map_or("", |(_, rest)| rest)
+            };
+            error_at(sub, e.inner())
+        },
+    )
+}
+
 impl<'de, T: Kind> Deserialize<'de> for Tagged<T> {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        use serde::de::Error;
-        use serde_json::{Map, Value};
-        struct Fields<T>(std::marker::PhantomData<T>);
-        impl<'de, T: Kind> serde::de::Visitor<'de> for Fields<T> {
-            type Value = Map<String, Value>;
-            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-                write!(f, "an object with a `type` naming {}", T::WHAT)
-            }
-            fn visit_map<A: serde::de::MapAccess<'de>>(
-                self,
-                mut map: A,
-            ) -> Result<Self::Value, A::Error> {
-                let mut out = Map::new();
-                while let Some(key) = map.next_key::<String>()? {
-                    if out.contains_key(&key) {
-                        return Err(A::Error::custom(format!("duplicate field `{key}`")));
-                    }
-                    let value = map.next_value()?;
-                    out.insert(key, value);
-                }
-                Ok(out)
-            }
-        }
-        let at = |sub: &str, message: String| {
-            D::Error::custom(format!("{SUBPATH}{sub}{SUBPATH}{message}"))
-        };
-        let mut fields = d.deserialize_map(Fields::<T>(std::marker::PhantomData))?;
-        let kind = match fields.remove("type") {
-            Some(Value::String(kind)) => kind,
-            Some(other) => {
-                return Err(at(
-                    "type",
-                    format!("expected a string naming {}, got {other}", T::WHAT),
-                ))
-            }
-            None => return Err(D::Error::missing_field("type")),
-        };
-        let value = Value::Object(Map::from_iter([(kind, Value::Object(fields))]));
-        let objects = raytile_proto::json::Objects(value);
-        serde_path_to_error::deserialize(objects)
-            .map(Tagged)
-            .map_err(|e: serde_path_to_error::Error<serde_json::Error>| {
-                // The path below the variant's name; an unknown variant is the `type`.
-                let path = e.path().to_string();
-                let sub = if path == "." {
-                    "type"
-                } else {
-                    path.split_once('.').map_or("", |(_, rest)| rest)
-                };
-                at(sub, e.inner().to_string())
-            })
+        let fields = d.deserialize_map(Fields::<T>(std::marker::PhantomData))?;
+        tagged_from(fields).map(Tagged)
     }
+}
+
+/// A material: the fields every material takes, and the rest by its `type` ([`Tagged`]).
+impl<'de> Deserialize<'de> for JMaterial {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let mut fields = d.deserialize_map(Fields::<JBsdf>(std::marker::PhantomData))?;
+        let emission = match fields.remove("emission") {
+            Some(v) => read_at("emission", v)?,
+            None => Rgb::default(),
+        };
+        let two_sided = match fields.remove("two_sided") {
+            Some(v) => read_at("two_sided", v)?,
+            None => false,
+        };
+        Ok(JMaterial {
+            bsdf: tagged_from(fields)?,
+            emission,
+            two_sided,
+        })
+    }
+}
+
+impl Kind for JBsdf {
+    const WHAT: &'static str = "a material";
 }
 
 impl Kind for JTexture {
@@ -251,21 +304,16 @@ enum JTexture {
     },
 }
 
-#[derive(Deserialize)]
 struct JMaterial {
-    #[serde(flatten)]
     bsdf: JBsdf,
-    #[serde(default)]
     emission: Rgb,
-    #[serde(default)]
     two_sided: bool,
 }
 
 /// What a material is; its fields beside `emission` and `two_sided` (which [`JMaterial`] takes
 /// before the rest comes here), so that an unknown one is an error, not a typo ignored.
 #[derive(Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
-#[serde(expecting = "a material with a `type`")]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
 enum JBsdf {
     Diffuse {
         #[serde(default = "grey")]
