@@ -223,9 +223,10 @@ impl From<JsonRejection> for AppError {
                             && f.chars()
                                 .all(|c| c.is_ascii_alphanumeric() || "_.".contains(c))
                     });
-                // A member missing from the body itself names that member.
-                let missing = message
-                    .strip_prefix("missing field `")
+                // A member missing from the body itself, or given twice, names that member.
+                let missing = ["missing field `", "duplicate field `"]
+                    .iter()
+                    .find_map(|p| message.strip_prefix(p))
                     .and_then(|m| m.split_once('`'))
                     .map(|(f, _)| f.to_string());
                 AppError::Invalid {
@@ -262,6 +263,45 @@ impl From<JsonRejection> for AppError {
     }
 }
 
+/// The name of the first parameter of query string `q` whose name or value is not UTF-8 once
+/// percent-decoded (the name as the parser reads it, or `query` when the name itself is bad).
+fn not_utf8(q: &str) -> Option<String> {
+    fn decode(s: &str) -> Vec<u8> {
+        let b = s.as_bytes();
+        let mut out = Vec::with_capacity(b.len());
+        let mut i = 0;
+        while i < b.len() {
+            let hex = |c: u8| (c as char).to_digit(16).map(|d| d as u8);
+            match (
+                b[i],
+                b.get(i + 1).copied().and_then(hex),
+                b.get(i + 2).copied().and_then(hex),
+            ) {
+                (b'%', Some(h), Some(l)) => {
+                    out.push(h * 16 + l);
+                    i += 3;
+                }
+                (b'+', ..) => {
+                    out.push(b' ');
+                    i += 1;
+                }
+                (c, ..) => {
+                    out.push(c);
+                    i += 1;
+                }
+            }
+        }
+        out
+    }
+    q.split('&').filter(|p| !p.is_empty()).find_map(|pair| {
+        let (name, value) = pair.split_once('=').unwrap_or((pair, ""));
+        match String::from_utf8(decode(name)) {
+            Err(_) => Some("query".to_string()),
+            Ok(n) => std::str::from_utf8(&decode(value)).is_err().then_some(n),
+        }
+    })
+}
+
 /// Query string extractor: a value of the wrong type (`?purge=x`), a parameter given twice
 /// (`?format=a&format=b`) or bytes that are not UTF-8 are a 400 naming the parameter.
 #[derive(Debug)]
@@ -272,6 +312,13 @@ impl<T: serde::de::DeserializeOwned, S: Send + Sync> FromRequestParts<S> for Que
 
     async fn from_request_parts(parts: &mut Parts, _: &S) -> Result<Self, AppError> {
         let q = parts.uri.query().unwrap_or_default();
+        // The parser replaces bytes that are not UTF-8 with U+FFFD: refuse them first.
+        if let Some(name) = not_utf8(q) {
+            return Err(AppError::bad(
+                name.clone(),
+                format!("query string: the value of `{name}` is not UTF-8 once percent-decoded"),
+            ));
+        }
         let de = serde_urlencoded::Deserializer::new(form_urlencoded::parse(q.as_bytes()));
         serde_path_to_error::deserialize(de).map(Query).map_err(
             |e: serde_path_to_error::Error<_>| {

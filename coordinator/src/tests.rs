@@ -448,6 +448,14 @@ async fn every_rejection_of_every_route_is_the_documented_json_error() {
                 400,
                 Some(name.to_string()),
             ));
+            // Bytes that are not UTF-8 once percent-decoded.
+            let uri = format!("{}?{name}=%ff", fill(None));
+            cases.push((
+                format!("{name} not UTF-8"),
+                req(&uri, None, Body::empty(), true),
+                400,
+                Some(name.to_string()),
+            ));
             if *ty != "string" {
                 let uri = format!("{}?{name}=x", fill(None));
                 cases.push((
@@ -1563,13 +1571,24 @@ async fn a_worker_needs_a_name() {
     assert_eq!(register_worker(&st).await.0, StatusCode::OK);
 }
 
-/// A body without a member it needs names that member, as a wrong value of it would.
+/// A body without a member it needs, or with one given twice, names that member, as a wrong
+/// value of it would.
 #[tokio::test]
-async fn a_missing_member_of_a_body_is_the_field() {
+async fn a_missing_or_repeated_member_of_a_body_is_the_field() {
     let dir = tempfile::tempdir().unwrap();
     let st = AppState::open(Config::new(dir.path())).unwrap();
-    for (uri, field) in [("/v1/jobs", "scene"), ("/v1/workers", "name")] {
-        let (code, e) = call(&st, post(uri, "{}")).await;
+    for (uri, body, field) in [
+        ("/v1/jobs", "{}", "scene"),
+        ("/v1/workers", "{}", "name"),
+        // A member given twice is refused, not read as its last value.
+        ("/v1/jobs", r#"{"scene": "s", "spp": 4, "spp": 8}"#, "spp"),
+        (
+            "/v1/workers",
+            r#"{"name": "a", "name": "b", "threads": 1}"#,
+            "name",
+        ),
+    ] {
+        let (code, e) = call(&st, post(uri, body)).await;
         assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{uri}: {e}");
         assert_error_body(uri, &e);
         assert_eq!(e["error"]["field"], field, "{uri}: {e}");

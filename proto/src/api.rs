@@ -50,7 +50,7 @@ pub struct SceneCreated {
 /// Unknown fields are refused (422 naming the field), so a misspelt setting is caught; a client
 /// sending a field this coordinator does not know learns so rather than getting a job without it.
 #[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
-#[serde(try_from = "serde_json::Map<String, serde_json::Value>")]
+#[serde(try_from = "crate::json::Members")]
 pub struct JobRequest {
     /// Scene id from `POST /v1/scenes`.
     pub scene: String,
@@ -60,6 +60,15 @@ pub struct JobRequest {
     /// Higher runs first; equal priorities run in submission order. Default 0.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub priority: Option<i32>,
+}
+
+impl TryFrom<crate::json::Members> for JobRequest {
+    type Error = String;
+
+    /// A member given twice is refused while reading (`duplicate field \`spp\``).
+    fn try_from(m: crate::json::Members) -> Result<Self, String> {
+        JobRequest::try_from(m.0)
+    }
 }
 
 impl TryFrom<serde_json::Map<String, serde_json::Value>> for JobRequest {
