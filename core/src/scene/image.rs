@@ -76,9 +76,13 @@ pub fn image_size(bytes: &[u8]) -> Result<(u32, u32), String> {
             "{w}×{h} pixels: more than the {MAX_IMAGE_SIDE} allowed on a side"
         ));
     }
-    if (w as u64) * (h as u64) > MAX_IMAGE_PIXELS || w == 0 || h == 0 {
+    if w == 0 || h == 0 {
+        return Err(format!("{w}×{h} pixels: the image is empty"));
+    }
+    if (w as u64) * (h as u64) > MAX_IMAGE_PIXELS {
         return Err(format!(
-            "{w}×{h} pixels is empty or more than the {MAX_IMAGE_PIXELS} allowed"
+            "{w}×{h} pixels: {} pixels, more than the {MAX_IMAGE_PIXELS} allowed",
+            w as u64 * h as u64
         ));
     }
     Ok((w, h))
@@ -833,7 +837,10 @@ mod tests {
         let e = decode_image(&png_header(MAX_IMAGE_SIDE + 1, 1)).unwrap_err();
         assert!(e.contains("on a side"), "{e}");
         let e = decode_image(&png_header(MAX_IMAGE_SIDE, 4097)).unwrap_err();
-        assert!(e.contains("allowed"), "{e}");
+        assert!(
+            e.contains("67125248 pixels, more than the 67108864 allowed") && !e.contains("empty"),
+            "{e}"
+        );
         assert!(decode_image(b"not an image").is_err());
     }
 }
