@@ -260,13 +260,13 @@ async fn wrong_json_is_answered_with_serdes_message_naming_the_field() {
             "/v1/jobs",
             format!(r#"{{"width": "x", "scene": "{id}"}}"#),
             "width",
-            r#"width: invalid type: string "x", expected u32"#,
+            r#"width: invalid type: string "x", expected an integer from 0 to 4294967295"#,
         ),
         (
             "/v1/workers",
             r#"{"name": "w", "threads": "x"}"#.into(),
             "threads",
-            r#"threads: invalid type: string "x", expected u32 at line 1 column 28"#,
+            r#"threads: invalid type: string "x", expected an integer from 0 to 4294967295 at line 1 column 28"#,
         ),
         (
             "/v1/workers",

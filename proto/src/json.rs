@@ -352,6 +352,28 @@ pub fn plain_message(message: &str) -> String {
         }
     }
     out.push_str(rest);
+    // Rust's number types, as serde names them.
+    for (rust, json) in [
+        ("f32", "a number"),
+        ("f64", "a number"),
+        ("u8", "an integer from 0 to 255"),
+        ("u16", "an integer from 0 to 65535"),
+        ("u32", "an integer from 0 to 4294967295"),
+        ("u64", "a non-negative integer"),
+        ("usize", "a non-negative integer"),
+        ("i32", "an integer from -2147483648 to 2147483647"),
+        ("i64", "an integer"),
+    ] {
+        // serde_json may have put the place after it.
+        let (body, place) = match out.find(" at line ") {
+            Some(i) => out.split_at(i),
+            None => (out.as_str(), ""),
+        };
+        if let Some(head) = body.strip_suffix(&format!("expected {rust}")) {
+            out = format!("{head}expected {json}{place}");
+            break;
+        }
+    }
     if out == "trailing characters" {
         // serde_json's word for an array with elements after the ones a value takes.
         return "too many elements: the array is longer than expected".into();
@@ -517,6 +539,19 @@ mod tests {
                 "invalid length 1, expected an object",
             ),
             ("missing field `fov`", "missing field `fov`"),
+            (
+                "invalid type: string \"x\", expected f32",
+                "invalid type: string \"x\", expected a number",
+            ),
+            (
+                "invalid type: string \"x\", expected u32 at line 1 column 28",
+                "invalid type: string \"x\", expected an integer from 0 to 4294967295 at line 1 \
+                 column 28",
+            ),
+            (
+                "invalid value: integer `-1`, expected u32",
+                "invalid value: integer `-1`, expected an integer from 0 to 4294967295",
+            ),
             (
                 "trailing characters",
                 "too many elements: the array is longer than expected",
