@@ -438,7 +438,7 @@ async fn job_tiles(
 async fn set_priority(
     State(state): State<AppState>,
     Path(id): Path<String>,
-    Json(mut body): Json<serde_json::Map<String, serde_json::Value>>,
+    Json(proto::json::Members(mut body)): Json<proto::json::Members>,
 ) -> Result<Json<proto::JobStatus>, AppError> {
     // Read from an object only (serde would take `[5]` for `{"priority": 5}`), by hand, so
     // that an unknown field is named as `POST /v1/jobs` names one.
@@ -451,8 +451,10 @@ async fn set_priority(
             format!("{unknown}: unknown field `{unknown}`, expected `priority`"),
         ));
     }
-    let priority: i32 = serde_json::from_value(value)
-        .map_err(|e| AppError::invalid("priority", format!("priority: {e}")))?;
+    let priority: i32 = serde_json::from_value(value).map_err(|e| {
+        let message = proto::json::plain_message(&e.to_string());
+        AppError::invalid("priority", format!("priority: {message}"))
+    })?;
     let st = state.sched().set_priority(&id, priority)?;
     if st.is_some() {
         state.notify.notify_waiters();
@@ -805,7 +807,7 @@ async fn upload_result(
     body: Body,
 ) -> Result<Json<proto::ResultReply>, AppError> {
     let (tile, task_pass, pass_samples, splat_pixels, settled) = {
-        let mut s = state.sched();
+        let s = state.sched();
         let (tile, pass) = s.task_for_upload(&job, task)?;
         let settled = s.settled(&job, task);
         (
@@ -844,6 +846,7 @@ async fn upload_result(
         }
     }
     if let Some(outcome) = settled {
+        state.sched().count_duplicate();
         return Ok(Json(reply(outcome)));
     }
     let (acc, pass) =
@@ -861,9 +864,9 @@ async fn upload_result(
             let now = state.now();
             let changed = {
                 let mut s = state.sched();
-                // Named by its lease, not by the worker id alone: anyone may write a worker's
-                // id, only its holder knows the lease.
-                match s.lease_held_by(&job, task, &worker) {
+                // Named by its lease, not by a worker id: anyone may write a worker's id, only
+                // its holder was given the lease.
+                match s.current_lease(&job, task) {
                     Some(lease) if q.lease.as_deref() == Some(lease.as_str()) => {
                         s.fail(&lease, &message, now)?
                     }

@@ -263,9 +263,9 @@ impl From<JsonRejection> for AppError {
     }
 }
 
-/// The name of the first parameter of query string `q` whose name or value is not UTF-8 once
-/// percent-decoded (the name as the parser reads it, or `query` when the name itself is bad).
-fn not_utf8(q: &str) -> Option<String> {
+/// The first parameter of query string `q` whose value is not UTF-8 once percent-decoded (its
+/// name), or whose name is not (`Err`).
+fn not_utf8(q: &str) -> Option<Result<String, ()>> {
     fn decode(s: &str) -> Vec<u8> {
         let b = s.as_bytes();
         let mut out = Vec::with_capacity(b.len());
@@ -296,8 +296,10 @@ fn not_utf8(q: &str) -> Option<String> {
     q.split('&').filter(|p| !p.is_empty()).find_map(|pair| {
         let (name, value) = pair.split_once('=').unwrap_or((pair, ""));
         match String::from_utf8(decode(name)) {
-            Err(_) => Some("query".to_string()),
-            Ok(n) => std::str::from_utf8(&decode(value)).is_err().then_some(n),
+            Err(_) => Some(Err(())),
+            Ok(n) => std::str::from_utf8(&decode(value))
+                .is_err()
+                .then_some(Ok(n)),
         }
     })
 }
@@ -313,11 +315,20 @@ impl<T: serde::de::DeserializeOwned, S: Send + Sync> FromRequestParts<S> for Que
     async fn from_request_parts(parts: &mut Parts, _: &S) -> Result<Self, AppError> {
         let q = parts.uri.query().unwrap_or_default();
         // The parser replaces bytes that are not UTF-8 with U+FFFD: refuse them first.
-        if let Some(name) = not_utf8(q) {
-            return Err(AppError::bad(
-                name.clone(),
-                format!("query string: the value of `{name}` is not UTF-8 once percent-decoded"),
-            ));
+        match not_utf8(q) {
+            Some(Ok(name)) => {
+                let message = format!(
+                    "query string: the value of `{name}` is not UTF-8 once percent-decoded"
+                );
+                return Err(AppError::bad(name, message));
+            }
+            Some(Err(())) => {
+                return Err(AppError::bad(
+                    "query",
+                    "query string: a parameter's name is not UTF-8 once percent-decoded",
+                ))
+            }
+            None => {}
         }
         let de = serde_urlencoded::Deserializer::new(form_urlencoded::parse(q.as_bytes()));
         serde_path_to_error::deserialize(de).map(Query).map_err(

@@ -1191,12 +1191,12 @@ async fn results_with_non_finite_sums_are_refused_and_the_task_is_queued_again()
         let lease_id = lease["lease_id"].as_str().unwrap();
         let mut pixels = good.clone();
         pixels[6][k] = bad;
-        // From a worker that does not hold the lease, or naming the holder without its lease
-        // (anyone can write a worker's id): refused, the lease stays, nobody is blamed.
+        // Naming the holder without its lease (anyone can write a worker's id), or a lease
+        // that is not the task's: refused, the lease stays, nobody is blamed.
         for (who, lease) in [
-            ("someone-else", lease_id),
             (worker.as_str(), ""),
             (worker.as_str(), "l-forged"),
+            ("someone-else", "l-forged"),
         ] {
             let (code, body) = call(&st, upload(task, who, lease, pixels.clone())).await;
             assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
@@ -1608,4 +1608,52 @@ fn a_restart_clears_unfinished_uploads() {
     let _st = AppState::open(Config::new(dir.path())).unwrap();
     let left: Vec<_> = std::fs::read_dir(&tmp).unwrap().collect();
     assert!(left.is_empty(), "tmp/ holds {left:?}");
+}
+
+/// A result for a task already done is answered `duplicate` without being decoded or checked:
+/// its body is read to the end and dropped.
+#[tokio::test]
+async fn a_result_for_a_settled_task_is_dropped_unread() {
+    use raytile_proto::tile::{encode, TileAccum};
+    let dir = tempfile::tempdir().unwrap();
+    let st = test_state(dir.path(), None);
+    let (_, job) =
+        empty_scene_job(&st, r#""width": 4, "height": 2, "spp": 1, "tile_size": 16"#).await;
+    let job = job["id"].as_str().unwrap().to_string();
+    let (_, w) = register_worker(&st).await;
+    let worker = w["worker_id"].as_str().unwrap().to_string();
+    let (code, lease) = call(&st, post(&format!("/v1/workers/{worker}/lease"), "")).await;
+    assert_eq!(code, StatusCode::OK, "{lease}");
+    let lease = lease["lease_id"].as_str().unwrap().to_string();
+    let put = |body: Vec<u8>| {
+        Request::put(format!(
+            "/v1/jobs/{job}/tasks/0/result?worker={worker}&lease={lease}"
+        ))
+        .body(Body::from(body))
+        .unwrap()
+    };
+    let acc = TileAccum {
+        tile: raytile_proto::Tile {
+            x0: 0,
+            y0: 0,
+            x1: 4,
+            y1: 2,
+        },
+        pixels: vec![[0.5, 0.5, 0.5, 1.0]; 8],
+        bad_samples: 0,
+        splats: Vec::new(),
+    };
+    let (code, body) = call(&st, put(encode(&acc, 0))).await;
+    assert_eq!(
+        (code, &body["accepted"]),
+        (StatusCode::OK, &true.into()),
+        "{body}"
+    );
+    // Not a tile result at all, for the task now done: a duplicate, not a 422.
+    let (code, body) = call(&st, put(b"not a tile".to_vec())).await;
+    assert_eq!(
+        (code, &body["duplicate"], &body["accepted"]),
+        (StatusCode::OK, &true.into(), &false.into()),
+        "{body}"
+    );
 }

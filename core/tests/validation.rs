@@ -674,6 +674,12 @@ fn values_beyond_f32_are_refused_where_they_are_written() {
             "{shape}: {e}"
         );
     }
+    // One whose area rounds to zero is too small; a subnormal area loads (and gives no light),
+    // as it always did.
+    let e = whole_json_error(&scene(r#"{"type": "sphere", "radius": 1e-25}"#, emitter));
+    assert!(e.contains("too small to be an area light"), "{e}");
+    let tiny = scene(r#"{"type": "sphere", "radius": 1e-21}"#, emitter);
+    parse_json(&tiny, Path::new("."), Path::new("scene.json")).unwrap();
     // A plane still cannot be one.
     let e = whole_json_error(&scene(r#"{"type": "plane"}"#, emitter));
     assert!(e.contains("cannot be an area light"), "{e}");

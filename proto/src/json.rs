@@ -5,8 +5,8 @@
 //! array gave a message about its elements (`camera[0]: expected a string`) or about a Rust type
 //! (`expected struct Camera with 8 elements`). [`Objects`] wraps a deserializer so that every
 //! struct, at any depth, is read from a JSON object only; [`plain_message`] says serde's
-//! messages in JSON's words. Both are used wherever the farm or the tracer reads JSON that a
-//! person wrote: scene files, glTF files, request bodies.
+//! messages in JSON's words. [`Objects`] reads scene files, glTF files and job requests;
+//! [`plain_message`] words the errors of every request body and query string too.
 //!
 //! A struct inside an internally tagged or untagged enum (a shape or a material of the scene
 //! format) is read by serde from its buffered content, past the wrapper: such a value can still
@@ -342,11 +342,10 @@ pub fn plain_message(message: &str) -> String {
         rest = &after[name_end..];
         if let Some(tail) = rest.strip_prefix(" with ") {
             if let Some(j) = tail.find(" element") {
-                let k = tail[j..]
-                    .find(|c: char| c != ' ' && !c.is_alphabetic())
-                    .map_or(tail.len(), |k| j + k);
+                let after = &tail[j + " element".len()..];
+                let after = after.strip_prefix('s').unwrap_or(after);
                 if tail[..j].bytes().all(|b| b.is_ascii_digit()) {
-                    rest = &tail[k..];
+                    rest = after;
                 }
             }
         }
@@ -374,7 +373,11 @@ pub fn plain_message(message: &str) -> String {
             break;
         }
     }
-    if out == "trailing characters" {
+    // serde's words for an array longer than its value: serde_json's reader says "trailing
+    // characters", a JSON value tree "invalid length N, expected fewer elements in array".
+    if out == "trailing characters"
+        || out.starts_with("invalid length ") && out.ends_with(", expected fewer elements in array")
+    {
         // serde_json's word for an array with elements after the ones a value takes.
         return "too many elements: the array is longer than expected".into();
     }
@@ -555,6 +558,14 @@ mod tests {
             (
                 "trailing characters",
                 "too many elements: the array is longer than expected",
+            ),
+            (
+                "invalid length 4, expected fewer elements in array",
+                "too many elements: the array is longer than expected",
+            ),
+            (
+                "invalid length 0, expected struct RegisterRequest with 3 elements at line 1 column 2",
+                "invalid length 0, expected an object at line 1 column 2",
             ),
         ];
         for (serde, plain) in cases {

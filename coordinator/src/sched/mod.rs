@@ -500,9 +500,9 @@ impl Sched {
     /// What [`Scheduler::complete`] would answer task `idx` of `job` whatever its result holds:
     /// `Duplicate` for a task already done (or a job done), `JobFinished` for a cancelled or
     /// failed job; `None` while a result can still be stored. The upload route asks first, so
-    /// that a result nobody can use is not held in memory (it is read and dropped). Counted as
-    /// a duplicate, as `complete` counts it.
-    pub fn settled(&mut self, job: &str, idx: u32) -> Option<ResultOutcome> {
+    /// that a result nobody can use is not held in memory (it is read and dropped), and counts
+    /// it with [`Sched::count_duplicate`] once it has been read, as `complete` would.
+    pub fn settled(&self, job: &str, idx: u32) -> Option<ResultOutcome> {
         let j = self.jobs.get(job)?;
         let outcome = if j.is_final() {
             if j.life().state == JobState::Done {
@@ -515,8 +515,21 @@ impl Sched {
         } else {
             return None;
         };
-        self.counters.duplicates += 1;
         Some(outcome)
+    }
+
+    /// Counts a result that came for a task already settled ([`Sched::settled`]).
+    pub fn count_duplicate(&mut self) {
+        self.counters.duplicates += 1;
+    }
+
+    /// The id of the lease out on task `idx` of `job`, if one is.
+    pub fn current_lease(&self, job: &str, idx: u32) -> Option<String> {
+        let j = self
+            .jobs
+            .get(job)
+            .filter(|j| (idx as usize) < j.tasks().len())?;
+        j.lease_of(idx as usize).map(|(_, lease)| lease.to_string())
     }
 
     /// The number of samples per pixel in pass `pass` of `job` (0 for an unknown job or pass).
@@ -530,16 +543,6 @@ impl Sched {
                     .map(|r| r.len() as u32)
             })
             .unwrap_or(0)
-    }
-
-    /// The lease `worker` holds on task `idx` of `job`, if it holds one.
-    pub fn lease_held_by(&self, job: &str, idx: u32, worker: &str) -> Option<String> {
-        let j = self
-            .jobs
-            .get(job)
-            .filter(|j| (idx as usize) < j.tasks().len())?;
-        let (w, lease) = j.lease_of(idx as usize)?;
-        (w == worker).then(|| lease.to_string())
     }
 
     /// The number of pixels of `job`'s frame when its results may carry splats (light that

@@ -629,9 +629,13 @@ pub(crate) const NOT_AN_AREA_LIGHT: &str = "this shape cannot be an area light (
 pub(crate) const LIGHT_TOO_LARGE: &str = "this shape is too large to be an area light (its \
     surface area overflows 32-bit floats)";
 
+/// Why an emissive shape whose area rounds to zero in f32 is refused.
+pub(crate) const LIGHT_TOO_SMALL: &str = "this shape is too small to be an area light (its \
+    surface area rounds to zero in 32-bit floats)";
+
 /// Why an object of this shape cannot be an area light, if it cannot: a plane or a quadric
-/// cannot be sampled ([`NOT_AN_AREA_LIGHT`]), and a shape whose area overflows has no density
-/// ([`LIGHT_TOO_LARGE`]). A shape whose parameters are wrong passes: the builder refuses it for
+/// cannot be sampled ([`NOT_AN_AREA_LIGHT`]), and a shape whose area overflows or rounds to
+/// zero has no density ([`LIGHT_TOO_LARGE`], [`LIGHT_TOO_SMALL`]). A shape whose parameters are wrong passes: the builder refuses it for
 /// them.
 pub(crate) fn emit_refusal(shape: &ShapeDesc) -> Option<&'static str> {
     match shape {
@@ -646,9 +650,18 @@ fn analytic_emit_refusal(a: &Analytic) -> Option<&'static str> {
     if matches!(a, Analytic::Plane(_) | Analytic::Quadric(_)) {
         return Some(NOT_AN_AREA_LIGHT);
     }
+    let area = a.area();
+    if !area.is_finite() {
+        return Some(LIGHT_TOO_LARGE);
+    }
+    if !(area > 0.0) {
+        return Some(LIGHT_TOO_SMALL);
+    }
+    // A subnormal area samples with an infinite density, which the light skips: such a light
+    // loads, as it always did, and gives no light.
     match a.sample(Vec2::splat(0.5)) {
-        Some(s) if s.pdf_area > 0.0 && s.pdf_area.is_finite() => None,
-        _ => Some(LIGHT_TOO_LARGE),
+        Some(_) => None,
+        None => Some(LIGHT_TOO_LARGE),
     }
 }
 

@@ -261,10 +261,9 @@ fn check_extensions(raw: &Value, warnings: &mut Vec<String>) -> Result<(), Strin
         list.iter()
             .enumerate()
             .map(|(k, v)| match v.as_str() {
-                Some(name) if !name.is_empty() => Ok(name.to_string()),
-                _ => Err(format!(
-                    "invalid glTF at {key}[{k}]: expected an extension name (a non-empty \
-                     string), got {v}"
+                Some(name) => Ok(name.to_string()),
+                None => Err(format!(
+                    "invalid glTF at {key}[{k}]: expected an extension name (a string), got {v}"
                 )),
             })
             .collect()
