@@ -1154,7 +1154,6 @@ async fn a_bad_entry_is_refused_naming_entry() {
 /// another result (a good one) completes it and no frame shows a corrupted tile.
 #[tokio::test]
 async fn results_with_non_finite_sums_are_refused_and_the_task_is_queued_again() {
-    use raytile_proto::tile::{encode, TileAccum};
     let dir = tempfile::tempdir().unwrap();
     let st = test_state(dir.path(), None);
     let (code, job) =
@@ -1165,21 +1164,10 @@ async fn results_with_non_finite_sums_are_refused_and_the_task_is_queued_again()
     let worker = w["worker_id"].as_str().unwrap().to_string();
     let lease_uri = format!("/v1/workers/{worker}/lease");
     let upload = |task: u64, worker: &str, lease: &str, pixels: Vec<[f32; 4]>| {
-        let acc = TileAccum {
-            tile: raytile_proto::Tile {
-                x0: 0,
-                y0: 0,
-                x1: 4,
-                y1: 2,
-            },
-            pixels,
-            bad_samples: 0,
-            splats: Vec::new(),
-        };
         Request::put(format!(
             "/v1/jobs/{job}/tasks/{task}/result?worker={worker}&lease={lease}"
         ))
-        .body(Body::from(encode(&acc, 0)))
+        .body(Body::from(result_4x2(pixels, 0)))
         .unwrap()
     };
     let good = vec![[0.5, 0.25, 0.125, 1.0]; 8];
@@ -1245,7 +1233,6 @@ async fn results_with_non_finite_sums_are_refused_and_the_task_is_queued_again()
 /// result cannot wipe the splat light out of the frame, nor two of them wrap the frame's count.
 #[tokio::test]
 async fn results_claiming_more_dropped_samples_than_the_pass_has_are_refused() {
-    use raytile_proto::tile::{encode, TileAccum};
     let dir = tempfile::tempdir().unwrap();
     let st = test_state(dir.path(), None);
     let (_, job) = empty_scene_job(
@@ -1258,21 +1245,10 @@ async fn results_claiming_more_dropped_samples_than_the_pass_has_are_refused() {
     let worker = w["worker_id"].as_str().unwrap().to_string();
     let lease_uri = format!("/v1/workers/{worker}/lease");
     let upload = |bad_samples: u64, lease: &str| {
-        let acc = TileAccum {
-            tile: raytile_proto::Tile {
-                x0: 0,
-                y0: 0,
-                x1: 4,
-                y1: 2,
-            },
-            pixels: vec![[0.0; 4]; 8],
-            bad_samples,
-            splats: Vec::new(),
-        };
         Request::put(format!(
             "/v1/jobs/{job}/tasks/0/result?worker={worker}&lease={lease}"
         ))
-        .body(Body::from(encode(&acc, 0)))
+        .body(Body::from(result_4x2(vec![[0.0; 4]; 8], bad_samples)))
         .unwrap()
     };
     for bad in [1 << 60, u64::MAX] {
@@ -1304,6 +1280,22 @@ async fn results_claiming_more_dropped_samples_than_the_pass_has_are_refused() {
         (StatusCode::OK, &true.into()),
         "{body}"
     );
+}
+
+/// The bytes of a pass-0 result for the 4 × 2 tile at the origin.
+fn result_4x2(pixels: Vec<[f32; 4]>, bad_samples: u64) -> Vec<u8> {
+    let acc = raytile_proto::tile::TileAccum {
+        tile: raytile_proto::Tile {
+            x0: 0,
+            y0: 0,
+            x1: 4,
+            y1: 2,
+        },
+        pixels,
+        bad_samples,
+        splats: Vec::new(),
+    };
+    raytile_proto::tile::encode(&acc, 0)
 }
 
 /// A result's sums must be ones a pass of its samples can make: finite, weights from 0 to the
@@ -1614,7 +1606,6 @@ fn a_restart_clears_unfinished_uploads() {
 /// its body is read to the end and dropped.
 #[tokio::test]
 async fn a_result_for_a_settled_task_is_dropped_unread() {
-    use raytile_proto::tile::{encode, TileAccum};
     let dir = tempfile::tempdir().unwrap();
     let st = test_state(dir.path(), None);
     let (_, job) =
@@ -1632,18 +1623,7 @@ async fn a_result_for_a_settled_task_is_dropped_unread() {
         .body(Body::from(body))
         .unwrap()
     };
-    let acc = TileAccum {
-        tile: raytile_proto::Tile {
-            x0: 0,
-            y0: 0,
-            x1: 4,
-            y1: 2,
-        },
-        pixels: vec![[0.5, 0.5, 0.5, 1.0]; 8],
-        bad_samples: 0,
-        splats: Vec::new(),
-    };
-    let (code, body) = call(&st, put(encode(&acc, 0))).await;
+    let (code, body) = call(&st, put(result_4x2(vec![[0.5, 0.5, 0.5, 1.0]; 8], 0))).await;
     assert_eq!(
         (code, &body["accepted"]),
         (StatusCode::OK, &true.into()),

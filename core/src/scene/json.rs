@@ -143,28 +143,22 @@ impl<'de> Deserialize<'de> for JMaterial {
     }
 }
 
-impl Kind for JBsdf {
-    const WHAT: &'static str = "a material";
+/// The [`Kind`] of each tagged enum: what its values are.
+macro_rules! kinds {
+    ($($ty:ty: $what:literal,)*) => {
+        $(impl Kind for $ty {
+            const WHAT: &'static str = $what;
+        })*
+    };
 }
 
-impl Kind for JTexture {
-    const WHAT: &'static str = "a texture (image or checker)";
-}
-
-impl Kind for JMedium {
-    const WHAT: &'static str = "a medium";
-}
-
-impl Kind for JShape {
-    const WHAT: &'static str = "a shape";
-}
-
-impl Kind for JLight {
-    const WHAT: &'static str = "a light";
-}
-
-impl Kind for JEnvironment {
-    const WHAT: &'static str = "an environment";
+kinds! {
+    JBsdf: "a material",
+    JTexture: "a texture (image or checker)",
+    JMedium: "a medium",
+    JShape: "a shape",
+    JLight: "a light",
+    JEnvironment: "an environment",
 }
 
 /// A map of named entries (textures, materials, media) that refuses a name given twice: JSON
