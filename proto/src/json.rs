@@ -308,20 +308,28 @@ impl<'de> serde::Deserialize<'de> for Members {
             fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
                 f.write_str("an object")
             }
-            fn visit_map<A: de::MapAccess<'de>>(self, mut map: A) -> Result<Members, A::Error> {
-                let mut out = serde_json::Map::new();
-                while let Some(key) = map.next_key::<String>()? {
-                    if out.contains_key(&key) {
-                        return Err(de::Error::custom(format!("duplicate field `{key}`")));
-                    }
-                    let value = map.next_value()?;
-                    out.insert(key, value);
-                }
-                Ok(Members(out))
+            fn visit_map<A: de::MapAccess<'de>>(self, map: A) -> Result<Members, A::Error> {
+                read_members(map).map(Members)
             }
         }
         d.deserialize_map(V)
     }
+}
+
+/// The members of the object `map` reads, refusing a member given twice ("duplicate field
+/// `spp`"), for a visitor's `visit_map`.
+pub fn read_members<'de, A: de::MapAccess<'de>>(
+    mut map: A,
+) -> Result<serde_json::Map<String, serde_json::Value>, A::Error> {
+    let mut out = serde_json::Map::new();
+    while let Some(key) = map.next_key::<String>()? {
+        if out.contains_key(&key) {
+            return Err(de::Error::custom(format!("duplicate field `{key}`")));
+        }
+        let value = map.next_value()?;
+        out.insert(key, value);
+    }
+    Ok(out)
 }
 
 /// serde's message in the words of JSON: an array, not a sequence; an object, not a map or

@@ -47,16 +47,8 @@ impl<'de, T: Kind> serde::de::Visitor<'de> for Fields<T> {
     fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
         write!(f, "an object with a `type` naming {}", T::WHAT)
     }
-    fn visit_map<A: serde::de::MapAccess<'de>>(self, mut map: A) -> Result<Self::Value, A::Error> {
-        let mut out = serde_json::Map::new();
-        while let Some(key) = map.next_key::<String>()? {
-            if out.contains_key(&key) {
-                return Err(serde::de::Error::custom(format!("duplicate field `{key}`")));
-            }
-            let value = map.next_value()?;
-            out.insert(key, value);
-        }
-        Ok(out)
+    fn visit_map<A: serde::de::MapAccess<'de>>(self, map: A) -> Result<Self::Value, A::Error> {
+        raytile_proto::json::read_members(map)
     }
 }
 
