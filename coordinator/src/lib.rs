@@ -15,6 +15,7 @@ pub mod api;
 pub mod clock;
 pub mod compose;
 pub mod error;
+pub mod listen;
 pub mod openapi;
 pub mod scenes;
 pub mod sched;
@@ -191,6 +192,8 @@ pub struct Config {
     /// How long an image request waits for one of the others to end before it is answered
     /// 503 (retryable, with `Retry-After`).
     pub image_wait: Duration,
+    /// Bounds on connections: how many at once, how long a client may take to send headers.
+    pub serve_limits: listen::ServeLimits,
     /// The time source of every scheduler call (the system clock; tests inject their own).
     pub clock: Clock,
 }
@@ -213,6 +216,7 @@ impl Config {
             scene_loader: core_scene_loader(SceneLimits::default()),
             max_parallel_images: 2,
             image_wait: Duration::from_secs(30),
+            serve_limits: listen::ServeLimits::default(),
             clock: clock::system_clock(),
         }
     }
@@ -470,18 +474,20 @@ pub async fn run(
     tracing::info!(%addr, "coordinator listening");
     let checker = tokio::spawn(timeout_checker(state.clone()));
     let st = state.clone();
-    let graceful = async move {
+    tokio::spawn(async move {
         shutdown.await;
         st.begin_shutdown();
-    };
+    });
     let mut rx = state.shutdown_rx();
     let hard_stop = async move {
         let _ = rx.wait_for(|v| *v).await;
         tokio::time::sleep(Duration::from_secs(5)).await;
     };
-    let server = axum::serve(listener, app(state.clone())).with_graceful_shutdown(graceful);
+    let mut limits = state.cfg.serve_limits;
+    limits.max_connections = listen::fit_file_limit(limits.max_connections);
+    let server = listen::serve(listener, app(state.clone()), limits, state.shutdown_rx());
     let res = tokio::select! {
-        r = std::future::IntoFuture::into_future(server) => r.map_err(anyhow::Error::from),
+        () = server => Ok(()),
         _ = hard_stop => {
             tracing::warn!("connections still open 5 s after shutdown; closing them");
             Ok(())

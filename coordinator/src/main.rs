@@ -1,6 +1,7 @@
 //! `raytile-coordinator`: serves the farm's HTTP API.
 
 use clap::Parser;
+use raytile_coordinator::listen::ServeLimits;
 use raytile_coordinator::{core_scene_loader, run, Config, Limits, SceneLimits};
 use std::path::PathBuf;
 use std::time::Duration;
@@ -83,6 +84,14 @@ struct Args {
     /// seconds.
     #[arg(long, default_value_t = 30.0)]
     image_wait: f64,
+    /// Most connections open at once; more wait to be accepted until one closes. The
+    /// open-file limit is raised to fit, where the hard limit allows.
+    #[arg(long, default_value_t = ServeLimits::default().max_connections)]
+    max_connections: usize,
+    /// How long a client has to send a request's headers, in seconds; a keep-alive
+    /// connection idle that long is closed.
+    #[arg(long, default_value_t = ServeLimits::default().header_timeout.as_secs_f64())]
+    header_timeout: f64,
     /// Do not serve: ask the coordinator listening on --listen for /healthz and exit 0 when
     /// it answers 200 (a container health check; images have no curl).
     #[arg(long)]
@@ -144,6 +153,13 @@ async fn real_main(a: Args) -> anyhow::Result<()> {
     cfg.scene_loader = core_scene_loader(cfg.scene_limits.clone());
     cfg.max_parallel_images = a.image_encodes.max(1);
     cfg.image_wait = secs(a.image_wait, "image-wait")?;
+    cfg.serve_limits = ServeLimits {
+        max_connections: a.max_connections.max(1),
+        header_timeout: secs(a.header_timeout, "header-timeout")?,
+    };
+    if cfg.serve_limits.header_timeout.is_zero() {
+        anyhow::bail!("--header-timeout: must be more than 0 seconds");
+    }
     let addr: std::net::SocketAddr = a
         .listen
         .parse()

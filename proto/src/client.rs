@@ -98,12 +98,18 @@ pub struct Client {
     token: Option<String>,
 }
 
+/// How long a client keeps an idle connection to the coordinator for reuse: less than the
+/// coordinator's default header timeout (30 s), after which it closes an idle connection, so a
+/// request is not sent on a connection the coordinator is closing at that moment.
+pub const POOL_IDLE: Duration = Duration::from_secs(20);
+
 impl Client {
     /// A client of the coordinator at `base` (`http://farm-host:8080`) with reqwest's defaults;
     /// an empty token counts as none.
     pub fn new(base: &str, token: Option<String>) -> Result<Client, ClientError> {
         let http = reqwest::Client::builder()
             .connect_timeout(Duration::from_secs(10))
+            .pool_idle_timeout(POOL_IDLE)
             .build()
             .map_err(|e| ClientError::BadUrl {
                 url: base.into(),

@@ -189,6 +189,7 @@ pub async fn run(config: Config, shutdown: impl Future<Output = ()> + Send) -> a
         // the request fails into the usual retry with backoff instead of hanging.
         .read_timeout(config.long_poll + Duration::from_secs(30))
         .tcp_keepalive(Duration::from_secs(15))
+        .pool_idle_timeout(raytile_proto::client::POOL_IDLE)
         .build()
         .context("creating the HTTP client")?;
     let client = Client::with_http(http, &config.coordinator, config.token.clone())?;

@@ -1,0 +1,207 @@
+//! The HTTP/1.1 server loop, with the limits a server facing a network needs and
+//! `axum::serve` does not offer:
+//!
+//! - at most [`ServeLimits::max_connections`] connections at once: at the cap, new connections
+//!   wait in the kernel's accept queue until one closes, instead of taking file descriptors
+//!   until `accept` fails for everyone;
+//! - a client has [`ServeLimits::header_timeout`] to send a request's headers (hyper's header
+//!   read timeout, which also closes a keep-alive connection idle that long): a client that
+//!   opens connections and sends nothing, or one byte at a time, cannot hold them;
+//! - an HTTP/1.1 request with no `Host`, or more than one, is answered 400 before the router
+//!   sees it (RFC 9112, section 3.2).
+//!
+//! On shutdown it stops accepting, asks every connection to finish its request in progress and
+//! close, and returns when all have.
+
+use crate::error::AppError;
+use axum::body::Body;
+use axum::http::{header, Request, Response, Version};
+use axum::response::IntoResponse;
+use axum::Router;
+use hyper::body::Incoming;
+use hyper_util::rt::{TokioIo, TokioTimer};
+use std::convert::Infallible;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::{watch, Semaphore};
+use tower::ServiceExt;
+
+/// Bounds on connections.
+#[derive(Clone, Copy, Debug)]
+pub struct ServeLimits {
+    /// Most connections open at once.
+    pub max_connections: usize,
+    /// How long a client has to send a request's headers, from the connection's start or the
+    /// end of its previous request.
+    pub header_timeout: Duration,
+}
+
+impl Default for ServeLimits {
+    fn default() -> Self {
+        ServeLimits {
+            max_connections: 4096,
+            header_timeout: Duration::from_secs(30),
+        }
+    }
+}
+
+/// Serves `app` on `listener` until `stop` turns `true`, then waits for the open connections
+/// to finish their requests in progress.
+pub async fn serve(
+    listener: TcpListener,
+    app: Router,
+    limits: ServeLimits,
+    mut stop: watch::Receiver<bool>,
+) {
+    let max = limits.max_connections.clamp(1, Semaphore::MAX_PERMITS);
+    let slots = Arc::new(Semaphore::new(max));
+    loop {
+        let slot = tokio::select! {
+            s = slots.clone().acquire_owned() => s.expect("the semaphore is never closed"),
+            () = stopped(&mut stop) => break,
+        };
+        let (stream, peer) = tokio::select! {
+            a = listener.accept() => match a {
+                Ok(a) => a,
+                Err(e) => {
+                    accept_failed(e).await;
+                    continue;
+                }
+            },
+            () = stopped(&mut stop) => break,
+        };
+        let _ = stream.set_nodelay(true);
+        let app = app.clone();
+        let stop = stop.clone();
+        tokio::spawn(async move {
+            connection(stream, app, limits.header_timeout, stop).await;
+            tracing::trace!(%peer, "connection closed");
+            drop(slot);
+        });
+    }
+    drop(listener);
+    // Every connection holds a slot until it ends.
+    let _ = slots.acquire_many(max as u32).await;
+}
+
+/// Serves one connection until it closes, or until `stop` and its request in progress ends.
+async fn connection(
+    stream: TcpStream,
+    app: Router,
+    header_timeout: Duration,
+    mut stop: watch::Receiver<bool>,
+) {
+    let service = hyper::service::service_fn(move |req: Request<Incoming>| {
+        let app = app.clone();
+        async move {
+            if let Some(refused) = host_problem(&req) {
+                return Ok::<_, Infallible>(refused.into_response());
+            }
+            app.oneshot(req.map(Body::new)).await
+        }
+    });
+    let mut http = hyper::server::conn::http1::Builder::new();
+    http.timer(TokioTimer::new())
+        .header_read_timeout(header_timeout);
+    let conn = http.serve_connection(TokioIo::new(stream), service);
+    let mut conn = std::pin::pin!(conn);
+    tokio::select! {
+        r = conn.as_mut() => log_end(r),
+        () = stopped(&mut stop) => {
+            conn.as_mut().graceful_shutdown();
+            log_end(conn.await);
+        }
+    }
+}
+
+/// Returns once `stop` is `true` (at once if it is), holding no borrow of its value.
+async fn stopped(stop: &mut watch::Receiver<bool>) {
+    let _ = stop.wait_for(|v| *v).await;
+}
+
+fn log_end(r: hyper::Result<()>) {
+    if let Err(e) = r {
+        tracing::debug!("connection ended: {e}");
+    }
+}
+
+/// Why an HTTP/1.1 request is refused for its `Host` headers: RFC 9112 requires exactly one.
+/// (HTTP/1.0 has no such rule.)
+fn host_problem<B>(req: &Request<B>) -> Option<Response<Body>> {
+    if req.version() != Version::HTTP_11 {
+        return None;
+    }
+    let message = match req.headers().get_all(header::HOST).iter().count() {
+        1 => return None,
+        0 => "an HTTP/1.1 request needs a Host header",
+        _ => "a request may have only one Host header",
+    };
+    Some(
+        AppError::BadRequest {
+            field: Some("Host".into()),
+            message: message.into(),
+        }
+        .into_response(),
+    )
+}
+
+/// Waits after a failed `accept`: at once for an error of the one connection (it was reset
+/// before it was accepted), a second for one of the process (out of file descriptors), so as
+/// not to spin.
+async fn accept_failed(e: std::io::Error) {
+    use std::io::ErrorKind::*;
+    if matches!(
+        e.kind(),
+        ConnectionAborted | ConnectionReset | ConnectionRefused | Interrupted
+    ) {
+        return;
+    }
+    tracing::error!("accepting a connection: {e}; trying again in a second");
+    tokio::time::sleep(Duration::from_secs(1)).await;
+}
+
+/// Raises the soft limit on open files toward `max_connections` and some to spare (the
+/// database, scene files, the store's temporary files), up to the hard limit; returns the
+/// connection cap the limit allows.
+#[cfg(unix)]
+pub fn fit_file_limit(max_connections: usize) -> usize {
+    const SPARE: u64 = 256;
+    let mut lim = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit and setrlimit read and write the one struct this function owns.
+    unsafe {
+        if libc::getrlimit(libc::RLIMIT_NOFILE, &mut lim) != 0 {
+            return max_connections;
+        }
+        let want = (max_connections as u64).saturating_add(SPARE);
+        if lim.rlim_cur != libc::RLIM_INFINITY && lim.rlim_cur < want {
+            let raised = libc::rlimit {
+                rlim_cur: want.min(lim.rlim_max),
+                rlim_max: lim.rlim_max,
+            };
+            if libc::setrlimit(libc::RLIMIT_NOFILE, &raised) == 0 {
+                lim.rlim_cur = raised.rlim_cur;
+            }
+        }
+    }
+    if lim.rlim_cur == libc::RLIM_INFINITY {
+        return max_connections;
+    }
+    let fits = lim.rlim_cur.saturating_sub(SPARE).max(16) as usize;
+    if fits < max_connections {
+        tracing::warn!(
+            "the open-file limit ({}) leaves room for {fits} connections, not {max_connections}: \
+             raise it (ulimit -n) or lower --max-connections",
+            lim.rlim_cur
+        );
+    }
+    fits.min(max_connections)
+}
+
+#[cfg(not(unix))]
+pub fn fit_file_limit(max_connections: usize) -> usize {
+    max_connections
+}

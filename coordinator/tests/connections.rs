@@ -1,0 +1,177 @@
+//! The coordinator's connection limits on a real socket: the header read timeout, the cap on
+//! open connections, the `Host` rule of HTTP/1.1, and a shutdown with idle connections open.
+
+use raytile_coordinator::listen::ServeLimits;
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+
+struct Coord {
+    addr: SocketAddr,
+    stop: tokio::sync::oneshot::Sender<()>,
+    task: tokio::task::JoinHandle<anyhow::Result<()>>,
+    _dir: tempfile::TempDir,
+}
+
+async fn start(limits: ServeLimits) -> Coord {
+    let dir = tempfile::tempdir().unwrap();
+    let mut cfg = raytile_coordinator::Config::new(dir.path().join("data"));
+    cfg.serve_limits = limits;
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    let (stop, rx) = tokio::sync::oneshot::channel::<()>();
+    let task = tokio::spawn(raytile_coordinator::run(listener, cfg, async {
+        let _ = rx.await;
+    }));
+    Coord {
+        addr,
+        stop,
+        task,
+        _dir: dir,
+    }
+}
+
+/// Sends `request` on a new connection and reads until the server closes it, or `wait` passes.
+async fn exchange(addr: SocketAddr, request: &str, wait: Duration) -> String {
+    let mut s = TcpStream::connect(addr).await.unwrap();
+    s.write_all(request.as_bytes()).await.unwrap();
+    read_to_close(&mut s, wait).await
+}
+
+async fn read_to_close(s: &mut TcpStream, wait: Duration) -> String {
+    let mut got = Vec::new();
+    let _ = tokio::time::timeout(wait, s.read_to_end(&mut got)).await;
+    String::from_utf8_lossy(&got).into_owned()
+}
+
+fn status(response: &str) -> &str {
+    response.lines().next().unwrap_or_default()
+}
+
+#[tokio::test]
+async fn a_client_that_does_not_finish_its_headers_is_cut_off() {
+    let c = start(ServeLimits {
+        header_timeout: Duration::from_millis(300),
+        ..ServeLimits::default()
+    })
+    .await;
+    let mut s = TcpStream::connect(c.addr).await.unwrap();
+    s.write_all(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: ")
+        .await
+        .unwrap();
+    let t = Instant::now();
+    let got = read_to_close(&mut s, Duration::from_secs(10)).await;
+    let waited = t.elapsed();
+    assert!(
+        waited < Duration::from_secs(5),
+        "the connection stayed open {waited:?}"
+    );
+    assert!(!got.contains("200 OK"), "{got}");
+
+    // A connection that sends nothing at all is closed the same way.
+    let mut idle = TcpStream::connect(c.addr).await.unwrap();
+    let t = Instant::now();
+    read_to_close(&mut idle, Duration::from_secs(10)).await;
+    assert!(t.elapsed() < Duration::from_secs(5), "{:?}", t.elapsed());
+
+    // A complete request in time is served.
+    let ok = exchange(
+        c.addr,
+        "GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n",
+        Duration::from_secs(10),
+    )
+    .await;
+    assert_eq!(status(&ok), "HTTP/1.1 200 OK", "{ok}");
+    let _ = c.stop.send(());
+    c.task.await.unwrap().unwrap();
+}
+
+#[tokio::test]
+async fn connections_past_the_cap_wait_for_one_to_close() {
+    let c = start(ServeLimits {
+        max_connections: 2,
+        header_timeout: Duration::from_secs(60),
+    })
+    .await;
+    let mut held = vec![
+        TcpStream::connect(c.addr).await.unwrap(),
+        TcpStream::connect(c.addr).await.unwrap(),
+    ];
+    // Both are accepted (a request on one is answered), and hold the two places.
+    held[0]
+        .write_all(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+        .await
+        .unwrap();
+    let mut buf = [0u8; 512];
+    let n = tokio::time::timeout(Duration::from_secs(10), held[0].read(&mut buf))
+        .await
+        .expect("the first connection is served")
+        .unwrap();
+    assert!(String::from_utf8_lossy(&buf[..n]).starts_with("HTTP/1.1 200"));
+
+    // The third connects (the kernel's queue takes it) but is not served...
+    let request = "GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n";
+    let mut third = TcpStream::connect(c.addr).await.unwrap();
+    third.write_all(request.as_bytes()).await.unwrap();
+    let early = tokio::time::timeout(Duration::from_millis(500), third.read(&mut buf)).await;
+    assert!(early.is_err(), "served past the cap: {early:?}");
+
+    // ...until one of the two closes.
+    held.pop();
+    let got = read_to_close(&mut third, Duration::from_secs(10)).await;
+    assert_eq!(status(&got), "HTTP/1.1 200 OK", "{got}");
+    drop(held);
+    let _ = c.stop.send(());
+    c.task.await.unwrap().unwrap();
+}
+
+#[tokio::test]
+async fn an_http_1_1_request_needs_exactly_one_host() {
+    let c = start(ServeLimits::default()).await;
+    let wait = Duration::from_secs(10);
+    for (request, want) in [
+        ("GET /healthz HTTP/1.1\r\nConnection: close\r\n\r\n", "400"),
+        ("GET /v1/jobs HTTP/1.1\r\nConnection: close\r\n\r\n", "400"),
+        (
+            "GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n",
+            "400",
+        ),
+        ("GET /healthz HTTP/1.0\r\n\r\n", "200"),
+        (
+            "GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n",
+            "200",
+        ),
+    ] {
+        let got = exchange(c.addr, request, wait).await;
+        assert!(
+            status(&got).split(' ').nth(1) == Some(want),
+            "{request:?}: {got}"
+        );
+        if want == "400" {
+            assert!(got.contains(r#""field":"Host""#), "{got}");
+        }
+    }
+    let _ = c.stop.send(());
+    c.task.await.unwrap().unwrap();
+}
+
+#[tokio::test]
+async fn shutdown_closes_idle_connections_at_once() {
+    let c = start(ServeLimits::default()).await;
+    let mut idle = TcpStream::connect(c.addr).await.unwrap();
+    idle.write_all(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+        .await
+        .unwrap();
+    let mut buf = [0u8; 512];
+    let _ = idle.read(&mut buf).await.unwrap();
+    let t = Instant::now();
+    let _ = c.stop.send(());
+    c.task.await.unwrap().unwrap();
+    assert!(
+        t.elapsed() < Duration::from_secs(3),
+        "stopping took {:?} with an idle keep-alive connection open",
+        t.elapsed()
+    );
+    assert_eq!(idle.read(&mut buf).await.unwrap_or(0), 0, "closed");
+}
