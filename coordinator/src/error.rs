@@ -3,7 +3,7 @@
 //! text.
 
 use axum::extract::rejection::{JsonRejection, PathRejection};
-use axum::extract::FromRequestParts;
+use axum::extract::{FromRequest, FromRequestParts};
 use axum::http::request::Parts;
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
@@ -190,10 +190,24 @@ impl IntoResponse for AppError {
     }
 }
 
-/// JSON body extractor whose rejections use the app's error format.
-#[derive(axum::extract::FromRequest)]
-#[from_request(via(axum::Json), rejection(AppError))]
+/// JSON body extractor whose rejections use the app's error format. Every struct in the body
+/// is read from a JSON object only ([`raytile_proto::json::Strict`]): an array of a struct's
+/// fields is refused, as in scene files.
 pub struct Json<T>(pub T);
+
+impl<T, S> FromRequest<S> for Json<T>
+where
+    T: serde::de::DeserializeOwned,
+    S: Send + Sync,
+{
+    type Rejection = AppError;
+
+    async fn from_request(req: axum::extract::Request, state: &S) -> Result<Self, AppError> {
+        let axum::Json(raytile_proto::json::Strict(v)) =
+            axum::Json::<raytile_proto::json::Strict<T>>::from_request(req, state).await?;
+        Ok(Json(v))
+    }
+}
 
 impl<T: serde::Serialize> IntoResponse for Json<T> {
     fn into_response(self) -> Response {

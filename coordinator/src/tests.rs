@@ -473,6 +473,15 @@ async fn every_rejection_of_every_route_is_the_documented_json_error() {
                 ("not JSON", json, Body::from("not json"), 400, Some("body")),
                 ("no Content-Type", None, Body::from("{}"), 415, Some("body")),
                 ("a JSON array", json, Body::from("[1]"), 422, Some("body")),
+                // An object's values in order are not the object (serde's derived structs
+                // would take them: a worker named "w" with 2 threads).
+                (
+                    "its values as an array",
+                    json,
+                    Body::from(r#"["w", 2, 0]"#),
+                    422,
+                    Some("body"),
+                ),
                 (
                     "over the limit",
                     json,

@@ -25,6 +25,17 @@ pub fn from_objects<'de, T: serde::Deserialize<'de>, D: Deserializer<'de>>(
     T::deserialize(Objects(de))
 }
 
+/// `T` read with [`from_objects`]: a wrapper for places that take any `Deserialize` type (a
+/// web framework's JSON body extractor).
+#[derive(Debug)]
+pub struct Strict<T>(pub T);
+
+impl<'de, T: serde::Deserialize<'de>> serde::Deserialize<'de> for Strict<T> {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        from_objects(d).map(Strict)
+    }
+}
+
 macro_rules! forward {
     ($($method:ident)*) => {
         $(
