@@ -154,9 +154,89 @@ impl<'de, V: Visitor<'de>> Visitor<'de> for EnumOf<V> {
         self.visit_str(&v)
     }
 
-    fn visit_map<A: de::MapAccess<'de>>(self, map: A) -> Result<Self::Value, A::Error> {
-        self.visitor
-            .visit_enum(de::value::MapAccessDeserializer::new(Wrap(map)))
+    fn visit_map<A: de::MapAccess<'de>>(self, mut map: A) -> Result<Self::Value, A::Error> {
+        let value = self.visitor.visit_enum(OneMember(Wrap(&mut map)))?;
+        match map.next_key::<String>()? {
+            None => Ok(value),
+            Some(second) => Err(de::Error::custom(format!(
+                "expected an object of one member (the choice), found a second member `{second}`"
+            ))),
+        }
+    }
+}
+
+/// An enum read from an object of one member: its name is the choice, its value the choice's
+/// settings. An empty object is refused in those words here, a second member by
+/// [`EnumOf::visit_map`] (serde's own reader let the JSON parser refuse it as a "trailing
+/// comma").
+struct OneMember<A>(A);
+
+impl<'de, A: de::MapAccess<'de>> OneMember<A> {
+    fn value<T: DeserializeSeed<'de>>(mut self, seed: T) -> Result<T::Value, A::Error> {
+        self.0.next_value_seed(seed)
+    }
+}
+
+impl<'de, A: de::MapAccess<'de>> de::EnumAccess<'de> for OneMember<A> {
+    type Error = A::Error;
+    type Variant = Self;
+
+    fn variant_seed<V: DeserializeSeed<'de>>(
+        mut self,
+        seed: V,
+    ) -> Result<(V::Value, Self), A::Error> {
+        match self.0.next_key_seed(seed)? {
+            Some(choice) => Ok((choice, self)),
+            None => Err(de::Error::custom(
+                "expected an object of one member (the choice), found an empty object",
+            )),
+        }
+    }
+}
+
+impl<'de, A: de::MapAccess<'de>> de::VariantAccess<'de> for OneMember<A> {
+    type Error = A::Error;
+
+    fn unit_variant(self) -> Result<(), A::Error> {
+        self.value(std::marker::PhantomData::<()>)
+    }
+
+    fn newtype_variant_seed<T: DeserializeSeed<'de>>(self, seed: T) -> Result<T::Value, A::Error> {
+        self.value(seed)
+    }
+
+    fn tuple_variant<V: Visitor<'de>>(self, len: usize, visitor: V) -> Result<V::Value, A::Error> {
+        self.value(Tuple(len, visitor))
+    }
+
+    fn struct_variant<V: Visitor<'de>>(
+        self,
+        fields: &'static [&'static str],
+        visitor: V,
+    ) -> Result<V::Value, A::Error> {
+        self.value(Struct(fields, visitor))
+    }
+}
+
+/// A seed that reads a tuple of this length with this visitor.
+struct Tuple<V>(usize, V);
+
+impl<'de, V: Visitor<'de>> DeserializeSeed<'de> for Tuple<V> {
+    type Value = V::Value;
+
+    fn deserialize<D: Deserializer<'de>>(self, d: D) -> Result<V::Value, D::Error> {
+        d.deserialize_tuple(self.0, self.1)
+    }
+}
+
+/// A seed that reads a struct of these fields with this visitor.
+struct Struct<V>(&'static [&'static str], V);
+
+impl<'de, V: Visitor<'de>> DeserializeSeed<'de> for Struct<V> {
+    type Value = V::Value;
+
+    fn deserialize<D: Deserializer<'de>>(self, d: D) -> Result<V::Value, D::Error> {
+        d.deserialize_struct("", self.0, self.1)
     }
 }
 
@@ -511,11 +591,30 @@ mod tests {
             read(r#"{"camera": {"position": [0, 0, 4]}, "kind": "boxy"}"#).unwrap_err(),
             "kind: unknown variant `boxy`, expected one of `plain`, `scaled`, `boxed`"
         );
-        // serde_json refuses a second entry after the variant's value.
-        assert!(read(
-            r#"{"camera": {"position": [0, 0, 4]}, "kind": {"scaled": 2, "boxed": {"size": 1}}}"#
-        )
-        .is_err());
+        // One member names the choice: a second, or none, is refused in those words.
+        assert_eq!(
+            read(
+                r#"{"camera": {"position": [0, 0, 4]}, "kind": {"scaled": 2, "boxed": {"size": 1}}}"#
+            )
+            .unwrap_err(),
+            "kind: expected an object of one member (the choice), found a second member `boxed`"
+        );
+        assert_eq!(
+            read(r#"{"camera": {"position": [0, 0, 4]}, "kind": {"plain": null, "x": 1}}"#)
+                .unwrap_err(),
+            "kind: expected an object of one member (the choice), found a second member `x`"
+        );
+        assert_eq!(
+            read(r#"{"camera": {"position": [0, 0, 4]}, "kind": {}}"#).unwrap_err(),
+            "kind: expected an object of one member (the choice), found an empty object"
+        );
+        // A choice without settings may be an object naming it with null.
+        assert_eq!(
+            read(r#"{"camera": {"position": [0, 0, 4]}, "kind": {"plain": null}}"#)
+                .unwrap()
+                .kind,
+            Kind::Plain
+        );
         // A struct variant's fields: an object, and its unknown fields refused.
         assert_eq!(
             read(r#"{"camera": {"position": [0, 0, 4]}, "kind": {"boxed": {"size": 1, "x": 1}}}"#)
