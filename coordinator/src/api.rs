@@ -5,6 +5,7 @@ use crate::compose;
 use crate::error::{AppError, Json, Path, Query};
 use crate::scenes::{self, UploadQuery};
 use crate::sched::{Delivery, Heartbeat, ResultOutcome, TaskLayout};
+use crate::store::Staged;
 use crate::AppState;
 use axum::body::Body;
 use axum::extract::{DefaultBodyLimit, Request, State};
@@ -540,18 +541,19 @@ async fn job_image(
             )))
         }
     };
-    let (layout, conn) = {
+    let (layout, conn, results) = {
         let s = state.sched();
         // Looked up again: the job may have been purged while this request waited.
         let layout = s.layout(&id).ok_or_else(|| no_job(&id))?;
-        (layout, s.reader().map_err(AppError::internal)?)
+        let conn = s.reader().map_err(AppError::internal)?;
+        (layout, conn, s.results_dir())
     };
     let job_id = id.clone();
     // Pass by pass, one stored tile decoded at a time: the frame and one tile in memory.
     let bytes = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, AppError> {
         let _permit = permit;
         let film = compose::compose_by_pass(&layout, |tasks, add| {
-            crate::store::for_each_result(&conn, &job_id, tasks, |idx, data| {
+            crate::store::for_each_result(&conn, &results, &job_id, tasks, |idx, data| {
                 match proto::tile::decode(data) {
                     Ok((acc, _)) => add(idx, acc),
                     Err(e) => tracing::error!(job = %job_id, idx, "stored result unreadable: {e}"),
@@ -880,11 +882,25 @@ async fn upload_result(
         }
         return Err(AppError::invalid("body", message));
     }
+    // A large result is written to a file now, before the scheduler's lock: the store then
+    // only moves it into place, and other requests do not wait for hundreds of MB to be
+    // written.
+    let buf = Arc::new(buf);
+    let file = if buf.len() >= state.cfg.result_file_bytes {
+        let (dir, bytes) = (state.cfg.data_dir.clone(), buf.clone());
+        let staged = tokio::task::spawn_blocking(move || Staged::write(&dir, &bytes))
+            .await
+            .map_err(AppError::internal)?;
+        Some(staged.map_err(AppError::StoreUnavailable)?)
+    } else {
+        None
+    };
     let delivery = Delivery {
         worker: &worker,
         tile: acc.tile,
         pass,
         bytes: &buf,
+        file: file.as_ref(),
     };
     let now = state.now();
     let outcome = state.sched().complete(&job, task, delivery, now)?;

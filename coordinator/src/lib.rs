@@ -192,6 +192,9 @@ pub struct Config {
     /// How long an image request waits for one of the others to end before it is answered
     /// 503 (retryable, with `Retry-After`).
     pub image_wait: Duration,
+    /// Results of this many bytes or more are stored as files beside the database, written
+    /// before the scheduler's lock is taken, rather than in it (default 1 MiB).
+    pub result_file_bytes: usize,
     /// Bounds on connections: how many at once, how long a client may take to send headers.
     pub serve_limits: listen::ServeLimits,
     /// The time source of every scheduler call (the system clock; tests inject their own).
@@ -216,6 +219,7 @@ impl Config {
             scene_loader: core_scene_loader(SceneLimits::default()),
             max_parallel_images: 2,
             image_wait: Duration::from_secs(30),
+            result_file_bytes: 1 << 20,
             serve_limits: listen::ServeLimits::default(),
             clock: clock::system_clock(),
         }

@@ -1,4 +1,8 @@
 //! The SQLite store under `--data-dir`: jobs, task states, workers and finished tile data.
+//! A large finished tile (a `bdpt` result with its splats can be hundreds of MB) is kept as a
+//! file under `results/` that its row names: it is written and synced before the scheduler's
+//! lock is taken ([`Staged`]), and the transaction only moves it into place, so the lock is
+//! never held while hundreds of MB go to disk.
 //!
 //! The scheduler writes through this module on every state change, so a restarted coordinator
 //! finds every job, every finished tile and every lease that was out.
@@ -9,7 +13,9 @@
 
 use raytile_proto::JobState;
 use rusqlite::{params, Connection, OptionalExtension};
+use std::io::Write as _;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Schema, applied on open (idempotent).
 const SCHEMA: &str = "
@@ -40,6 +46,7 @@ CREATE TABLE IF NOT EXISTS results (
     job_id TEXT NOT NULL,
     idx INTEGER NOT NULL,
     data BLOB NOT NULL,
+    file TEXT,
     PRIMARY KEY (job_id, idx)
 );
 CREATE TABLE IF NOT EXISTS workers (
@@ -173,6 +180,8 @@ pub struct TaskRow {
 pub struct Store {
     conn: Connection,
     path: PathBuf,
+    /// Where results stored as files live (`results/` beside the database).
+    results: PathBuf,
     #[cfg(test)]
     faults: Faults,
 }
@@ -184,14 +193,64 @@ impl Store {
         let conn = Connection::open(&path)?;
         conn.busy_timeout(std::time::Duration::from_secs(10))?;
         conn.execute_batch(SCHEMA)?;
+        // A database of a release before result files: its rows hold their data.
+        let has_file: bool = conn.query_row(
+            "SELECT COUNT(*) FROM pragma_table_info('results') WHERE name = 'file'",
+            [],
+            |r| r.get::<_, i64>(0).map(|n| n > 0),
+        )?;
+        if !has_file {
+            conn.execute_batch("ALTER TABLE results ADD COLUMN file TEXT")?;
+        }
+        let results = dir.join("results");
+        std::fs::create_dir_all(&results).map_err(io_error)?;
         let mut store = Store {
             conn,
             path,
+            results,
             #[cfg(test)]
             faults: Faults::default(),
         };
         store.discard_other_renderer_tiles()?;
+        store.remove_unnamed_files()?;
         Ok(store)
+    }
+
+    /// Where results stored as files live.
+    pub fn results_dir(&self) -> &Path {
+        &self.results
+    }
+
+    /// Removes result files no row names: moved into place by a transaction that then failed,
+    /// or left by a job whose rows went (a purge, or tiles of another renderer version)
+    /// while the coordinator stopped before it removed them.
+    fn remove_unnamed_files(&self) -> rusqlite::Result<()> {
+        let mut st = self
+            .conn
+            .prepare("SELECT file FROM results WHERE file IS NOT NULL")?;
+        let named: std::collections::HashSet<String> =
+            st.query_map([], |r| r.get(0))?.collect::<Result<_, _>>()?;
+        let Ok(jobs) = std::fs::read_dir(&self.results) else {
+            return Ok(());
+        };
+        for job in jobs.flatten() {
+            let dir = job.path();
+            let job_name = job.file_name().to_string_lossy().into_owned();
+            let files = std::fs::read_dir(&dir).into_iter().flatten().flatten();
+            let mut kept = 0;
+            for f in files {
+                let name = format!("{job_name}/{}", f.file_name().to_string_lossy());
+                if named.contains(&name) {
+                    kept += 1;
+                } else if let Err(e) = std::fs::remove_file(f.path()) {
+                    tracing::warn!(path = %f.path().display(), "cannot remove: {e}");
+                }
+            }
+            if kept == 0 {
+                let _ = std::fs::remove_dir(&dir);
+            }
+        }
+        Ok(())
     }
 
     /// Tiles of unfinished jobs stored by a coordinator of another renderer version
@@ -280,13 +339,59 @@ impl Store {
         if writes.is_empty() {
             return Ok(());
         }
-        #[cfg(test)]
-        self.faults.check()?;
-        let tx = self.conn.transaction()?;
+        // Result files are moved into place first (a rename within the data directory), and
+        // removed again if the transaction fails: a row never names a missing file.
+        let mut placed = Vec::new();
         for w in writes {
-            apply(&tx, w)?;
+            if let Write::Result {
+                job,
+                row,
+                file: Some(staged),
+                ..
+            } = *w
+            {
+                match self.place(job, row.idx, staged) {
+                    Ok(p) => placed.push(p),
+                    Err(e) => {
+                        remove_files(&placed);
+                        return Err(io_error(e));
+                    }
+                }
+            }
         }
-        tx.commit()
+        let done = (|| {
+            #[cfg(test)]
+            self.faults.check()?;
+            let tx = self.conn.transaction()?;
+            for w in writes {
+                apply(&tx, w)?;
+            }
+            tx.commit()
+        })();
+        if done.is_err() {
+            remove_files(&placed);
+        }
+        done?;
+        for w in writes {
+            if let Write::DeleteJob(job) = *w {
+                let dir = self.results.join(job);
+                if let Err(e) = std::fs::remove_dir_all(&dir) {
+                    if e.kind() != std::io::ErrorKind::NotFound {
+                        tracing::warn!(path = %dir.display(), "cannot remove: {e}");
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Moves `staged` to its place as task `idx` of `job`'s result file.
+    fn place(&self, job: &str, idx: u32, staged: &Staged) -> std::io::Result<PathBuf> {
+        let dir = self.results.join(job);
+        std::fs::create_dir_all(&dir)?;
+        let path = self.results.join(result_file_name(job, idx, staged));
+        std::fs::rename(&staged.path, &path)?;
+        Ok(path)
     }
 
     /// A switch that makes the next writes fail as a full disk would (tests only).
@@ -399,6 +504,8 @@ pub enum Write<'a> {
         row: &'a TaskRow,
         /// The encoded tile sums.
         data: &'a [u8],
+        /// The same bytes, already written to a file: stored as that file instead.
+        file: Option<&'a Staged>,
     },
     /// A worker's failure count on a job.
     Blocked {
@@ -463,10 +570,19 @@ fn apply(tx: &Connection, w: &Write<'_>) -> rusqlite::Result<()> {
             )?;
         }
         Write::Task { job, row } => write_task(tx, job, row)?,
-        Write::Result { job, row, data } => {
+        Write::Result {
+            job,
+            row,
+            data,
+            file,
+        } => {
+            let (data, file) = match file {
+                Some(staged) => (&[][..], Some(result_file_name(job, row.idx, staged))),
+                None => (data, None),
+            };
             tx.execute(
-                "INSERT OR IGNORE INTO results (job_id, idx, data) VALUES (?1, ?2, ?3)",
-                params![job, row.idx, data],
+                "INSERT OR IGNORE INTO results (job_id, idx, data, file) VALUES (?1, ?2, ?3, ?4)",
+                params![job, row.idx, data, file],
             )?;
             write_task(tx, job, row)?;
         }
@@ -545,24 +661,89 @@ impl Faults {
     }
 }
 
-/// Reads the stored results of a job's tasks `tasks` as (task index, bytes), through `conn`,
-/// calling `f` for each so the caller never holds them all at once.
+/// Reads the stored results of a job's tasks `tasks` as (task index, bytes), through `conn`
+/// (result files from `results`, [`Store::results_dir`]), calling `f` for each so the caller
+/// never holds them all at once.
 pub fn for_each_result(
     conn: &Connection,
+    results: &Path,
     job: &str,
     tasks: std::ops::Range<usize>,
     mut f: impl FnMut(u32, &[u8]),
 ) -> rusqlite::Result<()> {
     let mut st = conn.prepare_cached(
-        "SELECT idx, data FROM results WHERE job_id = ?1 AND idx >= ?2 AND idx < ?3 ORDER BY idx",
+        "SELECT idx, data, file FROM results WHERE job_id = ?1 AND idx >= ?2 AND idx < ?3
+         ORDER BY idx",
     )?;
     let mut rows = st.query(params![job, tasks.start as i64, tasks.end as i64])?;
     while let Some(r) = rows.next()? {
         let idx: u32 = r.get(0)?;
-        let data = r.get_ref(1)?.as_blob()?;
-        f(idx, data);
+        match r.get_ref(2)?.as_str_or_null()? {
+            Some(file) => f(idx, &std::fs::read(results.join(file)).map_err(io_error)?),
+            None => f(idx, r.get_ref(1)?.as_blob()?),
+        }
     }
     Ok(())
+}
+
+/// A result written to a file in the data directory's `tmp/` and synced, before the
+/// scheduler's lock is taken; a [`Write::Result`] naming it moves it into `results/`.
+/// Dropped unused, it removes its file.
+#[derive(Debug)]
+pub struct Staged {
+    path: PathBuf,
+    /// Unique among this process's staged files: part of the stored file's name.
+    name: String,
+}
+
+impl Staged {
+    /// Writes `bytes` to a new file in `data_dir/tmp/` and syncs it to disk. Blocks: call it
+    /// off the async runtime's threads.
+    pub fn write(data_dir: &Path, bytes: &[u8]) -> rusqlite::Result<Staged> {
+        static NEXT: AtomicU64 = AtomicU64::new(0);
+        let name = format!(
+            "{}-{}",
+            std::process::id(),
+            NEXT.fetch_add(1, Ordering::Relaxed)
+        );
+        let staged = Staged {
+            path: data_dir.join("tmp").join(format!("result-{name}")),
+            name,
+        };
+        let mut f = std::fs::File::create(&staged.path).map_err(io_error)?;
+        f.write_all(bytes).map_err(io_error)?;
+        f.sync_all().map_err(io_error)?;
+        Ok(staged)
+    }
+}
+
+impl Drop for Staged {
+    fn drop(&mut self) {
+        // Moved into place, it is no longer there.
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// A result file's name under `results/`, as its row stores it: `JOB/TASK-UNIQUE`.
+fn result_file_name(job: &str, idx: u32, staged: &Staged) -> String {
+    format!("{job}/{idx}-{}", staged.name)
+}
+
+fn remove_files(paths: &[PathBuf]) {
+    for p in paths {
+        let _ = std::fs::remove_file(p);
+    }
+}
+
+/// A file error as the store's error: a full disk reads as SQLite's own, so it is answered
+/// the same way (503, retryable).
+fn io_error(e: std::io::Error) -> rusqlite::Error {
+    let code = if e.raw_os_error() == Some(libc::ENOSPC) {
+        rusqlite::ffi::SQLITE_FULL
+    } else {
+        rusqlite::ffi::SQLITE_IOERR
+    };
+    rusqlite::Error::SqliteFailure(rusqlite::ffi::Error::new(code), Some(e.to_string()))
 }
 
 #[cfg(test)]
@@ -641,5 +822,79 @@ mod tests {
         let mut store = Store::open(dir.path()).unwrap();
         assert_eq!(store.next_epoch(5).unwrap(), 1002);
         assert_eq!(store.next_epoch(9000).unwrap(), 9000);
+    }
+
+    fn results(store: &Store, job: &str) -> Vec<(u32, Vec<u8>)> {
+        let mut out = Vec::new();
+        for_each_result(&store.conn, store.results_dir(), job, 0..100, |i, d| {
+            out.push((i, d.to_vec()))
+        })
+        .unwrap();
+        out
+    }
+
+    fn done(idx: u32) -> TaskRow {
+        TaskRow {
+            idx,
+            state: StoredTask::Done { worker: "w".into() },
+            failures: 0,
+        }
+    }
+
+    /// A database of a release before result files (no `file` column) opens, and its results
+    /// read back beside new ones stored as files.
+    #[test]
+    fn a_database_from_before_result_files_reads_on() {
+        let dir = tempfile::tempdir().unwrap();
+        let old = Connection::open(dir.path().join("raytile.sqlite3")).unwrap();
+        old.execute_batch(
+            "CREATE TABLE results (job_id TEXT NOT NULL, idx INTEGER NOT NULL,
+                 data BLOB NOT NULL, PRIMARY KEY (job_id, idx));
+             INSERT INTO results VALUES ('j', 0, x'0102');",
+        )
+        .unwrap();
+        drop(old);
+        let mut store = Store::open(dir.path()).unwrap();
+        std::fs::create_dir_all(dir.path().join("tmp")).unwrap();
+        let staged = Staged::write(dir.path(), &[7, 8, 9]).unwrap();
+        let row = done(1);
+        store
+            .write(&[Write::Result {
+                job: "j",
+                row: &row,
+                data: &[7, 8, 9],
+                file: Some(&staged),
+            }])
+            .unwrap();
+        assert_eq!(results(&store, "j"), [(0, vec![1, 2]), (1, vec![7, 8, 9])]);
+    }
+
+    /// A write that fails leaves no result file behind, and the staged bytes are gone with
+    /// their `Staged`: the worker's retry brings them again.
+    #[test]
+    fn a_failed_write_leaves_no_result_file() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir_all(dir.path().join("tmp")).unwrap();
+        let mut store = Store::open(dir.path()).unwrap();
+        let staged = Staged::write(dir.path(), &[1; 64]).unwrap();
+        let row = done(0);
+        let write = Write::Result {
+            job: "j",
+            row: &row,
+            data: &[1; 64],
+            file: Some(&staged),
+        };
+        store.faults().fail_next(1);
+        assert!(store.write(&[write]).is_err());
+        let left: Vec<_> = std::fs::read_dir(dir.path().join("results/j"))
+            .unwrap()
+            .collect();
+        assert!(left.is_empty(), "{left:?}");
+        assert!(results(&store, "j").is_empty());
+        drop(staged);
+        assert_eq!(
+            std::fs::read_dir(dir.path().join("tmp")).unwrap().count(),
+            0
+        );
     }
 }

@@ -1646,3 +1646,95 @@ async fn a_result_for_a_settled_task_is_dropped_unread() {
         "{body}"
     );
 }
+
+/// Results at or over `Config::result_file_bytes` are files under `results/`, written before
+/// the scheduler's lock is taken: the frame is the same as from results in the database, after
+/// a restart too; files no row names are removed at start; a purge removes the job's files.
+#[tokio::test]
+async fn results_stored_as_files_make_the_same_frame_and_go_with_their_job() {
+    async fn render(dir: &std::path::Path, file_bytes: usize) -> (String, Vec<u8>) {
+        let mut c = Config::new(dir);
+        c.result_file_bytes = file_bytes;
+        c.scene_loader = Arc::new(|_p: &std::path::Path| Ok(LoadedScene::default()));
+        let st = AppState::open(c).unwrap();
+        let (code, job) =
+            empty_scene_job(&st, r#""width": 4, "height": 2, "spp": 1, "tile_size": 16"#).await;
+        assert_eq!(code, StatusCode::CREATED, "{job}");
+        let job = job["id"].as_str().unwrap().to_string();
+        let (_, w) = register_worker(&st).await;
+        let worker = w["worker_id"].as_str().unwrap();
+        let (_, lease) = call(&st, post(&format!("/v1/workers/{worker}/lease"), "")).await;
+        let pixels = (0..8).map(|i| [i as f32 / 8.0, 0.5, 0.25, 1.0]).collect();
+        let upload = Request::put(format!(
+            "/v1/jobs/{job}/tasks/{}/result?worker={worker}&lease={}",
+            lease["task"],
+            lease["lease_id"].as_str().unwrap()
+        ))
+        .body(Body::from(result_4x2(pixels, 0)))
+        .unwrap();
+        let (code, body) = call(&st, upload).await;
+        assert_eq!((code, &body["accepted"]), (StatusCode::OK, &true.into()));
+        (job.clone(), image(&st, &job).await)
+    }
+    async fn image(st: &AppState, job: &str) -> Vec<u8> {
+        let uri = format!("/v1/jobs/{job}/image?format=exr");
+        let resp = app(st.clone()).oneshot(get(&uri)).await.unwrap();
+        assert_eq!(resp.status(), StatusCode::OK);
+        axum::body::to_bytes(resp.into_body(), usize::MAX)
+            .await
+            .unwrap()
+            .to_vec()
+    }
+    let files = |d: &std::path::Path| -> Vec<String> {
+        let mut v: Vec<String> = walk(d)
+            .into_iter()
+            .map(|p| p.strip_prefix(d).unwrap().display().to_string())
+            .collect();
+        v.sort();
+        v
+    };
+    let in_db = tempfile::tempdir().unwrap();
+    let (_, want) = render(in_db.path(), usize::MAX).await;
+    assert!(files(&in_db.path().join("results")).is_empty());
+
+    let dir = tempfile::tempdir().unwrap();
+    let (job, got) = render(dir.path(), 0).await;
+    assert_eq!(got, want, "the same frame from a result file");
+    let results = dir.path().join("results");
+    let stored = files(&results);
+    assert_eq!(stored.len(), 1, "{stored:?}");
+    assert!(stored[0].starts_with(&format!("{job}/0-")), "{stored:?}");
+    assert!(
+        files(&dir.path().join("tmp")).is_empty(),
+        "the staged file moved"
+    );
+
+    // Restarted, with files no row names: those go, the frame stays.
+    std::fs::write(results.join(&job).join("0-stray"), b"x").unwrap();
+    std::fs::create_dir(results.join("j-gone")).unwrap();
+    std::fs::write(results.join("j-gone").join("3-1"), b"x").unwrap();
+    let mut c = Config::new(dir.path());
+    c.scene_loader = Arc::new(|_p: &std::path::Path| Ok(LoadedScene::default()));
+    let st = AppState::open(c).unwrap();
+    assert_eq!(files(&results), stored);
+    assert_eq!(image(&st, &job).await, want, "after a restart");
+
+    let purge = Request::delete(format!("/v1/jobs/{job}?purge=true"))
+        .body(Body::empty())
+        .unwrap();
+    assert_eq!(call(&st, purge).await.0, StatusCode::OK);
+    assert!(!results.join(&job).exists(), "purged with its job");
+}
+
+/// Every file under `d`, at any depth.
+fn walk(d: &std::path::Path) -> Vec<std::path::PathBuf> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(d).into_iter().flatten().flatten() {
+        if e.file_type().unwrap().is_dir() {
+            out.extend(walk(&e.path()));
+        } else {
+            out.push(e.path());
+        }
+    }
+    out
+}

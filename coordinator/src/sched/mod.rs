@@ -46,6 +46,7 @@ use raytile_core::{RenderSettings, Tile};
 use raytile_proto::{JobState, JobStatus};
 use state::{JobEvent, JobLife, Outcome, TaskEvent, TaskState};
 use std::collections::{HashMap, HashSet};
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 use workers::{WorkerRec, Workers};
@@ -96,6 +97,8 @@ pub struct Delivery<'a> {
     pub pass: u32,
     /// The encoded result, stored as is.
     pub bytes: &'a [u8],
+    /// The same bytes already in a file (a large result): stored as that file.
+    pub file: Option<&'a crate::store::Staged>,
 }
 
 /// What a heartbeat tells the worker.
@@ -284,6 +287,11 @@ impl Sched {
     /// hold the scheduler's lock.
     pub fn reader(&self) -> rusqlite::Result<rusqlite::Connection> {
         self.store.reader()
+    }
+
+    /// Where results stored as files live.
+    pub fn results_dir(&self) -> PathBuf {
+        self.store.results_dir().to_path_buf()
     }
 
     /// A subscriber to the change events, and the id of the last event before it.
@@ -605,6 +613,7 @@ impl Sched {
             job: job_id,
             row: &row,
             data: d.bytes,
+            file: d.file,
         }];
         writes.extend(finished.as_ref().map(|l| life_write(job_id, l)));
         // Stored first: if this fails, nothing changed and the worker's retry is accepted.

@@ -59,6 +59,7 @@ fn deliver(s: &mut Sched, job: &str, idx: u32, worker: &str, now: Now) -> Result
         tile,
         pass,
         bytes: &bytes,
+        file: None,
     };
     s.complete(job, idx, d, now).unwrap()
 }
@@ -216,6 +217,7 @@ fn expired_leases_are_requeued_and_late_results_are_duplicates() {
         tile: other,
         pass,
         bytes: &[],
+        file: None,
     };
     let Err(SchedError::Mismatch(m)) = s.complete(&job, g.task, d, now) else {
         panic!("a result for other pixels must be refused");
@@ -694,6 +696,7 @@ fn a_failed_write_changes_nothing_and_the_retry_applies_once() {
             tile,
             pass,
             bytes: &bytes,
+            file: None,
         };
         s.complete(&job, g.task, d, now)
     });
@@ -766,6 +769,7 @@ fn the_last_result_finishes_the_job_only_when_stored() {
             tile,
             pass,
             bytes: &bytes,
+            file: None,
         };
         s.complete(&job, g.task, d, now)
     });
