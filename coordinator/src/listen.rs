@@ -47,7 +47,7 @@ impl Default for ServeLimits {
 }
 
 /// Serves `app` on `listener` until `stop` turns `true`, then waits for the open connections
-/// to finish their requests in progress.
+/// to finish their requests in progress. Dropped before that, it closes every connection.
 pub async fn serve(
     listener: TcpListener,
     app: Router,
@@ -56,7 +56,10 @@ pub async fn serve(
 ) {
     let max = limits.max_connections.clamp(1, Semaphore::MAX_PERMITS);
     let slots = Arc::new(Semaphore::new(max));
+    // The connections' tasks, aborted when this future is dropped.
+    let mut conns = tokio::task::JoinSet::new();
     loop {
+        while conns.try_join_next().is_some() {}
         let slot = tokio::select! {
             s = slots.clone().acquire_owned() => s.expect("the semaphore is never closed"),
             () = stopped(&mut stop) => break,
@@ -74,15 +77,14 @@ pub async fn serve(
         let _ = stream.set_nodelay(true);
         let app = app.clone();
         let stop = stop.clone();
-        tokio::spawn(async move {
+        conns.spawn(async move {
             connection(stream, app, limits.header_timeout, stop).await;
             tracing::trace!(%peer, "connection closed");
             drop(slot);
         });
     }
     drop(listener);
-    // Every connection holds a slot until it ends.
-    let _ = slots.acquire_many(max as u32).await;
+    while conns.join_next().await.is_some() {}
 }
 
 /// Serves one connection until it closes, or until `stop` and its request in progress ends.
@@ -102,8 +104,9 @@ async fn connection(
         }
     });
     let mut http = hyper::server::conn::http1::Builder::new();
+    // Capped at a day: hyper adds it to the clock's reading, which must not overflow.
     http.timer(TokioTimer::new())
-        .header_read_timeout(header_timeout);
+        .header_read_timeout(header_timeout.min(Duration::from_secs(86_400)));
     let conn = http.serve_connection(TokioIo::new(stream), service);
     let mut conn = std::pin::pin!(conn);
     tokio::select! {

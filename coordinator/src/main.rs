@@ -157,8 +157,10 @@ async fn real_main(a: Args) -> anyhow::Result<()> {
         max_connections: a.max_connections.max(1),
         header_timeout: secs(a.header_timeout, "header-timeout")?,
     };
-    if cfg.serve_limits.header_timeout.is_zero() {
-        anyhow::bail!("--header-timeout: must be more than 0 seconds");
+    if cfg.serve_limits.header_timeout.is_zero()
+        || cfg.serve_limits.header_timeout > Duration::from_secs(86_400)
+    {
+        anyhow::bail!("--header-timeout: must be more than 0 and at most 86400 seconds");
     }
     let addr: std::net::SocketAddr = a
         .listen

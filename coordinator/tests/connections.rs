@@ -75,6 +75,16 @@ async fn a_client_that_does_not_finish_its_headers_is_cut_off() {
     read_to_close(&mut idle, Duration::from_secs(10)).await;
     assert!(t.elapsed() < Duration::from_secs(5), "{:?}", t.elapsed());
 
+    // A keep-alive connection is closed when it stays idle that long after a request.
+    let mut kept = TcpStream::connect(c.addr).await.unwrap();
+    kept.write_all(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+        .await
+        .unwrap();
+    let t = Instant::now();
+    let got = read_to_close(&mut kept, Duration::from_secs(10)).await;
+    assert_eq!(status(&got), "HTTP/1.1 200 OK", "{got}");
+    assert!(t.elapsed() < Duration::from_secs(5), "{:?}", t.elapsed());
+
     // A complete request in time is served.
     let ok = exchange(
         c.addr,
@@ -174,4 +184,30 @@ async fn shutdown_closes_idle_connections_at_once() {
         t.elapsed()
     );
     assert_eq!(idle.read(&mut buf).await.unwrap_or(0), 0, "closed");
+}
+
+/// A request still in progress 5 s after shutdown began (here an upload whose body stopped
+/// coming) does not keep the coordinator from stopping, and its connection is closed then.
+#[tokio::test]
+async fn a_request_still_running_is_cut_off_by_the_hard_stop() {
+    let c = start(ServeLimits::default()).await;
+    let mut slow = TcpStream::connect(c.addr).await.unwrap();
+    slow.write_all(
+        b"POST /v1/scenes HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 1000\r\n\r\n{\"objects\"",
+    )
+    .await
+    .unwrap();
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let t = Instant::now();
+    let _ = c.stop.send(());
+    c.task.await.unwrap().unwrap();
+    let waited = t.elapsed();
+    assert!(
+        waited >= Duration::from_secs(4) && waited < Duration::from_secs(8),
+        "{waited:?}"
+    );
+    let mut got = Vec::new();
+    let closed = tokio::time::timeout(Duration::from_secs(2), slow.read_to_end(&mut got)).await;
+    assert!(closed.is_ok(), "the connection is still open");
+    assert!(!String::from_utf8_lossy(&got).contains("201"));
 }
