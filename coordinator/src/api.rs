@@ -567,6 +567,10 @@ async fn job_image(
     })
     .await
     .map_err(AppError::internal)??;
+    // Purged while it was made: its result files may have gone with it.
+    if state.sched().layout(&id).is_none() {
+        return Err(no_job(&id));
+    }
     Ok((
         [(header::CONTENT_TYPE, compose::content_type(format))],
         bytes,

@@ -213,12 +213,65 @@ impl Store {
         };
         store.discard_other_renderer_tiles()?;
         store.remove_unnamed_files()?;
+        store.requeue_missing_files()?;
         Ok(store)
     }
 
     /// Where results stored as files live.
     pub fn results_dir(&self) -> &Path {
         &self.results
+    }
+
+    /// Rows whose result file is gone (removed by hand, or lost by a file system that did not
+    /// keep a synced rename) are deleted, and their tasks of unfinished jobs queued again: the
+    /// tiles are rendered again rather than missing from the frame. A finished job's frame
+    /// goes without them, with an error in the log. Returns how many rows were deleted.
+    fn requeue_missing_files(&mut self) -> rusqlite::Result<usize> {
+        let missing: Vec<(String, u32)> = {
+            let mut st = self
+                .conn
+                .prepare("SELECT job_id, idx, file FROM results WHERE file IS NOT NULL")?;
+            let rows = st.query_map([], |r| {
+                Ok((r.get::<_, String>(0)?, r.get(1)?, r.get::<_, String>(2)?))
+            })?;
+            let mut out = Vec::new();
+            for row in rows {
+                let (job, idx, file) = row?;
+                if !self.results.join(&file).exists() {
+                    out.push((job, idx));
+                }
+            }
+            out
+        };
+        if missing.is_empty() {
+            return Ok(0);
+        }
+        let tx = self.conn.transaction()?;
+        for (job, idx) in &missing {
+            tx.execute(
+                "DELETE FROM results WHERE job_id = ?1 AND idx = ?2",
+                params![job, idx],
+            )?;
+            let requeued = tx.execute(
+                &format!(
+                    "UPDATE tasks SET state = '{TASK_QUEUED}', worker = NULL, lease = NULL
+                     WHERE job_id = ?1 AND idx = ?2 AND job_id IN
+                         (SELECT id FROM jobs WHERE state IN ('{}', '{}'))",
+                    job_state_name(JobState::Queued),
+                    job_state_name(JobState::Running)
+                ),
+                params![job, idx],
+            )?;
+            if requeued == 0 {
+                tracing::error!(%job, idx, "the result file of a finished job's task is missing");
+            }
+        }
+        tx.commit()?;
+        tracing::warn!(
+            count = missing.len(),
+            "result files named by the database are missing: their tasks are queued again"
+        );
+        Ok(missing.len())
     }
 
     /// Removes result files no row names: moved into place by a transaction that then failed,
@@ -230,6 +283,7 @@ impl Store {
             .prepare("SELECT file FROM results WHERE file IS NOT NULL")?;
         let named: std::collections::HashSet<String> =
             st.query_map([], |r| r.get(0))?.collect::<Result<_, _>>()?;
+        drop(st);
         let Ok(jobs) = std::fs::read_dir(&self.results) else {
             return Ok(());
         };
@@ -350,12 +404,9 @@ impl Store {
                 ..
             } = *w
             {
-                match self.place(job, row.idx, staged) {
-                    Ok(p) => placed.push(p),
-                    Err(e) => {
-                        remove_files(&placed);
-                        return Err(io_error(e));
-                    }
+                if let Err(e) = self.place(job, row.idx, staged, &mut placed) {
+                    remove_files(&placed);
+                    return Err(io_error(e));
                 }
             }
         }
@@ -374,24 +425,57 @@ impl Store {
         done?;
         for w in writes {
             if let Write::DeleteJob(job) = *w {
-                let dir = self.results.join(job);
-                if let Err(e) = std::fs::remove_dir_all(&dir) {
-                    if e.kind() != std::io::ErrorKind::NotFound {
-                        tracing::warn!(path = %dir.display(), "cannot remove: {e}");
-                    }
-                }
+                self.remove_job_files(job);
             }
         }
         Ok(())
     }
 
-    /// Moves `staged` to its place as task `idx` of `job`'s result file.
-    fn place(&self, job: &str, idx: u32, staged: &Staged) -> std::io::Result<PathBuf> {
+    /// Removes a purged job's result files: its folder is renamed aside at once (a name no
+    /// row uses), and emptied on a thread of its own, since unlinking many GB can take long
+    /// and the caller holds the scheduler's lock. What a stop interrupts, the next start
+    /// removes ([`Store::remove_unnamed_files`]).
+    fn remove_job_files(&self, job: &str) {
+        static NEXT: AtomicU64 = AtomicU64::new(0);
+        let dir = self.results.join(job);
+        let aside = self.results.join(format!(
+            ".purged-{}-{}",
+            std::process::id(),
+            NEXT.fetch_add(1, Ordering::Relaxed)
+        ));
+        match std::fs::rename(&dir, &aside) {
+            Ok(()) => {
+                std::thread::spawn(move || {
+                    if let Err(e) = std::fs::remove_dir_all(&aside) {
+                        tracing::warn!(path = %aside.display(), "cannot remove: {e}");
+                    }
+                });
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => tracing::warn!(path = %dir.display(), "cannot remove: {e}"),
+        }
+    }
+
+    /// Moves `staged` to its place as task `idx` of `job`'s result file, and syncs the folders
+    /// that name it: the row that will name the file is not written before the file's name is
+    /// on disk (its bytes were synced when it was staged).
+    /// The file's new path is pushed to `placed` as soon as it is there.
+    fn place(
+        &self,
+        job: &str,
+        idx: u32,
+        staged: &Staged,
+        placed: &mut Vec<PathBuf>,
+    ) -> std::io::Result<()> {
         let dir = self.results.join(job);
         std::fs::create_dir_all(&dir)?;
         let path = self.results.join(result_file_name(job, idx, staged));
         std::fs::rename(&staged.path, &path)?;
-        Ok(path)
+        placed.push(path);
+        for d in [&dir, &self.results] {
+            std::fs::File::open(d)?.sync_all()?;
+        }
+        Ok(())
     }
 
     /// A switch that makes the next writes fail as a full disk would (tests only).
@@ -679,7 +763,15 @@ pub fn for_each_result(
     while let Some(r) = rows.next()? {
         let idx: u32 = r.get(0)?;
         match r.get_ref(2)?.as_str_or_null()? {
-            Some(file) => f(idx, &std::fs::read(results.join(file)).map_err(io_error)?),
+            Some(file) => match std::fs::read(results.join(file)) {
+                Ok(data) => f(idx, &data),
+                // Purged while the frame was being made, or removed by hand: the frame goes
+                // without it, as with a stored result that does not decode.
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                    tracing::error!(%job, idx, file, "stored result file missing");
+                }
+                Err(e) => return Err(io_error(e)),
+            },
             None => f(idx, r.get_ref(1)?.as_blob()?),
         }
     }
@@ -896,5 +988,67 @@ mod tests {
             std::fs::read_dir(dir.path().join("tmp")).unwrap().count(),
             0
         );
+    }
+
+    /// A row whose result file is gone is deleted at the next start, and its task queued
+    /// again when its job is unfinished: the tile is rendered again, not missing.
+    #[test]
+    fn a_missing_result_file_queues_its_task_again() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir_all(dir.path().join("tmp")).unwrap();
+        let mut store = Store::open(dir.path()).unwrap();
+        for (id, state) in [("run", JobState::Running), ("fin", JobState::Done)] {
+            store
+                .insert_job(&JobRow {
+                    id: id.into(),
+                    seq: 0,
+                    scene: "s".into(),
+                    settings: "{}".into(),
+                    priority: 0,
+                    state,
+                    error: None,
+                    created_ms: 1,
+                    started_ms: None,
+                    finished_ms: None,
+                })
+                .unwrap();
+            for idx in 0..2 {
+                let staged = Staged::write(dir.path(), &[idx as u8; 8]).unwrap();
+                let row = done(idx);
+                store
+                    .write(&[Write::Result {
+                        job: id,
+                        row: &row,
+                        data: &[],
+                        file: Some(&staged),
+                    }])
+                    .unwrap();
+            }
+        }
+        drop(store);
+        for job in ["run", "fin"] {
+            let first = std::fs::read_dir(dir.path().join("results").join(job))
+                .unwrap()
+                .flatten()
+                .map(|e| e.path())
+                .find(|p| p.file_name().unwrap().to_string_lossy().starts_with("0-"))
+                .unwrap();
+            std::fs::remove_file(first).unwrap();
+        }
+        let mut store = Store::open(dir.path()).unwrap();
+        assert_eq!(store.requeue_missing_files().unwrap(), 0, "done at open");
+        assert_eq!(results(&store, "run"), [(1, vec![1; 8])]);
+        assert_eq!(results(&store, "fin"), [(1, vec![1; 8])]);
+        let states = |job| -> Vec<StoredTask> {
+            store
+                .tasks(job)
+                .unwrap()
+                .into_iter()
+                .map(|t| t.state)
+                .collect()
+        };
+        let done_w = StoredTask::Done { worker: "w".into() };
+        assert_eq!(states("run"), [StoredTask::Queued, done_w.clone()]);
+        assert_eq!(states("fin"), [done_w.clone(), done_w]);
     }
 }

@@ -1724,6 +1724,12 @@ async fn results_stored_as_files_make_the_same_frame_and_go_with_their_job() {
         .unwrap();
     assert_eq!(call(&st, purge).await.0, StatusCode::OK);
     assert!(!results.join(&job).exists(), "purged with its job");
+    // Set aside at once, removed by a thread of its own.
+    let t = std::time::Instant::now();
+    while !files(&results).is_empty() && t.elapsed() < std::time::Duration::from_secs(10) {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    assert!(files(&results).is_empty(), "{:?}", files(&results));
 }
 
 /// Every file under `d`, at any depth.
