@@ -841,6 +841,7 @@ fn io_error(e: std::io::Error) -> rusqlite::Error {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use axum::response::IntoResponse;
 
     #[test]
     fn states_read_back_as_written() {
@@ -1050,5 +1051,24 @@ mod tests {
         let done_w = StoredTask::Done { worker: "w".into() };
         assert_eq!(states("run"), [StoredTask::Queued, done_w.clone()]);
         assert_eq!(states("fin"), [done_w.clone(), done_w]);
+    }
+
+    /// A full disk while a result is staged or placed reads as SQLite's own full disk, which
+    /// the API answers 503 `store_unavailable`, retryable: the worker sends the result again.
+    #[test]
+    fn a_full_disk_reads_as_the_stores_own() {
+        let full = io_error(std::io::Error::from_raw_os_error(libc::ENOSPC));
+        assert_eq!(
+            full.sqlite_error_code(),
+            Some(rusqlite::ErrorCode::DiskFull),
+            "{full}"
+        );
+        let other = io_error(std::io::Error::from_raw_os_error(libc::EIO));
+        assert_eq!(
+            other.sqlite_error_code(),
+            Some(rusqlite::ErrorCode::SystemIoFailure)
+        );
+        let answer = crate::error::AppError::StoreUnavailable(full).into_response();
+        assert_eq!(answer.status(), axum::http::StatusCode::SERVICE_UNAVAILABLE);
     }
 }
