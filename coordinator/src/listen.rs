@@ -60,11 +60,15 @@ pub async fn serve(
     let mut conns = tokio::task::JoinSet::new();
     loop {
         while conns.try_join_next().is_some() {}
+        // Stopping first: once it began, no connection is taken, even one that is ready.
         let slot = tokio::select! {
-            s = slots.clone().acquire_owned() => s.expect("the semaphore is never closed"),
+            biased;
             () = stopped(&mut stop) => break,
+            s = slots.clone().acquire_owned() => s.expect("the semaphore is never closed"),
         };
         let (stream, peer) = tokio::select! {
+            biased;
+            () = stopped(&mut stop) => break,
             a = listener.accept() => match a {
                 Ok(a) => a,
                 Err(e) => {
@@ -72,7 +76,6 @@ pub async fn serve(
                     continue;
                 }
             },
-            () = stopped(&mut stop) => break,
         };
         let _ = stream.set_nodelay(true);
         let app = app.clone();
@@ -105,7 +108,10 @@ async fn connection(
     });
     let mut http = hyper::server::conn::http1::Builder::new();
     // Capped at a day: hyper adds it to the clock's reading, which must not overflow.
+    // A client may close its side once it has sent its request (half_close): the answer is
+    // still sent.
     http.timer(TokioTimer::new())
+        .half_close(true)
         .header_read_timeout(header_timeout.min(Duration::from_secs(86_400)));
     let conn = http.serve_connection(TokioIo::new(stream), service);
     let mut conn = std::pin::pin!(conn);
@@ -129,16 +135,19 @@ fn log_end(r: hyper::Result<()>) {
     }
 }
 
-/// Why an HTTP/1.1 request is refused for its `Host` headers: RFC 9112 requires exactly one.
-/// (HTTP/1.0 has no such rule.)
+/// Why an HTTP/1.1 request is refused for its `Host` headers: RFC 9112 requires exactly one,
+/// a host and maybe a port. (HTTP/1.0 has no such rule.)
 fn host_problem<B>(req: &Request<B>) -> Option<Response<Body>> {
     if req.version() != Version::HTTP_11 {
         return None;
     }
-    let message = match req.headers().get_all(header::HOST).iter().count() {
-        1 => return None,
-        0 => "an HTTP/1.1 request needs a Host header",
-        _ => "a request may have only one Host header",
+    let hosts = req.headers().get_all(header::HOST);
+    let mut values = hosts.iter();
+    let message = match (values.next(), values.next()) {
+        (Some(host), None) if is_authority(host.as_bytes()) => return None,
+        (Some(_), None) => "the Host header is not a host name or address and a port",
+        (None, _) => "an HTTP/1.1 request needs a Host header",
+        (Some(_), Some(_)) => "a request may have only one Host header",
     };
     Some(
         AppError::BadRequest {
@@ -147,6 +156,14 @@ fn host_problem<B>(req: &Request<B>) -> Option<Response<Body>> {
         }
         .into_response(),
     )
+}
+
+/// Whether `host` is a URI authority without user information: `name`, `name:port`,
+/// `1.2.3.4:port`, `[::1]:port`.
+fn is_authority(host: &[u8]) -> bool {
+    !host.contains(&b'@')
+        && axum::http::uri::Authority::try_from(host)
+            .is_ok_and(|a| !a.host().is_empty() && a.as_str().len() == host.len())
 }
 
 /// Waits after a failed `accept`: at once for an error of the one connection (it was reset

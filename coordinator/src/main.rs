@@ -125,6 +125,9 @@ async fn main() {
         eprintln!("raytile-coordinator: {e:#}");
         std::process::exit(1);
     }
+    // Stopped: every change is stored. A scene check or an image encoding still running on a
+    // blocking thread would hold the runtime's end (and the exit) until it finished.
+    std::process::exit(0);
 }
 
 async fn real_main(a: Args) -> anyhow::Result<()> {
@@ -153,8 +156,11 @@ async fn real_main(a: Args) -> anyhow::Result<()> {
     cfg.scene_loader = core_scene_loader(cfg.scene_limits.clone());
     cfg.max_parallel_images = a.image_encodes.max(1);
     cfg.image_wait = secs(a.image_wait, "image-wait")?;
+    if a.max_connections == 0 {
+        anyhow::bail!("--max-connections: must be at least 1");
+    }
     cfg.serve_limits = ServeLimits {
-        max_connections: a.max_connections.max(1),
+        max_connections: a.max_connections,
         header_timeout: secs(a.header_timeout, "header-timeout")?,
     };
     if cfg.serve_limits.header_timeout.is_zero()
