@@ -6,7 +6,8 @@
 //!
 //! `cargo bench -p raytile-coordinator --bench large_result`
 
-use raytile_coordinator::{Config, LoadedScene};
+mod common;
+
 use raytile_proto as proto;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -15,62 +16,22 @@ const SIDE: u32 = 4096;
 
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]
 async fn main() -> anyhow::Result<()> {
-    let dir = tempfile::tempdir()?;
-    let mut cfg = Config::new(dir.path());
-    cfg.scene_loader = Arc::new(|_p: &std::path::Path| Ok(LoadedScene::default()));
-    cfg.startup_grace = Duration::ZERO;
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
-    let base = format!("http://{}", listener.local_addr()?);
-    let (stop, rx) = tokio::sync::watch::channel(false);
-    let mut rx2 = rx.clone();
-    let server = tokio::spawn(raytile_coordinator::run(listener, cfg, async move {
-        let _ = rx2.wait_for(|v| *v).await;
-    }));
-    let http = reqwest::Client::new();
-    let scene: proto::SceneCreated = http
-        .post(format!("{base}/v1/scenes"))
-        .body(r#"{"objects": []}"#)
-        .send()
-        .await?
-        .json()
-        .await?;
-    let req = proto::JobRequest {
-        scene: scene.id,
-        overrides: proto::RenderOverrides {
+    let farm = common::Farm::start().await?;
+    let job = farm
+        .job(proto::RenderOverrides {
             width: Some(SIDE),
             height: Some(SIDE),
             spp: Some(1),
             tile_size: Some(64),
             integrator: Some(proto::IntegratorKind::Bdpt),
             ..Default::default()
-        },
-        ..Default::default()
-    };
-    let job: proto::JobStatus = http
-        .post(format!("{base}/v1/jobs"))
-        .json(&req)
-        .send()
-        .await?
-        .error_for_status()?
-        .json()
-        .await?;
-    let reg: proto::Registered = http
-        .post(format!("{base}/v1/workers"))
-        .json(&proto::RegisterRequest {
-            name: "bench".into(),
-            threads: 1,
-            render_version: raytile_core::RENDER_VERSION,
         })
-        .send()
-        .await?
-        .json()
         .await?;
-    let l: proto::Lease = http
-        .post(format!("{base}/v1/workers/{}/lease", reg.worker_id))
-        .send()
+    let reg = farm.register("bench").await?;
+    let l = farm
+        .lease(&reg.worker_id)
         .await?
-        .json()
-        .await?;
+        .ok_or_else(|| anyhow::anyhow!("no task to lease"))?;
     let acc = raytile_core::TileAccum {
         tile: l.tile,
         pixels: vec![[0.5, 0.5, 0.5, 1.0]; l.tile.pixel_count()],
@@ -84,8 +45,8 @@ async fn main() -> anyhow::Result<()> {
     let done = Arc::new(std::sync::atomic::AtomicBool::new(false));
     let poll = {
         let (http, url, done) = (
-            http.clone(),
-            format!("{base}/v1/jobs/{}", job.id),
+            farm.http.clone(),
+            format!("{}/v1/jobs/{}", farm.base, job.id),
             done.clone(),
         );
         tokio::spawn(async move {
@@ -102,17 +63,7 @@ async fn main() -> anyhow::Result<()> {
         })
     };
     let start = Instant::now();
-    let reply: proto::ResultReply = http
-        .put(format!(
-            "{base}/v1/jobs/{}/tasks/{}/result?worker={}&lease={}",
-            l.job, l.task, reg.worker_id, l.lease_id
-        ))
-        .body(body)
-        .send()
-        .await?
-        .error_for_status()?
-        .json()
-        .await?;
+    let reply = farm.upload(&reg.worker_id, &l, body).await?;
     let upload = start.elapsed();
     done.store(true, std::sync::atomic::Ordering::Relaxed);
     let (slowest, n) = poll.await??;
@@ -122,7 +73,6 @@ async fn main() -> anyhow::Result<()> {
         upload.as_secs_f64(),
         slowest.as_secs_f64()
     );
-    let _ = stop.send(true);
-    let _ = server.await;
+    farm.stop().await;
     Ok(())
 }

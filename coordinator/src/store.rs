@@ -848,19 +848,9 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mut store = Store::open(dir.path()).unwrap();
         for (i, state) in JobState::ALL.into_iter().enumerate() {
-            let row = JobRow {
-                id: format!("j{i}"),
-                seq: i as u64,
-                scene: "s".into(),
-                settings: "{}".into(),
-                priority: 0,
-                state,
-                error: None,
-                created_ms: 1,
-                started_ms: None,
-                finished_ms: None,
-            };
-            store.insert_job(&row).unwrap();
+            store
+                .insert_job(&job_row(&format!("j{i}"), i as u64, state))
+                .unwrap();
         }
         let states: Vec<JobState> = store.jobs().unwrap().iter().map(|r| r.state).collect();
         assert_eq!(states, JobState::ALL);
@@ -915,6 +905,21 @@ mod tests {
         let mut store = Store::open(dir.path()).unwrap();
         assert_eq!(store.next_epoch(5).unwrap(), 1002);
         assert_eq!(store.next_epoch(9000).unwrap(), 9000);
+    }
+
+    fn job_row(id: &str, seq: u64, state: JobState) -> JobRow {
+        JobRow {
+            id: id.into(),
+            seq,
+            scene: "s".into(),
+            settings: "{}".into(),
+            priority: 0,
+            state,
+            error: None,
+            created_ms: 1,
+            started_ms: None,
+            finished_ms: None,
+        }
     }
 
     fn results(store: &Store, job: &str) -> Vec<(u32, Vec<u8>)> {
@@ -999,20 +1004,7 @@ mod tests {
         std::fs::create_dir_all(dir.path().join("tmp")).unwrap();
         let mut store = Store::open(dir.path()).unwrap();
         for (id, state) in [("run", JobState::Running), ("fin", JobState::Done)] {
-            store
-                .insert_job(&JobRow {
-                    id: id.into(),
-                    seq: 0,
-                    scene: "s".into(),
-                    settings: "{}".into(),
-                    priority: 0,
-                    state,
-                    error: None,
-                    created_ms: 1,
-                    started_ms: None,
-                    finished_ms: None,
-                })
-                .unwrap();
+            store.insert_job(&job_row(id, 0, state)).unwrap();
             for idx in 0..2 {
                 let staged = Staged::write(dir.path(), &[idx as u8; 8]).unwrap();
                 let row = done(idx);
