@@ -529,18 +529,13 @@ async fn job_image(
     }
     // A frame takes memory in proportion to its pixels while it is composed and encoded: a
     // bounded number at once, the other requests wait here holding nothing.
-    let wait = state.cfg.image_wait;
-    let permit = match tokio::time::timeout(wait, state.image_slots.clone().acquire_owned()).await {
-        Ok(Ok(permit)) => permit,
-        Ok(Err(_)) => return Err(AppError::Unavailable),
-        Err(_) => {
-            return Err(AppError::Busy(format!(
-                "{} images are being made and none ended within {} s: try again shortly",
-                state.cfg.max_parallel_images.max(1),
-                wait.as_secs_f64()
-            )))
-        }
-    };
+    let permit = slot(&state.image_slots, state.cfg.image_wait, |wait| {
+        format!(
+            "{} images are being made and none ended within {wait} s: try again shortly",
+            state.cfg.max_parallel_images.max(1),
+        )
+    })
+    .await?;
     let (layout, conn, results) = {
         let s = state.sched();
         // Looked up again: the job may have been purged while this request waited.
@@ -835,6 +830,27 @@ async fn upload_result(
     if declared.is_some_and(|n| n > limit) {
         return Err(AppError::TooLarge(limit));
     }
+    // A large result is held whole and decoded before it is stored: a bounded number at once,
+    // the others wait here holding nothing.
+    let large = declared.unwrap_or(limit) >= state.cfg.result_file_bytes as u64;
+    let _permit = if large && settled.is_none() {
+        let n = state.cfg.max_parallel_large_results.max(1);
+        Some(
+            slot(
+                &state.large_result_slots,
+                state.cfg.large_result_wait,
+                |wait| {
+                    format!(
+                        "{n} large results are being stored and none ended within {wait} s: send \
+                     it again shortly"
+                    )
+                },
+            )
+            .await?,
+        )
+    } else {
+        None
+    };
     // The size is known from the task: read at most that much. A result for a task already
     // done or a job that is over is read and dropped, not held (the answer does not depend on
     // it, and a worker expects its whole body to be read).
@@ -909,6 +925,19 @@ async fn upload_result(
     let now = state.now();
     let outcome = state.sched().complete(&job, task, delivery, now)?;
     Ok(Json(reply(outcome)))
+}
+
+/// Waits up to `wait` for a permit of `slots`; past it, a 503 `busy` saying `why(seconds)`.
+async fn slot(
+    slots: &Arc<tokio::sync::Semaphore>,
+    wait: Duration,
+    why: impl FnOnce(f64) -> String,
+) -> Result<tokio::sync::OwnedSemaphorePermit, AppError> {
+    match tokio::time::timeout(wait, slots.clone().acquire_owned()).await {
+        Ok(Ok(permit)) => Ok(permit),
+        Ok(Err(_)) => Err(AppError::Unavailable),
+        Err(_) => Err(AppError::Busy(why(wait.as_secs_f64()))),
+    }
 }
 
 /// The answer to a result upload.

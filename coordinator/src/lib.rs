@@ -195,6 +195,13 @@ pub struct Config {
     /// Results of this many bytes or more are stored as files beside the database, written
     /// before the scheduler's lock is taken, rather than in it (default 1 MiB).
     pub result_file_bytes: usize,
+    /// Most results of `result_file_bytes` or more read and checked at once. Each holds its
+    /// body and its decoded splats in memory (about 1 GB for a 470 MB `bdpt` result), so this
+    /// bounds the memory uploads take together; further uploads wait.
+    pub max_parallel_large_results: usize,
+    /// How long a large result waits for one of the others to end before it is answered 503
+    /// (retryable, with `Retry-After`).
+    pub large_result_wait: Duration,
     /// Bounds on connections: how many at once, how long a client may take to send headers.
     pub serve_limits: listen::ServeLimits,
     /// The time source of every scheduler call (the system clock; tests inject their own).
@@ -220,6 +227,8 @@ impl Config {
             max_parallel_images: 2,
             image_wait: Duration::from_secs(30),
             result_file_bytes: 1 << 20,
+            max_parallel_large_results: 2,
+            large_result_wait: Duration::from_secs(30),
             serve_limits: listen::ServeLimits::default(),
             clock: clock::system_clock(),
         }
@@ -260,6 +269,9 @@ pub struct Inner {
     /// One permit per job image that may be composed and encoded at once
     /// ([`Config::max_parallel_images`]).
     pub image_slots: Arc<tokio::sync::Semaphore>,
+    /// One permit per large result being read and checked
+    /// ([`Config::max_parallel_large_results`]).
+    pub large_result_slots: Arc<tokio::sync::Semaphore>,
     shutdown_tx: watch::Sender<bool>,
     /// The data directory's `lock` file, locked while the coordinator runs (see
     /// [`lock_data_dir`]); given up when [`run`] ends, even while a clone of the state lives on
@@ -327,6 +339,9 @@ impl AppState {
             cfg.scene_limits.max_parallel_parses.max(1),
         ));
         let image_slots = Arc::new(tokio::sync::Semaphore::new(cfg.max_parallel_images.max(1)));
+        let large_result_slots = Arc::new(tokio::sync::Semaphore::new(
+            cfg.max_parallel_large_results.max(1),
+        ));
         Ok(AppState(Arc::new(Inner {
             cfg,
             sched: Mutex::new(sched),
@@ -336,6 +351,7 @@ impl AppState {
             scene_checks: Default::default(),
             parse_slots,
             image_slots,
+            large_result_slots,
             shutdown_tx,
             lock: Mutex::new(lock),
         })))

@@ -84,6 +84,11 @@ struct Args {
     /// seconds.
     #[arg(long, default_value_t = 30.0)]
     image_wait: f64,
+    /// Most tile results of 1 MiB or more (`bdpt` splats) read and checked at once; each holds
+    /// about twice its size in memory meanwhile. Further uploads wait, and are answered 503
+    /// (retryable) after 30 s.
+    #[arg(long, default_value_t = 2)]
+    large_results: usize,
     /// Most connections open at once; more wait to be accepted until one closes. The
     /// open-file limit is raised to fit, where the hard limit allows.
     #[arg(long, default_value_t = ServeLimits::default().max_connections)]
@@ -156,6 +161,7 @@ async fn real_main(a: Args) -> anyhow::Result<()> {
     cfg.scene_loader = core_scene_loader(cfg.scene_limits.clone());
     cfg.max_parallel_images = a.image_encodes.max(1);
     cfg.image_wait = secs(a.image_wait, "image-wait")?;
+    cfg.max_parallel_large_results = a.large_results.max(1);
     if a.max_connections == 0 {
         anyhow::bail!("--max-connections: must be at least 1");
     }

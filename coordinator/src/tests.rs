@@ -1744,3 +1744,81 @@ fn walk(d: &std::path::Path) -> Vec<std::path::PathBuf> {
     }
     out
 }
+
+/// Large results are read and checked a few at a time: one that finds every slot taken for
+/// `large_result_wait` is answered 503 `busy` with Retry-After (and nothing changes); one
+/// waiting when a slot frees is stored. Small results need no slot.
+#[tokio::test]
+async fn large_results_wait_for_a_slot_and_are_answered_busy_after_the_wait() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut c = Config::new(dir.path());
+    c.scene_loader = Arc::new(|_p: &std::path::Path| Ok(LoadedScene::default()));
+    c.max_parallel_large_results = 1;
+    c.large_result_wait = std::time::Duration::from_millis(200);
+    // A 4×2 result is 160-odd bytes: "large" here.
+    c.result_file_bytes = 100;
+    let st = AppState::open(c).unwrap();
+    let (_, job) = empty_scene_job(&st, r#""width": 4, "height": 2, "spp": 1"#).await;
+    let job = job["id"].as_str().unwrap().to_string();
+    let (_, w) = register_worker(&st).await;
+    let worker = w["worker_id"].as_str().unwrap().to_string();
+    let lease = || async {
+        let (code, l) = call(&st, post(&format!("/v1/workers/{worker}/lease"), "")).await;
+        assert_eq!(code, StatusCode::OK, "{l}");
+        l
+    };
+    let upload = |l: &serde_json::Value| {
+        let body = result_4x2(vec![[0.5, 0.5, 0.5, 1.0]; 8], 0);
+        assert!(body.len() >= 100);
+        Request::put(format!(
+            "/v1/jobs/{job}/tasks/{}/result?worker={worker}&lease={}",
+            l["task"],
+            l["lease_id"].as_str().unwrap()
+        ))
+        .header("content-length", body.len())
+        .body(Body::from(body))
+        .unwrap()
+    };
+    let first = lease().await;
+    let held = st.large_result_slots.clone().acquire_owned().await.unwrap();
+    let resp = app(st.clone()).oneshot(upload(&first)).await.unwrap();
+    assert_eq!(resp.status(), StatusCode::SERVICE_UNAVAILABLE);
+    assert_eq!(resp.headers()["retry-after"], "2");
+    let (_, status) = call(&st, get(&format!("/v1/jobs/{job}"))).await;
+    assert_eq!(status["tasks_done"], 0, "{status}");
+    // One waiting when the slot frees is stored.
+    let waiting = tokio::spawn(app(st.clone()).oneshot(upload(&first)));
+    tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    drop(held);
+    let resp = waiting.await.unwrap().unwrap();
+    assert_eq!(resp.status(), StatusCode::OK);
+    let (_, status) = call(&st, get(&format!("/v1/jobs/{job}"))).await;
+    assert_eq!(status["tasks_done"], 1, "{status}");
+    // Under the size, no slot is needed.
+    drop(st);
+    let dir2 = tempfile::tempdir().unwrap();
+    let mut c = Config::new(dir2.path());
+    c.scene_loader = Arc::new(|_p: &std::path::Path| Ok(LoadedScene::default()));
+    c.large_result_wait = std::time::Duration::from_millis(200);
+    let st = AppState::open(c).unwrap();
+    let _held = st
+        .large_result_slots
+        .clone()
+        .acquire_many_owned(2)
+        .await
+        .unwrap();
+    let (_, job2) = empty_scene_job(&st, r#""width": 4, "height": 2, "spp": 1"#).await;
+    let (_, w) = register_worker(&st).await;
+    let worker2 = w["worker_id"].as_str().unwrap();
+    let (_, l) = call(&st, post(&format!("/v1/workers/{worker2}/lease"), "")).await;
+    let small = Request::put(format!(
+        "/v1/jobs/{}/tasks/{}/result?worker={worker2}&lease={}",
+        job2["id"].as_str().unwrap(),
+        l["task"],
+        l["lease_id"].as_str().unwrap()
+    ))
+    .body(Body::from(result_4x2(vec![[0.5, 0.5, 0.5, 1.0]; 8], 0)))
+    .unwrap();
+    let (code, body) = call(&st, small).await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+}
