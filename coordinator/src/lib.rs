@@ -153,6 +153,30 @@ impl Limits {
                 ),
             );
         }
+        // A bdpt tile's result may carry a splat for every pixel of the frame: it must fit in
+        // an upload, or a valid result could never be sent.
+        if s.integrator == raytile_core::IntegratorKind::Bdpt {
+            let tile = raytile_proto::Tile {
+                x0: 0,
+                y0: 0,
+                x1: s.tile_size.min(s.width),
+                y1: s.tile_size.min(s.height),
+            };
+            let largest = raytile_proto::tile::encoded_len(&tile) as u64
+                + pixels * raytile_proto::tile::SPLAT_LEN as u64;
+            if largest > self.max_upload_bytes {
+                return over(
+                    "width",
+                    format!(
+                        "a bdpt frame of {pixels} pixels can make tile results of up to {largest} \
+                         bytes (a splat for every pixel of the frame), more than the {} an upload \
+                         may have on this coordinator (--max-upload-bytes): render a smaller \
+                         frame, or with path or volpath",
+                        self.max_upload_bytes
+                    ),
+                );
+            }
+        }
         Ok(())
     }
 }

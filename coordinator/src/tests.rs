@@ -599,7 +599,29 @@ async fn jobs_over_the_limits_are_refused_at_once_naming_the_field() {
         "{b}"
     );
     check(r#""spp": 512, "passes": 512"#, "passes").await;
+    // A bdpt tile's result can hold a splat for every pixel of the frame: 16 × 16 × 28 bytes
+    // is over this coordinator's 4096-byte uploads.
+    let b = check(
+        r#""width": 16, "height": 16, "integrator": "bdpt""#,
+        "width",
+    )
+    .await;
+    let message = b["error"]["message"].as_str().unwrap();
+    assert!(message.contains("--max-upload-bytes"), "{b}");
     assert_eq!(st.sched().job_list().len(), 0, "nothing was created");
+    let (code, b) = call(
+        &st,
+        post(
+            "/v1/jobs",
+            format!(r#"{{"scene": "{id}", "width": 8, "height": 8, "integrator": "bdpt"}}"#),
+        ),
+    )
+    .await;
+    assert_eq!(code, StatusCode::CREATED, "a small bdpt frame fits: {b}");
+    let purge = Request::delete(format!("/v1/jobs/{}?purge=true", b["id"].as_str().unwrap()))
+        .body(Body::empty())
+        .unwrap();
+    assert_eq!(call(&st, purge).await.0, StatusCode::OK);
     // Limits set by the operator.
     let mut c = Config::new(dir.path().join("b"));
     c.scene_loader = Arc::new(|_p: &std::path::Path| Ok(LoadedScene::default()));
