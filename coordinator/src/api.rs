@@ -545,26 +545,37 @@ async fn job_image(
     };
     let job_id = id.clone();
     // Pass by pass, one stored tile decoded at a time: the frame and one tile in memory.
-    let bytes = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, AppError> {
+    let (bytes, missing) = tokio::task::spawn_blocking(move || -> Result<_, AppError> {
         let _permit = permit;
+        let mut missing = 0;
         let film = compose::compose_by_pass(&layout, |tasks, add| {
-            crate::store::for_each_result(&conn, &results, &job_id, tasks, |idx, data| {
-                match proto::tile::decode(data) {
-                    Ok((acc, _)) => add(idx, acc),
-                    Err(e) => tracing::error!(job = %job_id, idx, "stored result unreadable: {e}"),
-                }
-            })
+            missing +=
+                crate::store::for_each_result(&conn, &results, &job_id, tasks, |idx, data| {
+                    match proto::tile::decode(data) {
+                        Ok((acc, _)) => add(idx, acc),
+                        Err(e) => {
+                            tracing::error!(job = %job_id, idx, "stored result unreadable: {e}")
+                        }
+                    }
+                })?;
+            Ok::<_, rusqlite::Error>(())
         })
         .map_err(AppError::internal)?;
         // The store's connection is not needed while the image is encoded.
         drop(conn);
-        compose::encode(&film, format).map_err(AppError::internal)
+        Ok((
+            compose::encode(&film, format).map_err(AppError::internal)?,
+            missing,
+        ))
     })
     .await
     .map_err(AppError::internal)??;
     // Purged while it was made: its result files may have gone with it.
     if state.sched().layout(&id).is_none() {
         return Err(no_job(&id));
+    }
+    if missing > 0 {
+        tracing::error!(job = %id, missing, "stored result files are missing: the image lacks those tiles");
     }
     Ok((
         [(header::CONTENT_TYPE, compose::content_type(format))],
@@ -807,17 +818,28 @@ async fn upload_result(
     headers: HeaderMap,
     body: Body,
 ) -> Result<Json<proto::ResultReply>, AppError> {
-    let (tile, task_pass, pass_samples, splat_pixels, settled) = {
+    let found = {
         let s = state.sched();
-        let (tile, pass) = s.task_for_upload(&job, task)?;
-        let settled = s.settled(&job, task);
-        (
-            tile,
-            pass,
-            s.pass_samples(&job, pass),
-            s.splat_pixels(&job),
-            settled,
-        )
+        s.task_for_upload(&job, task).map(|(tile, pass)| {
+            let settled = s.settled(&job, task);
+            (
+                tile,
+                pass,
+                s.pass_samples(&job, pass),
+                s.splat_pixels(&job),
+                settled,
+            )
+        })
+    };
+    let (tile, task_pass, pass_samples, splat_pixels, settled) = match found {
+        Ok(found) => found,
+        Err(e) => {
+            // No such job (purged) or task: the body is read and dropped first, so that the
+            // worker gets this answer rather than a connection closed under its upload, which
+            // it would take for a network fault and send again.
+            drain(body, state.cfg.limits.max_upload_bytes).await;
+            return Err(e.into());
+        }
     };
     let expected = proto::tile::encoded_len(&tile);
     // A bdpt result carries at most one splat per pixel of the frame after its pixels.
@@ -902,6 +924,16 @@ async fn upload_result(
         }
         return Err(AppError::invalid("body", message));
     }
+    // Refused before anything is written (the scheduler checks it again under its lock).
+    if acc.tile != tile || pass != task_pass {
+        return Err(AppError::invalid(
+            "body",
+            format!(
+                "result is for tile {} pass {pass}, task {task} is tile {tile} pass {task_pass}",
+                acc.tile
+            ),
+        ));
+    }
     // A large result is written to a file now, before the scheduler's lock: the store then
     // only moves it into place, and other requests do not wait for hundreds of MB to be
     // written.
@@ -925,6 +957,18 @@ async fn upload_result(
     let now = state.now();
     let outcome = state.sched().complete(&job, task, delivery, now)?;
     Ok(Json(reply(outcome)))
+}
+
+/// Reads `body` to its end and drops it, unless it is over `limit` bytes.
+async fn drain(body: Body, limit: u64) {
+    let mut stream = body.into_data_stream();
+    let mut read = 0u64;
+    while let Some(Ok(chunk)) = stream.next().await {
+        read += chunk.len() as u64;
+        if read > limit {
+            return;
+        }
+    }
 }
 
 /// Waits up to `wait` for a permit of `slots`; past it, a 503 `busy` saying `why(seconds)`.

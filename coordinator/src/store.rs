@@ -747,14 +747,16 @@ impl Faults {
 
 /// Reads the stored results of a job's tasks `tasks` as (task index, bytes), through `conn`
 /// (result files from `results`, [`Store::results_dir`]), calling `f` for each so the caller
-/// never holds them all at once.
+/// never holds them all at once. Returns how many result files were missing (skipped): the
+/// caller says whether that is damage or a purge under way.
 pub fn for_each_result(
     conn: &Connection,
     results: &Path,
     job: &str,
     tasks: std::ops::Range<usize>,
     mut f: impl FnMut(u32, &[u8]),
-) -> rusqlite::Result<()> {
+) -> rusqlite::Result<usize> {
+    let mut missing = 0;
     let mut st = conn.prepare_cached(
         "SELECT idx, data, file FROM results WHERE job_id = ?1 AND idx >= ?2 AND idx < ?3
          ORDER BY idx",
@@ -767,15 +769,13 @@ pub fn for_each_result(
                 Ok(data) => f(idx, &data),
                 // Purged while the frame was being made, or removed by hand: the frame goes
                 // without it, as with a stored result that does not decode.
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-                    tracing::error!(%job, idx, file, "stored result file missing");
-                }
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => missing += 1,
                 Err(e) => return Err(io_error(e)),
             },
             None => f(idx, r.get_ref(1)?.as_blob()?),
         }
     }
-    Ok(())
+    Ok(missing)
 }
 
 /// A result written to a file in the data directory's `tmp/` and synced, before the

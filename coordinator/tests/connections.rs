@@ -249,3 +249,29 @@ async fn a_half_closed_connection_gets_its_answer() {
     let _ = c.stop.send(());
     c.task.await.unwrap().unwrap();
 }
+
+/// A result sent for a job that is gone (purged) is read to its end before the 404, so a client
+/// that sends its whole body before it reads gets the answer, not a connection closed under its
+/// upload (which a worker would take for a network fault, and send again).
+#[tokio::test]
+async fn an_upload_to_a_job_that_is_gone_gets_its_404() {
+    let c = start(ServeLimits::default()).await;
+    for size in [1usize << 10, 3 << 20, 24 << 20] {
+        let mut s = TcpStream::connect(c.addr).await.unwrap();
+        let head = format!(
+            "PUT /v1/jobs/job-1-gone/tasks/0/result?lease=l HTTP/1.1\r\nHost: 127.0.0.1\r\n\
+             Content-Length: {size}\r\nConnection: close\r\n\r\n"
+        );
+        s.write_all(head.as_bytes()).await.unwrap();
+        let sent = s.write_all(&vec![0u8; size]).await;
+        assert!(sent.is_ok(), "{size} bytes: {sent:?}");
+        let got = read_to_close(&mut s, Duration::from_secs(10)).await;
+        assert_eq!(
+            status(&got),
+            "HTTP/1.1 404 Not Found",
+            "{size} bytes: {got}"
+        );
+    }
+    let _ = c.stop.send(());
+    c.task.await.unwrap().unwrap();
+}
