@@ -7,11 +7,13 @@
 //! - a client has [`ServeLimits::header_timeout`] to send a request's headers (hyper's header
 //!   read timeout, which also closes a keep-alive connection idle that long): a client that
 //!   opens connections and sends nothing, or one byte at a time, cannot hold them;
-//! - an HTTP/1.1 request with no `Host`, or more than one, is answered 400 before the router
-//!   sees it (RFC 9112, section 3.2).
+//! - an HTTP/1.1 request with no `Host`, more than one, or one that is not a host and maybe a
+//!   port, is answered 400 before the router sees it (RFC 9112, section 3.2);
+//! - a client that closes its side once its request is sent still gets the answer.
 //!
 //! On shutdown it stops accepting, asks every connection to finish its request in progress and
-//! close, and returns when all have.
+//! close, and returns when all have; dropped before that (the caller's hard stop), it closes
+//! them.
 
 use crate::error::AppError;
 use axum::body::Body;
@@ -107,9 +109,9 @@ async fn connection(
         }
     });
     let mut http = hyper::server::conn::http1::Builder::new();
-    // Capped at a day: hyper adds it to the clock's reading, which must not overflow.
     // A client may close its side once it has sent its request (half_close): the answer is
-    // still sent.
+    // still sent. The timeout is capped at a day: hyper adds it to the clock's reading, which
+    // must not overflow.
     http.timer(TokioTimer::new())
         .half_close(true)
         .header_read_timeout(header_timeout.min(Duration::from_secs(86_400)));
