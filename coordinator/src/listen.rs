@@ -9,6 +9,9 @@
 //!   opens connections and sends nothing, or one byte at a time, cannot hold them;
 //! - an HTTP/1.1 request with no `Host`, more than one, or one that is not a host and maybe a
 //!   port, is answered 400 before the router sees it (RFC 9112, section 3.2);
+//! - a request body that pauses for [`ServeLimits::body_timeout`] between two reads fails (as
+//!   nginx's `client_body_timeout`), so a stalled upload does not hold its connection, nor a
+//!   large result's slot, for ever;
 //! - a client that closes its side once its request is sent still gets the answer.
 //!
 //! On shutdown it stops accepting, asks every connection to finish its request in progress and
@@ -28,6 +31,7 @@ use std::time::Duration;
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{watch, Semaphore};
 use tower::ServiceExt;
+use tower_http::timeout::TimeoutBody;
 
 /// Bounds on connections.
 #[derive(Clone, Copy, Debug)]
@@ -37,6 +41,8 @@ pub struct ServeLimits {
     /// How long a client has to send a request's headers, from the connection's start or the
     /// end of its previous request.
     pub header_timeout: Duration,
+    /// Longest pause between two reads of a request's body, once the handler reads it.
+    pub body_timeout: Duration,
 }
 
 impl Default for ServeLimits {
@@ -44,6 +50,7 @@ impl Default for ServeLimits {
         ServeLimits {
             max_connections: 4096,
             header_timeout: Duration::from_secs(30),
+            body_timeout: Duration::from_secs(60),
         }
     }
 }
@@ -83,7 +90,7 @@ pub async fn serve(
         let app = app.clone();
         let stop = stop.clone();
         conns.spawn(async move {
-            connection(stream, app, limits.header_timeout, stop).await;
+            connection(stream, app, limits, stop).await;
             tracing::trace!(%peer, "connection closed");
             drop(slot);
         });
@@ -96,25 +103,29 @@ pub async fn serve(
 async fn connection(
     stream: TcpStream,
     app: Router,
-    header_timeout: Duration,
+    limits: ServeLimits,
     mut stop: watch::Receiver<bool>,
 ) {
+    // Capped at a day: hyper and tokio add them to the clock's reading, which must not
+    // overflow.
+    let day = Duration::from_secs(86_400);
+    let body_timeout = limits.body_timeout.min(day);
     let service = hyper::service::service_fn(move |req: Request<Incoming>| {
         let app = app.clone();
         async move {
             if let Some(refused) = host_problem(&req) {
                 return Ok::<_, Infallible>(refused.into_response());
             }
-            app.oneshot(req.map(Body::new)).await
+            let req = req.map(|b| Body::new(TimeoutBody::new(body_timeout, b)));
+            app.oneshot(req).await
         }
     });
     let mut http = hyper::server::conn::http1::Builder::new();
     // A client may close its side once it has sent its request (half_close): the answer is
-    // still sent. The timeout is capped at a day: hyper adds it to the clock's reading, which
-    // must not overflow.
+    // still sent.
     http.timer(TokioTimer::new())
         .half_close(true)
-        .header_read_timeout(header_timeout.min(Duration::from_secs(86_400)));
+        .header_read_timeout(limits.header_timeout.min(day));
     let conn = http.serve_connection(TokioIo::new(stream), service);
     let mut conn = std::pin::pin!(conn);
     tokio::select! {

@@ -97,6 +97,10 @@ struct Args {
     /// connection idle that long is closed.
     #[arg(long, default_value_t = ServeLimits::default().header_timeout.as_secs_f64())]
     header_timeout: f64,
+    /// Longest pause between two reads of a request's body, in seconds: an upload that stalls
+    /// longer fails.
+    #[arg(long, default_value_t = ServeLimits::default().body_timeout.as_secs_f64())]
+    body_timeout: f64,
     /// Do not serve: ask the coordinator listening on --listen for /healthz and exit 0 when
     /// it answers 200 (a container health check; images have no curl).
     #[arg(long)]
@@ -168,11 +172,15 @@ async fn real_main(a: Args) -> anyhow::Result<()> {
     cfg.serve_limits = ServeLimits {
         max_connections: a.max_connections,
         header_timeout: secs(a.header_timeout, "header-timeout")?,
+        body_timeout: secs(a.body_timeout, "body-timeout")?,
     };
-    if cfg.serve_limits.header_timeout.is_zero()
-        || cfg.serve_limits.header_timeout > Duration::from_secs(86_400)
-    {
-        anyhow::bail!("--header-timeout: must be more than 0 and at most 86400 seconds");
+    for (flag, t) in [
+        ("header-timeout", cfg.serve_limits.header_timeout),
+        ("body-timeout", cfg.serve_limits.body_timeout),
+    ] {
+        if t.is_zero() || t > Duration::from_secs(86_400) {
+            anyhow::bail!("--{flag}: must be more than 0 and at most 86400 seconds");
+        }
     }
     let addr: std::net::SocketAddr = a
         .listen

@@ -102,6 +102,7 @@ async fn connections_past_the_cap_wait_for_one_to_close() {
     let c = start(ServeLimits {
         max_connections: 2,
         header_timeout: Duration::from_secs(60),
+        ..ServeLimits::default()
     })
     .await;
     let mut held = vec![
@@ -272,6 +273,46 @@ async fn an_upload_to_a_job_that_is_gone_gets_its_404() {
             "{size} bytes: {got}"
         );
     }
+    let _ = c.stop.send(());
+    c.task.await.unwrap().unwrap();
+}
+
+/// An upload whose body stops coming fails after the body timeout, answered 400 naming `body`,
+/// instead of holding its connection (and a large result's slot) for ever; one that keeps
+/// coming, however slowly, is read.
+#[tokio::test]
+async fn a_stalled_body_fails_after_the_body_timeout() {
+    let c = start(ServeLimits {
+        body_timeout: Duration::from_millis(300),
+        ..ServeLimits::default()
+    })
+    .await;
+    let mut s = TcpStream::connect(c.addr).await.unwrap();
+    s.write_all(
+        b"POST /v1/scenes HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 1000\r\n\r\n{\"objects\"",
+    )
+    .await
+    .unwrap();
+    let t = Instant::now();
+    let got = read_to_close(&mut s, Duration::from_secs(10)).await;
+    assert!(t.elapsed() < Duration::from_secs(5), "{:?}", t.elapsed());
+    assert_eq!(status(&got), "HTTP/1.1 400 Bad Request", "{got}");
+    assert!(got.contains(r#""field":"body""#), "{got}");
+
+    // Ten pauses of 150 ms, each under the timeout: read whole.
+    let body = br#"{"objects": []}"#;
+    let mut s = TcpStream::connect(c.addr).await.unwrap();
+    let head = format!(
+        "POST /v1/scenes HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
+        body.len()
+    );
+    s.write_all(head.as_bytes()).await.unwrap();
+    for part in body.chunks(body.len().div_ceil(10)) {
+        tokio::time::sleep(Duration::from_millis(150)).await;
+        s.write_all(part).await.unwrap();
+    }
+    let got = read_to_close(&mut s, Duration::from_secs(10)).await;
+    assert!(status(&got).starts_with("HTTP/1.1 20"), "{got}");
     let _ = c.stop.send(());
     c.task.await.unwrap().unwrap();
 }
