@@ -10,9 +10,12 @@
 //! - an HTTP/1.1 request with no `Host`, more than one, or one that is not a host and maybe a
 //!   port, is answered 400 before the router sees it (RFC 9112, section 3.2);
 //! - a request body that pauses for [`ServeLimits::body_timeout`] between two reads fails (as
-//!   nginx's `client_body_timeout`), so a stalled upload does not hold its connection, nor a
-//!   large result's slot, for ever;
-//! - a client that closes its side once its request is sent still gets the answer.
+//!   nginx's `client_body_timeout`), so an upload that stops coming does not hold its
+//!   connection, nor a large result's slot (one that keeps coming, however slowly, does).
+//!
+//! A client that closes its side of the connection is taken to be gone, as before (hyper's
+//! `half_close` stays off): a long poll or an image request it left is dropped, so no lease is
+//! handed to a worker that stopped while it waited.
 //!
 //! On shutdown it stops accepting, asks every connection to finish its request in progress and
 //! close, and returns when all have; dropped before that (the caller's hard stop), it closes
@@ -121,10 +124,7 @@ async fn connection(
         }
     });
     let mut http = hyper::server::conn::http1::Builder::new();
-    // A client may close its side once it has sent its request (half_close): the answer is
-    // still sent.
     http.timer(TokioTimer::new())
-        .half_close(true)
         .header_read_timeout(limits.header_timeout.min(day));
     let conn = http.serve_connection(TokioIo::new(stream), service);
     let mut conn = std::pin::pin!(conn);
@@ -171,12 +171,28 @@ fn host_problem<B>(req: &Request<B>) -> Option<Response<Body>> {
     )
 }
 
-/// Whether `host` is a URI authority without user information: `name`, `name:port`,
-/// `1.2.3.4:port`, `[::1]:port`.
+/// Whether `host` is a host and maybe a port, as `Host` must be: `name`, `name:port`,
+/// `1.2.3.4:port`, `[::1]:port` (no user information, a port of digits that fits 16 bits, an
+/// IPv6 address only in brackets).
 fn is_authority(host: &[u8]) -> bool {
-    !host.contains(&b'@')
-        && axum::http::uri::Authority::try_from(host)
-            .is_ok_and(|a| !a.host().is_empty() && a.as_str().len() == host.len())
+    let Ok(text) = std::str::from_utf8(host) else {
+        return false;
+    };
+    let Ok(a) = axum::http::uri::Authority::try_from(text) else {
+        return false;
+    };
+    let name = a.host();
+    let rest = text.get(name.len()..).unwrap_or_default();
+    let port_ok = rest.is_empty() || (rest.starts_with(':') && a.port_u16().is_some());
+    let name_ok = match name.strip_prefix('[') {
+        Some(inner) => inner.strip_suffix(']').is_some_and(|ip| {
+            // A zone id (`%25eth0`) may follow the address.
+            let ip = ip.split('%').next().unwrap_or_default();
+            ip.parse::<std::net::Ipv6Addr>().is_ok()
+        }),
+        None => !name.is_empty() && !name.contains(['[', ']']),
+    };
+    !text.contains('@') && a.as_str() == text && name_ok && port_ok
 }
 
 /// Waits after a failed `accept`: at once for an error of the one connection (it was reset
