@@ -837,14 +837,14 @@ async fn upload_result(
             // No such job (purged) or task: the body is read and dropped first, so that the
             // worker gets this answer rather than a connection closed under its upload, which
             // it would take for a network fault and send again.
-            drain(body, state.cfg.limits.max_upload_bytes).await;
+            drain(body, state.cfg.limits.max_result_bytes).await;
             return Err(e.into());
         }
     };
     let expected = proto::tile::encoded_len(&tile);
     // A bdpt result carries at most one splat per pixel of the frame after its pixels.
     let room = splat_pixels.map_or(0, |n| n * proto::tile::SPLAT_LEN as u64);
-    let limit = (expected as u64 + room).min(state.cfg.limits.max_upload_bytes);
+    let limit = (expected as u64 + room).min(state.cfg.limits.max_result_bytes);
     let declared: Option<u64> = headers
         .get(header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())
@@ -876,7 +876,11 @@ async fn upload_result(
     // The size is known from the task: read at most that much. A result for a task already
     // done or a job that is over is read and dropped, not held (the answer does not depend on
     // it, and a worker expects its whole body to be read).
-    let mut buf = Vec::with_capacity(if settled.is_some() { 0 } else { expected });
+    let capacity = match settled {
+        Some(_) => 0,
+        None => declared.map_or(expected as u64, |n| n.min(limit)) as usize,
+    };
+    let mut buf = Vec::with_capacity(capacity);
     let mut read = 0u64;
     let mut stream = body.into_data_stream();
     while let Some(chunk) = stream.next().await {
@@ -934,6 +938,9 @@ async fn upload_result(
             ),
         ));
     }
+    // Only the tile is needed from here: the decoded splats (as large as the body) go now.
+    let result_tile = acc.tile;
+    drop(acc);
     // A large result is written to a file now, before the scheduler's lock: the store then
     // only moves it into place, and other requests do not wait for hundreds of MB to be
     // written.
@@ -949,7 +956,7 @@ async fn upload_result(
     };
     let delivery = Delivery {
         worker: &worker,
-        tile: acc.tile,
+        tile: result_tile,
         pass,
         bytes: &buf,
         file: file.as_ref(),

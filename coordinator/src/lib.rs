@@ -44,6 +44,9 @@ use tokio::sync::{watch, Notify};
 pub struct Limits {
     /// Largest upload (scene) in bytes; more is answered 413.
     pub max_upload_bytes: u64,
+    /// Largest tile result in bytes (a `bdpt` tile's splats make results larger than their
+    /// tile); more is answered 413, and a `bdpt` job whose results could be larger is refused.
+    pub max_result_bytes: u64,
     /// Largest unpacked size of a scene archive.
     pub max_unpacked_bytes: u64,
     /// Largest width × height of a job.
@@ -68,6 +71,7 @@ impl Default for Limits {
     fn default() -> Self {
         Limits {
             max_upload_bytes: 512 << 20,
+            max_result_bytes: 2 << 30,
             max_unpacked_bytes: 2 << 30,
             max_pixels: raytile_core::settings::MAX_PIXELS,
             max_spp: raytile_core::settings::MAX_SPP,
@@ -153,8 +157,8 @@ impl Limits {
                 ),
             );
         }
-        // A bdpt tile's result may carry a splat for every pixel of the frame: it must fit in
-        // an upload, or a valid result could never be sent.
+        // A bdpt tile's result may carry a splat for every pixel of the frame: it must be
+        // allowed, or a valid result could never be sent.
         if s.integrator == raytile_core::IntegratorKind::Bdpt {
             let tile = raytile_proto::Tile {
                 x0: 0,
@@ -164,15 +168,15 @@ impl Limits {
             };
             let largest = raytile_proto::tile::encoded_len(&tile) as u64
                 + pixels * raytile_proto::tile::SPLAT_LEN as u64;
-            if largest > self.max_upload_bytes {
+            if largest > self.max_result_bytes {
                 return over(
                     "width",
                     format!(
                         "a bdpt frame of {pixels} pixels can make tile results of up to {largest} \
-                         bytes (a splat for every pixel of the frame), more than the {} an upload \
-                         may have on this coordinator (--max-upload-bytes): render a smaller \
+                         bytes (a splat for every pixel of the frame), more than the {} a result \
+                         may have on this coordinator (--max-result-bytes): render a smaller \
                          frame, or with path or volpath",
-                        self.max_upload_bytes
+                        self.max_result_bytes
                     ),
                 );
             }

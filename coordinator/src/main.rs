@@ -34,9 +34,13 @@ struct Args {
     /// Failures of one tile that fail its job.
     #[arg(long, default_value_t = 3)]
     max_task_failures: u32,
-    /// Largest upload in bytes.
-    #[arg(long, default_value_t = 512 << 20)]
+    /// Largest scene upload in bytes.
+    #[arg(long, default_value_t = Limits::default().max_upload_bytes)]
     max_upload_bytes: u64,
+    /// Largest tile result in bytes (a `bdpt` job whose tile results could be larger, with a
+    /// splat for every pixel of its frame, is refused: 2 GiB allows 76 M pixels).
+    #[arg(long, default_value_t = Limits::default().max_result_bytes)]
+    max_result_bytes: u64,
     /// Most unfinished jobs at once (more: 429).
     #[arg(long, default_value_t = Limits::default().max_queued_jobs)]
     max_queued_jobs: usize,
@@ -147,6 +151,7 @@ async fn real_main(a: Args) -> anyhow::Result<()> {
     cfg.startup_grace = secs(a.startup_grace, "startup-grace")?;
     cfg.max_task_failures = a.max_task_failures;
     cfg.limits.max_upload_bytes = a.max_upload_bytes;
+    cfg.limits.max_result_bytes = a.max_result_bytes;
     cfg.limits.max_queued_jobs = a.max_queued_jobs;
     cfg.limits.max_queued_tasks = a.max_queued_tasks;
     cfg.limits.max_pixels = a.max_pixels;
@@ -165,7 +170,10 @@ async fn real_main(a: Args) -> anyhow::Result<()> {
     cfg.scene_loader = core_scene_loader(cfg.scene_limits.clone());
     cfg.max_parallel_images = a.image_encodes.max(1);
     cfg.image_wait = secs(a.image_wait, "image-wait")?;
-    cfg.max_parallel_large_results = a.large_results.max(1);
+    if a.large_results == 0 {
+        anyhow::bail!("--large-results: must be at least 1");
+    }
+    cfg.max_parallel_large_results = a.large_results;
     if a.max_connections == 0 {
         anyhow::bail!("--max-connections: must be at least 1");
     }

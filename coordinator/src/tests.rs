@@ -39,6 +39,7 @@ fn test_state(dir: &std::path::Path, token: Option<&str>) -> AppState {
     let mut c = Config::new(dir);
     c.token = token.map(String::from);
     c.limits.max_upload_bytes = 4096;
+    c.limits.max_result_bytes = 4096;
     c.scene_loader = Arc::new(|_p: &std::path::Path| Ok(LoadedScene::default()));
     AppState::open(c).unwrap()
 }
@@ -600,14 +601,14 @@ async fn jobs_over_the_limits_are_refused_at_once_naming_the_field() {
     );
     check(r#""spp": 512, "passes": 512"#, "passes").await;
     // A bdpt tile's result can hold a splat for every pixel of the frame: 16 × 16 × 28 bytes
-    // is over this coordinator's 4096-byte uploads.
+    // is over this coordinator's 4096-byte results.
     let b = check(
         r#""width": 16, "height": 16, "integrator": "bdpt""#,
         "width",
     )
     .await;
     let message = b["error"]["message"].as_str().unwrap();
-    assert!(message.contains("--max-upload-bytes"), "{b}");
+    assert!(message.contains("--max-result-bytes"), "{b}");
     assert_eq!(st.sched().job_list().len(), 0, "nothing was created");
     let (code, b) = call(
         &st,
