@@ -35,12 +35,19 @@ async fn delete_with_purge_removes_the_job_from_the_api() {
     assert_eq!(call(&st, del("?purge=true")).await.0, StatusCode::NOT_FOUND);
 }
 
-fn test_state(dir: &std::path::Path, token: Option<&str>) -> AppState {
+/// The defaults with `dir` as the data directory and a scene loader that takes every scene as
+/// an empty one.
+fn fake_config(dir: impl Into<std::path::PathBuf>) -> Config {
     let mut c = Config::new(dir);
+    c.scene_loader = Arc::new(|_p: &std::path::Path| Ok(LoadedScene::default()));
+    c
+}
+
+fn test_state(dir: &std::path::Path, token: Option<&str>) -> AppState {
+    let mut c = fake_config(dir);
     c.token = token.map(String::from);
     c.limits.max_upload_bytes = 4096;
     c.limits.max_result_bytes = 4096;
-    c.scene_loader = Arc::new(|_p: &std::path::Path| Ok(LoadedScene::default()));
     AppState::open(c).unwrap()
 }
 
@@ -318,8 +325,7 @@ fn manual_clock(c: &mut Config, start: Now) -> Arc<Mutex<Now>> {
 #[tokio::test]
 async fn handlers_take_the_time_from_the_injected_clock() {
     let dir = tempfile::tempdir().unwrap();
-    let mut c = Config::new(dir.path());
-    c.scene_loader = Arc::new(|_p: &std::path::Path| Ok(LoadedScene::default()));
+    let mut c = fake_config(dir.path());
     let start = Now {
         instant: tokio::time::Instant::now(),
         wall_ms: 42_000,
@@ -624,8 +630,7 @@ async fn jobs_over_the_limits_are_refused_at_once_naming_the_field() {
         .unwrap();
     assert_eq!(call(&st, purge).await.0, StatusCode::OK);
     // Limits set by the operator.
-    let mut c = Config::new(dir.path().join("b"));
-    c.scene_loader = Arc::new(|_p: &std::path::Path| Ok(LoadedScene::default()));
+    let mut c = fake_config(dir.path().join("b"));
     c.limits.max_pixels = 1000;
     c.limits.max_spp = 8;
     let st2 = AppState::open(c).unwrap();
@@ -1512,8 +1517,7 @@ async fn a_jobs_camera_must_be_one_of_the_scenes() {
 #[tokio::test]
 async fn image_requests_wait_for_a_slot_and_are_answered_busy_after_the_wait() {
     let dir = tempfile::tempdir().unwrap();
-    let mut c = Config::new(dir.path());
-    c.scene_loader = Arc::new(|_p: &std::path::Path| Ok(LoadedScene::default()));
+    let mut c = fake_config(dir.path());
     c.max_parallel_images = 1;
     c.image_wait = std::time::Duration::from_millis(200);
     let st = AppState::open(c).unwrap();
@@ -1676,9 +1680,8 @@ async fn a_result_for_a_settled_task_is_dropped_unread() {
 #[tokio::test]
 async fn results_stored_as_files_make_the_same_frame_and_go_with_their_job() {
     async fn render(dir: &std::path::Path, file_bytes: usize) -> (String, Vec<u8>) {
-        let mut c = Config::new(dir);
+        let mut c = fake_config(dir);
         c.result_file_bytes = file_bytes;
-        c.scene_loader = Arc::new(|_p: &std::path::Path| Ok(LoadedScene::default()));
         let st = AppState::open(c).unwrap();
         let (code, job) =
             empty_scene_job(&st, r#""width": 4, "height": 2, "spp": 1, "tile_size": 16"#).await;
@@ -1736,9 +1739,7 @@ async fn results_stored_as_files_make_the_same_frame_and_go_with_their_job() {
     std::fs::write(results.join(&job).join("0-stray"), b"x").unwrap();
     std::fs::create_dir(results.join("j-gone")).unwrap();
     std::fs::write(results.join("j-gone").join("3-1"), b"x").unwrap();
-    let mut c = Config::new(dir.path());
-    c.scene_loader = Arc::new(|_p: &std::path::Path| Ok(LoadedScene::default()));
-    let st = AppState::open(c).unwrap();
+    let st = AppState::open(fake_config(dir.path())).unwrap();
     assert_eq!(files(&results), stored);
     assert_eq!(image(&st, &job).await, want, "after a restart");
 
@@ -1774,8 +1775,7 @@ fn walk(d: &std::path::Path) -> Vec<std::path::PathBuf> {
 #[tokio::test]
 async fn large_results_wait_for_a_slot_and_are_answered_busy_after_the_wait() {
     let dir = tempfile::tempdir().unwrap();
-    let mut c = Config::new(dir.path());
-    c.scene_loader = Arc::new(|_p: &std::path::Path| Ok(LoadedScene::default()));
+    let mut c = fake_config(dir.path());
     c.max_parallel_large_results = 1;
     c.large_result_wait = std::time::Duration::from_millis(200);
     // A 4×2 result is 160-odd bytes: "large" here.
@@ -1820,8 +1820,7 @@ async fn large_results_wait_for_a_slot_and_are_answered_busy_after_the_wait() {
     // Under the size, no slot is needed.
     drop(st);
     let dir2 = tempfile::tempdir().unwrap();
-    let mut c = Config::new(dir2.path());
-    c.scene_loader = Arc::new(|_p: &std::path::Path| Ok(LoadedScene::default()));
+    let mut c = fake_config(dir2.path());
     c.large_result_wait = std::time::Duration::from_millis(200);
     let st = AppState::open(c).unwrap();
     let _held = st
