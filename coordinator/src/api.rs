@@ -837,7 +837,7 @@ async fn upload_result(
             // No such job (purged) or task: the body is read and dropped first, so that the
             // worker gets this answer rather than a connection closed under its upload, which
             // it would take for a network fault and send again.
-            drain(body, state.cfg.limits.max_result_bytes).await;
+            let _ = drain(body, state.cfg.limits.max_result_bytes).await;
             return Err(e.into());
         }
     };
@@ -873,30 +873,16 @@ async fn upload_result(
     } else {
         None
     };
-    // The size is known from the task: read at most that much. A result for a task already
-    // done or a job that is over is read and dropped, not held (the answer does not depend on
-    // it, and a worker expects its whole body to be read).
-    let capacity = match settled {
-        Some(_) => 0,
-        None => declared.map_or(expected as u64, |n| n.min(limit)) as usize,
-    };
-    let mut buf = Vec::with_capacity(capacity);
-    let mut read = 0u64;
-    let mut stream = body.into_data_stream();
-    while let Some(chunk) = stream.next().await {
-        let chunk = chunk.map_err(|e| AppError::bad("body", format!("reading body: {e}")))?;
-        read += chunk.len() as u64;
-        if read > limit {
-            return Err(AppError::TooLarge(limit));
-        }
-        if settled.is_none() {
-            buf.extend_from_slice(&chunk);
-        }
-    }
+    // A result for a task already done or a job that is over is read and dropped, not held
+    // (the answer does not depend on it, and a worker expects its whole body to be read).
     if let Some(outcome) = settled {
+        drain(body, limit).await?;
         state.sched().count_duplicate();
         return Ok(Json(reply(outcome)));
     }
+    // The size is known from the task: read at most that much.
+    let mut buf = Vec::with_capacity(declared.map_or(expected as u64, |n| n.min(limit)) as usize);
+    read_body(body, limit, |chunk| buf.extend_from_slice(chunk)).await?;
     let (acc, pass) =
         proto::tile::decode(&buf).map_err(|e| AppError::invalid("body", e.to_string()))?;
     check_splats(&acc.splats, splat_pixels)?;
@@ -966,16 +952,25 @@ async fn upload_result(
     Ok(Json(reply(outcome)))
 }
 
-/// Reads `body` to its end and drops it, unless it is over `limit` bytes.
-async fn drain(body: Body, limit: u64) {
+/// Reads `body` to its end, giving each chunk to `keep`: a 413 past `limit` bytes, a 400 when
+/// the body cannot be read (the client went, or paused past the body timeout).
+async fn read_body(body: Body, limit: u64, mut keep: impl FnMut(&[u8])) -> Result<(), AppError> {
     let mut stream = body.into_data_stream();
     let mut read = 0u64;
-    while let Some(Ok(chunk)) = stream.next().await {
+    while let Some(chunk) = stream.next().await {
+        let chunk = chunk.map_err(|e| AppError::bad("body", format!("reading body: {e}")))?;
         read += chunk.len() as u64;
         if read > limit {
-            return;
+            return Err(AppError::TooLarge(limit));
         }
+        keep(&chunk);
     }
+    Ok(())
+}
+
+/// Reads `body` to its end and drops it (see [`read_body`]).
+async fn drain(body: Body, limit: u64) -> Result<(), AppError> {
+    read_body(body, limit, |_| {}).await
 }
 
 /// Waits up to `wait` for a permit of `slots`; past it, a 503 `busy` saying `why(seconds)`.
