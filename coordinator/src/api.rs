@@ -3,13 +3,14 @@
 
 use crate::compose;
 use crate::error::{AppError, Json, Path, Query};
+use crate::images;
 use crate::scenes::{self, UploadQuery};
 use crate::sched::{Delivery, Heartbeat, ResultOutcome, TaskLayout};
 use crate::store::Staged;
 use crate::AppState;
-use axum::body::Body;
+use axum::body::{Body, Bytes};
 use axum::extract::{DefaultBodyLimit, Request, State};
-use axum::http::{header, HeaderMap, Method, StatusCode};
+use axum::http::{header, HeaderMap, HeaderValue, Method, StatusCode};
 use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{on, MethodFilter, MethodRouter};
@@ -421,7 +422,9 @@ async fn cancel_job(
 ) -> Result<Json<proto::JobStatus>, AppError> {
     let now = state.now();
     let st = if q.purge.unwrap_or(false) {
-        state.sched().purge(&id, now)?
+        let st = state.sched().purge(&id, now)?;
+        state.image_cache().forget(&id);
+        st
     } else {
         state.sched().cancel(&id, now)?
     };
@@ -506,9 +509,14 @@ struct ImageQuery {
     format: Option<String>,
 }
 
+/// The frame so far. Each image is named by an entity tag that changes whenever a result of the
+/// job is stored ([`images`]): a request naming the current one in `If-None-Match` is answered
+/// 304 without a body, one with `Range` gets those bytes (206), and the last images made are
+/// kept for the requests that follow.
 async fn job_image(
     State(state): State<AppState>,
     method: Method,
+    headers: HeaderMap,
     Path(id): Path<String>,
     Query(q): Query<ImageQuery>,
 ) -> Result<Response, AppError> {
@@ -519,13 +527,30 @@ async fn job_image(
             format!("unknown image format '{name}' (expected png, exr or hdr)"),
         )
     })?;
-    if state.sched().layout(&id).is_none() {
-        return Err(no_job(&id));
+    let ext = compose::extension(format);
+    let version = state.sched().results_version(&id);
+    let etag = images::entity_tag(&version.ok_or_else(|| no_job(&id))?, ext);
+    if images::not_modified(&headers, &etag) {
+        return Ok(image_response(
+            StatusCode::NOT_MODIFIED,
+            format,
+            Some(&etag),
+            Body::empty(),
+        ));
+    }
+    let kept = state.image_cache().get(&id, &etag);
+    if let Some(bytes) = kept {
+        return image_answer(&method, &headers, format, Some(&etag), bytes);
     }
     if method == Method::HEAD {
         // The headers a GET would send, but for the length, which only encoding the frame
         // would tell (HTTP lets a HEAD answer leave it out).
-        return Ok([(header::CONTENT_TYPE, compose::content_type(format))].into_response());
+        return Ok(image_response(
+            StatusCode::OK,
+            format,
+            Some(&etag),
+            Body::empty(),
+        ));
     }
     // A frame takes memory in proportion to its pixels while it is composed and encoded: a
     // bounded number at once, the other requests wait here holding nothing.
@@ -571,17 +596,83 @@ async fn job_image(
     .await
     .map_err(AppError::internal)??;
     // Purged while it was made: its result files may have gone with it.
-    if state.sched().layout(&id).is_none() {
-        return Err(no_job(&id));
-    }
+    let after = state
+        .sched()
+        .results_version(&id)
+        .ok_or_else(|| no_job(&id))?;
     if missing > 0 {
         tracing::error!(job = %id, missing, "stored result files are missing: the image lacks those tiles");
     }
-    Ok((
-        [(header::CONTENT_TYPE, compose::content_type(format))],
-        bytes,
-    )
-        .into_response())
+    let bytes = Bytes::from(bytes);
+    // Named only if no result came in while it was made (it may hold some of the new results,
+    // not all) and every stored result was read.
+    let named = (images::entity_tag(&after, ext) == etag && missing == 0).then_some(etag);
+    if let Some(etag) = &named {
+        state
+            .image_cache()
+            .put(&id, ext, etag.clone(), bytes.clone());
+    }
+    image_answer(&method, &headers, format, named.as_deref(), bytes)
+}
+
+/// An image's answer: the part of `bytes` the request asks for, where the image has a name
+/// (`etag`) that a range can be taken of; all of it otherwise; only the headers to a HEAD.
+fn image_answer(
+    method: &Method,
+    headers: &HeaderMap,
+    format: ImageFormat,
+    etag: Option<&str>,
+    bytes: Bytes,
+) -> Result<Response, AppError> {
+    let len = bytes.len();
+    let part = match etag {
+        Some(etag) if method == Method::GET => images::requested_part(headers, etag, len),
+        _ => images::Part::Whole,
+    };
+    let (status, range, body) = match part {
+        images::Part::Whole => (StatusCode::OK, None, bytes),
+        images::Part::Bytes(r) => {
+            let range = format!("bytes {}-{}/{len}", r.start, r.end - 1);
+            (StatusCode::PARTIAL_CONTENT, Some(range), bytes.slice(r))
+        }
+        images::Part::Unsatisfiable => return Err(AppError::RangeNotSatisfiable(len)),
+    };
+    if method == Method::HEAD {
+        let mut resp = image_response(status, format, etag, Body::empty());
+        resp.headers_mut()
+            .insert(header::CONTENT_LENGTH, HeaderValue::from(body.len()));
+        return Ok(resp);
+    }
+    let mut resp = image_response(status, format, etag, Body::from(body));
+    if let Some(v) = range.and_then(|r| HeaderValue::from_str(&r).ok()) {
+        resp.headers_mut().insert(header::CONTENT_RANGE, v);
+    }
+    Ok(resp)
+}
+
+/// An image answer's status and headers: its content type, its entity tag if it has one (with
+/// `Cache-Control: no-cache`, so that a browser asks again, naming it, before it shows its copy)
+/// and `Accept-Ranges`.
+fn image_response(
+    status: StatusCode,
+    format: ImageFormat,
+    etag: Option<&str>,
+    body: Body,
+) -> Response {
+    let mut resp = (status, body).into_response();
+    let h = resp.headers_mut();
+    if status != StatusCode::NOT_MODIFIED {
+        h.insert(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static(compose::content_type(format)),
+        );
+    }
+    if let Some(v) = etag.and_then(|t| HeaderValue::from_str(t).ok()) {
+        h.insert(header::ETAG, v);
+        h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
+        h.insert(header::ACCEPT_RANGES, HeaderValue::from_static("bytes"));
+    }
+    resp
 }
 
 async fn register(

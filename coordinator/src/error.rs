@@ -39,6 +39,9 @@ pub enum AppError {
     /// 413: the body is over the limit.
     #[error("request body over the limit of {0} bytes")]
     TooLarge(u64),
+    /// 416: a byte range that starts past the end of an image of this many bytes.
+    #[error("the range starts past the end of the image's {0} bytes")]
+    RangeNotSatisfiable(usize),
     /// 415: a JSON body without `Content-Type: application/json`.
     #[error("{0}")]
     UnsupportedMediaType(String),
@@ -120,6 +123,11 @@ impl AppError {
             }
             AppError::Conflict(_) => (StatusCode::CONFLICT, "conflict", None),
             AppError::TooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, "too_large", None),
+            AppError::RangeNotSatisfiable(_) => (
+                StatusCode::RANGE_NOT_SATISFIABLE,
+                "range_not_satisfiable",
+                Some("Range".into()),
+            ),
             AppError::UnsupportedMediaType(_) => (
                 StatusCode::UNSUPPORTED_MEDIA_TYPE,
                 "unsupported_media_type",
@@ -169,6 +177,11 @@ impl IntoResponse for AppError {
         };
         let mut resp = (status, axum::Json(body)).into_response();
         let headers = resp.headers_mut();
+        if let AppError::RangeNotSatisfiable(len) = self {
+            if let Ok(v) = axum::http::HeaderValue::from_str(&format!("bytes */{len}")) {
+                headers.insert(axum::http::header::CONTENT_RANGE, v);
+            }
+        }
         if status == StatusCode::UNAUTHORIZED {
             headers.insert(
                 axum::http::header::WWW_AUTHENTICATE,

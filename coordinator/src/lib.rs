@@ -15,6 +15,7 @@ pub mod api;
 pub mod clock;
 pub mod compose;
 pub mod error;
+pub mod images;
 pub mod listen;
 pub mod openapi;
 pub mod scenes;
@@ -185,6 +186,9 @@ impl Limits {
     }
 }
 
+/// The default of [`Config::image_cache_bytes`]: 256 MiB.
+pub const IMAGE_CACHE_BYTES: usize = 256 << 20;
+
 /// Everything the coordinator is configured with.
 #[derive(Clone)]
 pub struct Config {
@@ -220,6 +224,9 @@ pub struct Config {
     /// How long an image request waits for one of the others to end before it is answered
     /// 503 (retryable, with `Retry-After`).
     pub image_wait: Duration,
+    /// Most bytes of encoded job images kept for the requests that follow (the newest image
+    /// of each job and format, least recently used dropped first; 0 keeps none).
+    pub image_cache_bytes: usize,
     /// Results of this many bytes or more are stored as files beside the database, written
     /// before the scheduler's lock is taken, rather than in it (default 1 MiB).
     pub result_file_bytes: usize,
@@ -254,6 +261,7 @@ impl Config {
             scene_loader: core_scene_loader(SceneLimits::default()),
             max_parallel_images: 2,
             image_wait: Duration::from_secs(30),
+            image_cache_bytes: IMAGE_CACHE_BYTES,
             result_file_bytes: 1 << 20,
             max_parallel_large_results: 2,
             large_result_wait: Duration::from_secs(30),
@@ -297,6 +305,8 @@ pub struct Inner {
     /// One permit per job image that may be composed and encoded at once
     /// ([`Config::max_parallel_images`]).
     pub image_slots: Arc<tokio::sync::Semaphore>,
+    /// The last job images made ([`Config::image_cache_bytes`]).
+    pub images: Mutex<images::ImageCache>,
     /// One permit per large result being read and checked
     /// ([`Config::max_parallel_large_results`]).
     pub large_result_slots: Arc<tokio::sync::Semaphore>,
@@ -370,6 +380,7 @@ impl AppState {
         let large_result_slots = Arc::new(tokio::sync::Semaphore::new(
             cfg.max_parallel_large_results.max(1),
         ));
+        let image_cache = Mutex::new(images::ImageCache::new(cfg.image_cache_bytes));
         Ok(AppState(Arc::new(Inner {
             cfg,
             sched: Mutex::new(sched),
@@ -379,6 +390,7 @@ impl AppState {
             scene_checks: Default::default(),
             parse_slots,
             image_slots,
+            images: image_cache,
             large_result_slots,
             shutdown_tx,
             lock: Mutex::new(lock),
@@ -393,6 +405,11 @@ impl AppState {
     /// Locks the scheduler (a poisoned lock is still usable: every change is persisted first).
     pub fn sched(&self) -> std::sync::MutexGuard<'_, Sched> {
         self.sched.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Locks the cache of job images (a poisoned lock is still usable: it holds only copies).
+    pub fn image_cache(&self) -> std::sync::MutexGuard<'_, images::ImageCache> {
+        self.images.lock().unwrap_or_else(|p| p.into_inner())
     }
 
     /// Tells long-polls to return and the server to stop.

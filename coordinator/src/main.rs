@@ -88,6 +88,10 @@ struct Args {
     /// seconds.
     #[arg(long, default_value_t = 30.0)]
     image_wait: f64,
+    /// Most bytes of encoded job images kept for the requests that follow: the newest image of
+    /// each job and format, the least recently used dropped first (0 keeps none).
+    #[arg(long, default_value_t = raytile_coordinator::IMAGE_CACHE_BYTES)]
+    image_cache_bytes: usize,
     /// Most tile results of 1 MiB or more (`bdpt` splats) read and checked at once; each holds
     /// about twice its size in memory meanwhile. Further uploads wait, and are answered 503
     /// (retryable) after 30 s.
@@ -170,6 +174,7 @@ async fn real_main(a: Args) -> anyhow::Result<()> {
     cfg.scene_loader = core_scene_loader(cfg.scene_limits.clone());
     cfg.max_parallel_images = a.image_encodes.max(1);
     cfg.image_wait = secs(a.image_wait, "image-wait")?;
+    cfg.image_cache_bytes = a.image_cache_bytes;
     if a.large_results == 0 {
         anyhow::bail!("--large-results: must be at least 1");
     }

@@ -1756,6 +1756,144 @@ async fn results_stored_as_files_make_the_same_frame_and_go_with_their_job() {
     assert!(files(&results).is_empty(), "{:?}", files(&results));
 }
 
+/// A job image is named by an entity tag that changes when a result is stored and at every
+/// start: a client that names the current one is answered 304, a byte range is served (206) or
+/// refused (416) against it, and the image is kept for the requests that follow, until its job
+/// is purged.
+#[tokio::test]
+async fn images_are_named_kept_revalidated_and_served_by_the_range() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut c = fake_config(dir.path());
+    c.max_parallel_images = 1;
+    c.image_wait = std::time::Duration::from_millis(100);
+    let st = AppState::open(c).unwrap();
+    let (_, job) =
+        empty_scene_job(&st, r#""width": 4, "height": 2, "spp": 1, "tile_size": 16"#).await;
+    let job = job["id"].as_str().unwrap().to_string();
+    let uri = format!("/v1/jobs/{job}/image?format=exr");
+    let with = |pairs: &[(&str, &str)]| {
+        let mut r = Request::get(&uri);
+        for (k, v) in pairs {
+            r = r.header(*k, *v);
+        }
+        r.body(Body::empty()).unwrap()
+    };
+    async fn send(
+        st: &AppState,
+        req: Request<Body>,
+    ) -> (StatusCode, axum::http::HeaderMap, Vec<u8>) {
+        let resp = app(st.clone()).oneshot(req).await.unwrap();
+        let (parts, body) = resp.into_parts();
+        let body = axum::body::to_bytes(body, usize::MAX).await.unwrap();
+        (parts.status, parts.headers, body.to_vec())
+    }
+    let (code, h, first) = send(&st, with(&[])).await;
+    assert_eq!(code, StatusCode::OK);
+    let tag = h["etag"].to_str().unwrap().to_string();
+    assert!(tag.starts_with('"') && tag.ends_with("-exr\""), "{tag}");
+    assert_eq!(
+        (&h["cache-control"], &h["accept-ranges"], &h["content-type"]),
+        (
+            &"no-cache".parse().unwrap(),
+            &"bytes".parse().unwrap(),
+            &"image/x-exr".parse().unwrap()
+        )
+    );
+    let (_, png, _) = send(&st, get(&format!("/v1/jobs/{job}/image?format=png"))).await;
+    assert_ne!(png["etag"], h["etag"], "each format has its own name");
+
+    // The client's copy is current: 304, no body, the same name.
+    let (code, h, body) = send(&st, with(&[("if-none-match", &tag)])).await;
+    assert_eq!((code, body.len()), (StatusCode::NOT_MODIFIED, 0));
+    assert_eq!(h["etag"].to_str().unwrap(), tag);
+    let (code, _, _) = send(&st, with(&[("if-none-match", "\"other\"")])).await;
+    assert_eq!(code, StatusCode::OK);
+
+    // Ranges of the named image.
+    let len = first.len();
+    let (code, h, body) = send(&st, with(&[("range", "bytes=0-9")])).await;
+    assert_eq!(code, StatusCode::PARTIAL_CONTENT);
+    assert_eq!(
+        h["content-range"].to_str().unwrap(),
+        format!("bytes 0-9/{len}")
+    );
+    assert_eq!(body, first[..10]);
+    let (code, _, body) = send(&st, with(&[("range", "bytes=-5"), ("if-range", &tag)])).await;
+    assert_eq!(
+        (code, body.as_slice()),
+        (StatusCode::PARTIAL_CONTENT, &first[len - 5..])
+    );
+    let (code, _, body) = send(
+        &st,
+        with(&[("range", "bytes=0-9"), ("if-range", "\"old\"")]),
+    )
+    .await;
+    assert_eq!(
+        (code, body.len()),
+        (StatusCode::OK, len),
+        "another image: all of this one"
+    );
+    let past = format!("bytes={len}-");
+    let (code, h, body) = send(&st, with(&[("range", past.as_str())])).await;
+    assert_eq!(code, StatusCode::RANGE_NOT_SATISFIABLE);
+    assert_eq!(
+        h["content-range"].to_str().unwrap(),
+        format!("bytes */{len}")
+    );
+    let body: serde_json::Value = serde_json::from_slice(&body).unwrap();
+    assert_error_body("range", &body);
+    assert_eq!(body["error"]["field"], "Range");
+
+    // Kept: served while every image slot is taken, and to HEAD with its length.
+    let held = st.image_slots.clone().acquire_owned().await.unwrap();
+    let (code, _, body) = send(&st, with(&[])).await;
+    assert_eq!((code, &body), (StatusCode::OK, &first));
+    let head = Request::head(&uri).body(Body::empty()).unwrap();
+    let (code, h, body) = send(&st, head).await;
+    assert_eq!((code, body.len()), (StatusCode::OK, 0));
+    assert_eq!(h["content-length"].to_str().unwrap(), len.to_string());
+    assert_eq!(h["etag"].to_str().unwrap(), tag);
+    drop(held);
+
+    // A result stored: a new name, a new image.
+    let (_, w) = register_worker(&st).await;
+    let worker = w["worker_id"].as_str().unwrap();
+    let (_, lease) = call(&st, post(&format!("/v1/workers/{worker}/lease"), "")).await;
+    let upload = Request::put(format!(
+        "/v1/jobs/{job}/tasks/{}/result?worker={worker}&lease={}",
+        lease["task"],
+        lease["lease_id"].as_str().unwrap()
+    ))
+    .body(Body::from(result_4x2(vec![[0.5, 0.25, 1.0, 1.0]; 8], 0)))
+    .unwrap();
+    assert_eq!(call(&st, upload).await.0, StatusCode::OK);
+    let (code, h, second) = send(&st, with(&[("if-none-match", &tag)])).await;
+    assert_eq!(code, StatusCode::OK, "the old name is not current");
+    let tag2 = h["etag"].to_str().unwrap().to_string();
+    assert_ne!(tag2, tag);
+    assert_ne!(second, first);
+    let (code, _, body) = send(&st, with(&[("range", "bytes=0-9"), ("if-range", &tag)])).await;
+    assert_eq!(
+        (code, &body),
+        (StatusCode::OK, &second),
+        "no range of a superseded image"
+    );
+
+    // Another start of the coordinator names the same image anew.
+    drop(st);
+    let st = AppState::open(fake_config(dir.path())).unwrap();
+    let (code, h, again) = send(&st, with(&[("if-none-match", &tag2)])).await;
+    assert_eq!((code, &again), (StatusCode::OK, &second));
+    assert_ne!(h["etag"].to_str().unwrap(), tag2);
+    assert!(st.image_cache().held() > 0);
+    let purge = Request::delete(format!("/v1/jobs/{job}?purge=true"))
+        .body(Body::empty())
+        .unwrap();
+    assert_eq!(call(&st, purge).await.0, StatusCode::OK);
+    assert_eq!(st.image_cache().held(), 0, "purged with its job");
+    assert_eq!(send(&st, with(&[])).await.0, StatusCode::NOT_FOUND);
+}
+
 /// Every file under `d`, at any depth.
 fn walk(d: &std::path::Path) -> Vec<std::path::PathBuf> {
     let mut out = Vec::new();

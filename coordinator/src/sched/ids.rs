@@ -19,6 +19,11 @@ impl Ids {
         }
     }
 
+    /// The epoch: a different one at every start of the coordinator.
+    pub fn epoch(&self) -> u64 {
+        self.epoch
+    }
+
     /// A new id starting with `prefix`, for example `w-` or `l-`.
     pub fn next(&mut self, prefix: &str) -> String {
         self.next += 1;

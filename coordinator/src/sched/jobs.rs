@@ -30,6 +30,9 @@ pub(super) struct Job {
     tasks: Vec<Task>,
     /// How many tasks are done.
     done: usize,
+    /// Changes of the set of done tasks in this process: with the coordinator's epoch it
+    /// names one state of the job's stored results (an image's validator).
+    results_changes: u64,
     /// Done passes of each tile, by position in the layout's tile order (task `i` is position
     /// `i % tiles`): the progress events are counted from these, not from every task.
     tile_passes: Vec<u32>,
@@ -72,6 +75,7 @@ impl Job {
             layout,
             tasks,
             done: 0,
+            results_changes: 0,
             cursor: 0,
             worker_failures: HashMap::new(),
             recent_failures: Default::default(),
@@ -222,6 +226,7 @@ impl Job {
         self.done = self.done + usize::from(is_done) - usize::from(was_done);
         if is_done != was_done {
             self.count_done(idx, if is_done { 1 } else { -1 });
+            self.results_changes += 1;
         }
         if t.state == TaskState::Queued {
             self.cursor = self.cursor.min(idx);
@@ -252,6 +257,12 @@ impl Job {
     /// Done tasks.
     pub fn tasks_done(&self) -> usize {
         self.done
+    }
+
+    /// How often the set of done tasks changed since this process restored or created the
+    /// job: the same count, the same stored results.
+    pub fn results_changes(&self) -> u64 {
+        self.results_changes
     }
 
     /// Renews the lease of task `idx`: the deadline lives in memory only (after a restart

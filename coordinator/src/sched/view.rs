@@ -118,6 +118,18 @@ impl Sched {
         })
     }
 
+    /// A name for the current state of job `id`'s stored results, or `None` for an unknown
+    /// job: it changes whenever a result is stored (and at every start of the coordinator),
+    /// so two images of the job made under the same name are the same bytes.
+    pub fn results_version(&self, id: &str) -> Option<String> {
+        let job = self.jobs.get(id)?;
+        Some(format!(
+            "{:x}-{:x}",
+            self.ids.epoch(),
+            job.results_changes()
+        ))
+    }
+
     /// The task layout of job `id` (to compose its frame outside the lock), or `None`.
     pub fn layout(&self, id: &str) -> Option<Arc<TaskLayout>> {
         self.jobs.get(id).map(|j| j.layout.clone())
