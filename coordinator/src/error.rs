@@ -65,6 +65,19 @@ pub enum AppError {
         "the coordinator cannot write its database at the moment; nothing was changed: retry later"
     )]
     StoreUnavailable(#[source] rusqlite::Error),
+    /// 503: a file in the data directory could not be written (disk full, read-only, a
+    /// folder removed...): nothing was kept, and the same request may succeed later. Answered
+    /// as [`AppError::StoreUnavailable`]; the log says which file and why.
+    #[error(
+        "the coordinator cannot write its data directory at the moment; nothing was changed: retry later"
+    )]
+    DiskUnavailable {
+        /// What was being written, with its path.
+        what: String,
+        /// The error.
+        #[source]
+        error: std::io::Error,
+    },
     /// 503: too busy to take this request now (every scene parse slot stayed taken); answered
     /// with `Retry-After`.
     #[error("{0}")]
@@ -89,6 +102,12 @@ impl AppError {
             field: Some(field.into()),
             message: message.into(),
         }
+    }
+
+    /// A 503 for a failed write of `what` (a file in the data directory, named with its path).
+    pub fn disk(what: impl std::fmt::Display) -> impl FnOnce(std::io::Error) -> AppError {
+        let what = what.to_string();
+        move |error| AppError::DiskUnavailable { what, error }
     }
 
     /// 500 from anything displayable.
@@ -138,7 +157,7 @@ impl AppError {
             }
             AppError::TooMany(_) => (StatusCode::TOO_MANY_REQUESTS, "too_many", None),
             AppError::Unavailable => (StatusCode::SERVICE_UNAVAILABLE, "unavailable", None),
-            AppError::StoreUnavailable(_) => {
+            AppError::StoreUnavailable(_) | AppError::DiskUnavailable { .. } => {
                 (StatusCode::SERVICE_UNAVAILABLE, "store_unavailable", None)
             }
             AppError::Busy(_) => (StatusCode::SERVICE_UNAVAILABLE, "busy", None),
@@ -155,11 +174,17 @@ impl IntoResponse for AppError {
             AppError::StoreUnavailable(e) => {
                 tracing::error!("store write failed, answered 503: {e}")
             }
+            AppError::DiskUnavailable { what, error } => {
+                tracing::error!("writing {what} failed, answered 503: {error}")
+            }
             _ => {}
         }
         let retryable = matches!(
             self,
-            AppError::Unavailable | AppError::StoreUnavailable(_) | AppError::Busy(_)
+            AppError::Unavailable
+                | AppError::StoreUnavailable(_)
+                | AppError::DiskUnavailable { .. }
+                | AppError::Busy(_)
         );
         let mut message = self.to_string();
         if let Some(f) = &field {

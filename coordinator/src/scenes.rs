@@ -234,8 +234,14 @@ pub async fn stream_to_temp(
     tmp_dir: &Path,
     limit: u64,
 ) -> Result<(tempfile::NamedTempFile, String, Vec<u8>), AppError> {
-    let tmp = tempfile::NamedTempFile::new_in(tmp_dir).map_err(AppError::internal)?;
-    let mut file = tokio::fs::File::from_std(tmp.reopen().map_err(AppError::internal)?);
+    // Made again if it was removed while the coordinator ran.
+    std::fs::create_dir_all(tmp_dir).map_err(AppError::disk(tmp_dir.display()))?;
+    let tmp = tempfile::NamedTempFile::new_in(tmp_dir).map_err(AppError::disk(format!(
+        "an upload in {}",
+        tmp_dir.display()
+    )))?;
+    let path = tmp.path().display().to_string();
+    let mut file = tokio::fs::File::from_std(tmp.reopen().map_err(AppError::disk(&path))?);
     let mut hasher = Sha256::new();
     let mut head = Vec::with_capacity(4096);
     let mut total: u64 = 0;
@@ -251,9 +257,11 @@ pub async fn stream_to_temp(
             head.extend_from_slice(&chunk[..n]);
         }
         hasher.update(&chunk);
-        file.write_all(&chunk).await.map_err(AppError::internal)?;
+        file.write_all(&chunk)
+            .await
+            .map_err(AppError::disk(&path))?;
     }
-    file.flush().await.map_err(AppError::internal)?;
+    file.flush().await.map_err(AppError::disk(&path))?;
     Ok((tmp, hex::encode(hasher.finalize()), head))
 }
 
@@ -368,21 +376,25 @@ fn store_scene(
     id: String,
     sha256: String,
 ) -> Result<(bool, Arc<SceneMeta>), AppError> {
+    let tmp_dir = state.cfg.data_dir.join("tmp");
     let stage = tempfile::Builder::new()
         .prefix("stage-")
-        .tempdir_in(state.cfg.data_dir.join("tmp"))
-        .map_err(AppError::internal)?;
+        .tempdir_in(&tmp_dir)
+        .map_err(AppError::disk(format!("a scene in {}", tmp_dir.display())))?;
     let blob = stage.path().join("blob");
-    tmp.persist(&blob).map_err(AppError::internal)?;
+    tmp.persist(&blob)
+        .map_err(|e| AppError::disk(blob.display())(e.error))?;
     let root = stage.path().join("root");
-    std::fs::create_dir(&root).map_err(AppError::internal)?;
+    std::fs::create_dir(&root).map_err(AppError::disk(root.display()))?;
     let limits = UnpackLimits {
         max_bytes: state.cfg.limits.max_unpacked_bytes,
         ..UnpackLimits::default()
     };
     let scene_file =
         pkg::unpack(&blob, format, entry.as_deref(), &root, limits).map_err(|e| match e {
-            pkg::PackageError::Io(e) => AppError::internal(e),
+            pkg::PackageError::Io(e) => {
+                AppError::disk(format!("unpacking into {}", root.display()))(e)
+            }
             // Only a missing or ambiguous scene file is about `?entry=`; the rest is the body's.
             e @ pkg::PackageError::Entry(_) if entry.is_some() => {
                 AppError::invalid("entry", e.to_string())
@@ -420,7 +432,8 @@ fn store_scene(
         sppm: loaded.sppm,
     };
     let text = serde_json::to_vec_pretty(&m).map_err(AppError::internal)?;
-    std::fs::write(stage.path().join("meta.json"), text).map_err(AppError::internal)?;
+    let meta_file = stage.path().join("meta.json");
+    std::fs::write(&meta_file, text).map_err(AppError::disk(meta_file.display()))?;
     let dest = scene_dir(state, &id);
     let staged = stage.keep();
     if std::fs::rename(&staged, &dest).is_err() {

@@ -203,7 +203,7 @@ impl Store {
             conn.execute_batch("ALTER TABLE results ADD COLUMN file TEXT")?;
         }
         let results = dir.join("results");
-        std::fs::create_dir_all(&results).map_err(io_error)?;
+        std::fs::create_dir_all(&results).map_err(|e| io_error_at(&results, e))?;
         let mut store = Store {
             conn,
             path,
@@ -211,6 +211,7 @@ impl Store {
             #[cfg(test)]
             faults: Faults::default(),
         };
+        store.check_results_belong()?;
         store.discard_other_renderer_tiles()?;
         store.remove_unnamed_files()?;
         store.requeue_missing_files()?;
@@ -220,6 +221,42 @@ impl Store {
     /// Where results stored as files live.
     pub fn results_dir(&self) -> &Path {
         &self.results
+    }
+
+    /// A database without a single job beside a `results/` that holds the results of jobs is
+    /// not the database they belong to (it was lost, emptied or replaced): starting on it
+    /// would delete them as files no row names. Refused, so that the right one can be put
+    /// back. Folders of purges that a stop interrupted (`.purged-*`) do not count.
+    fn check_results_belong(&self) -> rusqlite::Result<()> {
+        let jobs: i64 = self
+            .conn
+            .query_row("SELECT COUNT(*) FROM jobs", [], |r| r.get(0))?;
+        if jobs > 0 {
+            return Ok(());
+        }
+        let held = std::fs::read_dir(&self.results)
+            .into_iter()
+            .flatten()
+            .flatten()
+            .filter(|e| !e.file_name().to_string_lossy().starts_with('.'))
+            .filter(|e| e.file_type().is_ok_and(|t| t.is_dir()))
+            .filter(|e| std::fs::read_dir(e.path()).is_ok_and(|mut d| d.next().is_some()))
+            .count();
+        if held == 0 {
+            return Ok(());
+        }
+        let message = format!(
+            "{} holds no job, but {} holds the stored results of {held} job(s): this is not \
+             their database (it was lost, emptied or replaced). Put the database back from a \
+             backup, or move {} aside to start an empty farm",
+            self.path.display(),
+            self.results.display(),
+            self.results.display()
+        );
+        Err(rusqlite::Error::SqliteFailure(
+            rusqlite::ffi::Error::new(rusqlite::ffi::SQLITE_CANTOPEN),
+            Some(message),
+        ))
     }
 
     /// Rows whose result file is gone (removed by hand, or lost by a file system that did not
@@ -247,6 +284,7 @@ impl Store {
             return Ok(0);
         }
         let tx = self.conn.transaction()?;
+        let mut finished = 0;
         for (job, idx) in &missing {
             tx.execute(
                 "DELETE FROM results WHERE job_id = ?1 AND idx = ?2",
@@ -263,13 +301,17 @@ impl Store {
                 params![job, idx],
             )?;
             if requeued == 0 {
+                finished += 1;
                 tracing::error!(%job, idx, "the result file of a finished job's task is missing");
             }
         }
         tx.commit()?;
         tracing::warn!(
             count = missing.len(),
-            "result files named by the database are missing: their tasks are queued again"
+            queued_again = missing.len() - finished,
+            of_finished_jobs = finished,
+            "result files named by the database are missing: the tasks of unfinished jobs are \
+             queued again; finished jobs' frames lack those tiles"
         );
         Ok(missing.len())
     }
@@ -287,6 +329,7 @@ impl Store {
         let Ok(jobs) = std::fs::read_dir(&self.results) else {
             return Ok(());
         };
+        let (mut removed, mut bytes) = (0u64, 0u64);
         for job in jobs.flatten() {
             let dir = job.path();
             let job_name = job.file_name().to_string_lossy().into_owned();
@@ -296,13 +339,25 @@ impl Store {
                 let name = format!("{job_name}/{}", f.file_name().to_string_lossy());
                 if named.contains(&name) {
                     kept += 1;
-                } else if let Err(e) = std::fs::remove_file(f.path()) {
-                    tracing::warn!(path = %f.path().display(), "cannot remove: {e}");
+                    continue;
+                }
+                let size = f.metadata().map_or(0, |m| m.len());
+                match std::fs::remove_file(f.path()) {
+                    Ok(()) => (removed, bytes) = (removed + 1, bytes + size),
+                    Err(e) => tracing::warn!(path = %f.path().display(), "cannot remove: {e}"),
                 }
             }
             if kept == 0 {
                 let _ = std::fs::remove_dir(&dir);
             }
+        }
+        if removed > 0 {
+            tracing::warn!(
+                files = removed,
+                bytes,
+                "removed result files that no stored result names: left by a write or purge \
+                 that a stop interrupted, or by a power loss that undid the last commits"
+            );
         }
         Ok(())
     }
@@ -798,13 +853,17 @@ impl Staged {
             std::process::id(),
             NEXT.fetch_add(1, Ordering::Relaxed)
         );
+        let tmp = data_dir.join("tmp");
         let staged = Staged {
-            path: data_dir.join("tmp").join(format!("result-{name}")),
+            path: tmp.join(format!("result-{name}")),
             name,
         };
-        let mut f = std::fs::File::create(&staged.path).map_err(io_error)?;
-        f.write_all(bytes).map_err(io_error)?;
-        f.sync_all().map_err(io_error)?;
+        let at = |e| io_error_at(&staged.path, e);
+        // Made again if it was removed while the coordinator ran.
+        std::fs::create_dir_all(&tmp).map_err(|e| io_error_at(&tmp, e))?;
+        let mut f = std::fs::File::create(&staged.path).map_err(at)?;
+        f.write_all(bytes).map_err(at)?;
+        f.sync_all().map_err(at)?;
         Ok(staged)
     }
 }
@@ -830,12 +889,21 @@ fn remove_files(paths: &[PathBuf]) {
 /// A file error as the store's error: a full disk reads as SQLite's own, so it is answered
 /// the same way (503, retryable).
 fn io_error(e: std::io::Error) -> rusqlite::Error {
+    failure(&e, e.to_string())
+}
+
+/// [`io_error`] naming the file, for the log.
+fn io_error_at(path: &Path, e: std::io::Error) -> rusqlite::Error {
+    failure(&e, format!("{}: {e}", path.display()))
+}
+
+fn failure(e: &std::io::Error, message: String) -> rusqlite::Error {
     let code = if e.raw_os_error() == Some(libc::ENOSPC) {
         rusqlite::ffi::SQLITE_FULL
     } else {
         rusqlite::ffi::SQLITE_IOERR
     };
-    rusqlite::Error::SqliteFailure(rusqlite::ffi::Error::new(code), Some(e.to_string()))
+    rusqlite::Error::SqliteFailure(rusqlite::ffi::Error::new(code), Some(message))
 }
 
 #[cfg(test)]
@@ -1043,6 +1111,55 @@ mod tests {
         let done_w = StoredTask::Done { worker: "w".into() };
         assert_eq!(states("run"), [StoredTask::Queued, done_w.clone()]);
         assert_eq!(states("fin"), [done_w.clone(), done_w]);
+    }
+
+    /// A database lost or emptied beside the result files of its jobs is refused at start,
+    /// naming both, rather than those files deleted as named by no row; moved aside, the
+    /// results no longer stop a start, and an interrupted purge's folder never did. A `tmp/`
+    /// removed while the coordinator runs is made again by the next result.
+    #[test]
+    fn results_without_their_database_are_refused_not_deleted() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut store = Store::open(dir.path()).unwrap();
+        store
+            .insert_job(&job_row("j", 0, JobState::Running))
+            .unwrap();
+        assert!(!dir.path().join("tmp").exists());
+        let staged = Staged::write(dir.path(), &[5; 8]).unwrap();
+        let row = done(0);
+        store
+            .write(&[Write::Result {
+                job: "j",
+                row: &row,
+                data: &[],
+                file: Some(&staged),
+            }])
+            .unwrap();
+        drop(store);
+        let db = dir.path().join("raytile.sqlite3");
+        for lose in [
+            |db: &Path| std::fs::remove_file(db).unwrap(),
+            |db: &Path| std::fs::File::create(db).map(drop).unwrap(),
+        ] {
+            lose(&db);
+            let _ = std::fs::remove_file(dir.path().join("raytile.sqlite3-wal"));
+            let e = Store::open(dir.path()).err().expect("refused").to_string();
+            assert!(
+                e.contains("holds no job")
+                    && e.contains("results of 1 job")
+                    && e.contains("backup"),
+                "{e}"
+            );
+            let kept = dir.path().join("results").join("j");
+            assert_eq!(std::fs::read_dir(&kept).unwrap().count(), 1, "kept");
+        }
+        // Moved aside (or an interrupted purge's leftovers): an empty farm starts.
+        std::fs::rename(
+            dir.path().join("results").join("j"),
+            dir.path().join("results").join(".purged-j-1"),
+        )
+        .unwrap();
+        Store::open(dir.path()).unwrap();
     }
 
     /// A full disk while a result is staged or placed reads as SQLite's own full disk, which

@@ -1894,6 +1894,30 @@ async fn images_are_named_kept_revalidated_and_served_by_the_range() {
     assert_eq!(send(&st, with(&[])).await.0, StatusCode::NOT_FOUND);
 }
 
+/// A scene upload that cannot be written to the data directory is answered a retryable 503,
+/// as a database write is, not a 500; a `tmp/` removed while the coordinator runs is made
+/// again by the next upload.
+#[tokio::test]
+async fn scene_uploads_that_cannot_be_written_are_retryable() {
+    let dir = tempfile::tempdir().unwrap();
+    let st = AppState::open(fake_config(dir.path())).unwrap();
+    let tmp = dir.path().join("tmp");
+    std::fs::remove_dir_all(&tmp).unwrap();
+    let (code, body) = call(&st, post("/v1/scenes", r#"{"objects": []}"#)).await;
+    assert_eq!(code, StatusCode::CREATED, "{body}");
+    // tmp/ a file: nothing can be written under it.
+    std::fs::remove_dir_all(&tmp).unwrap();
+    std::fs::write(&tmp, b"in the way").unwrap();
+    let (code, body) = call(&st, post("/v1/scenes", r#"{"objects": [], "lights": []}"#)).await;
+    assert_eq!(code, StatusCode::SERVICE_UNAVAILABLE, "{body}");
+    assert_error_body("upload", &body);
+    assert_eq!(
+        (&body["error"]["code"], &body["error"]["retryable"]),
+        (&"store_unavailable".into(), &true.into()),
+        "{body}"
+    );
+}
+
 /// Every file under `d`, at any depth.
 fn walk(d: &std::path::Path) -> Vec<std::path::PathBuf> {
     let mut out = Vec::new();
