@@ -342,6 +342,24 @@ fn clear_dir(dir: &std::path::Path) {
     }
 }
 
+/// Bytes free for an unprivileged writer on the file system of `dir`, if it can be asked.
+#[cfg(unix)]
+fn free_bytes(dir: &std::path::Path) -> Option<u64> {
+    use std::os::unix::ffi::OsStrExt;
+    let path = std::ffi::CString::new(dir.as_os_str().as_bytes()).ok()?;
+    // SAFETY: statvfs writes the one struct this function owns; `path` is NUL-terminated.
+    unsafe {
+        let mut st: libc::statvfs = std::mem::zeroed();
+        (libc::statvfs(path.as_ptr(), &mut st) == 0)
+            .then(|| (st.f_bavail as u64).saturating_mul(st.f_frsize as u64))
+    }
+}
+
+#[cfg(not(unix))]
+fn free_bytes(_dir: &std::path::Path) -> Option<u64> {
+    None
+}
+
 impl AppState {
     /// Opens the data directory and restores every job.
     pub fn open(cfg: Config) -> anyhow::Result<AppState> {
@@ -354,7 +372,16 @@ impl AppState {
         // what a killed coordinator left there is no use to anyone (the lock above says no
         // other coordinator is writing it).
         clear_dir(&cfg.data_dir.join("tmp"));
-        let store = store::Store::open(&cfg.data_dir).context("opening the database")?;
+        let store = store::Store::open(&cfg.data_dir).with_context(|| {
+            // SQLite says "disk I/O error" for a full disk, among others: say what is left.
+            match free_bytes(&cfg.data_dir) {
+                Some(free) if free < 1 << 20 => format!(
+                    "opening the database (the file system of {} has {free} bytes free)",
+                    cfg.data_dir.display()
+                ),
+                _ => "opening the database".to_string(),
+            }
+        })?;
         let now = (cfg.clock)();
         let grace = cfg.startup_grace.max(cfg.lease_timeout);
         let sched = Sched::restore(
