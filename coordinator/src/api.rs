@@ -535,7 +535,7 @@ async fn job_image(
             StatusCode::NOT_MODIFIED,
             format,
             Some(&etag),
-            Body::empty(),
+            no_length(),
         ));
     }
     let kept = state.image_cache().get(&id, &etag);
@@ -549,7 +549,7 @@ async fn job_image(
             StatusCode::OK,
             format,
             Some(&etag),
-            Body::empty(),
+            no_length(),
         ));
     }
     // A frame takes memory in proportion to its pixels while it is composed and encoded: a
@@ -561,58 +561,76 @@ async fn job_image(
         )
     })
     .await?;
-    let (layout, conn, results) = {
+    let (layout, conn, results, etag) = {
         let s = state.sched();
-        // Looked up again: the job may have been purged while this request waited.
+        // Looked up again: the job may have been purged, or have results more, since.
+        let version = s.results_version(&id).ok_or_else(|| no_job(&id))?;
         let layout = s.layout(&id).ok_or_else(|| no_job(&id))?;
         let conn = s.reader().map_err(AppError::internal)?;
-        (layout, conn, s.results_dir())
+        (
+            layout,
+            conn,
+            s.results_dir(),
+            images::entity_tag(&version, ext),
+        )
     };
     let job_id = id.clone();
     // Pass by pass, one stored tile decoded at a time: the frame and one tile in memory.
-    let (bytes, missing) = tokio::task::spawn_blocking(move || -> Result<_, AppError> {
-        let _permit = permit;
-        let mut missing = 0;
-        let film = compose::compose_by_pass(&layout, |tasks, add| {
-            missing +=
-                crate::store::for_each_result(&conn, &results, &job_id, tasks, |idx, data| {
-                    match proto::tile::decode(data) {
-                        Ok((acc, _)) => add(idx, acc),
-                        Err(e) => {
-                            tracing::error!(job = %job_id, idx, "stored result unreadable: {e}")
+    let (bytes, missing, unreadable) =
+        tokio::task::spawn_blocking(move || -> Result<_, AppError> {
+            let _permit = permit;
+            let (mut missing, mut unreadable) = (0, 0);
+            let film = compose::compose_by_pass(&layout, |tasks, add| {
+                missing +=
+                    crate::store::for_each_result(&conn, &results, &job_id, tasks, |idx, data| {
+                        match proto::tile::decode(data) {
+                            Ok((acc, _)) => add(idx, acc),
+                            Err(e) => {
+                                unreadable += 1;
+                                tracing::error!(job = %job_id, idx, "stored result unreadable: {e}")
+                            }
                         }
-                    }
-                })?;
-            Ok::<_, rusqlite::Error>(())
+                    })?;
+                Ok::<_, rusqlite::Error>(())
+            })
+            .map_err(AppError::internal)?;
+            // The store's connection is not needed while the image is encoded.
+            drop(conn);
+            let mut bytes = compose::encode(&film, format).map_err(AppError::internal)?;
+            // Kept, the buffer should hold what is counted.
+            bytes.shrink_to_fit();
+            Ok((bytes, missing, unreadable))
         })
-        .map_err(AppError::internal)?;
-        // The store's connection is not needed while the image is encoded.
-        drop(conn);
-        Ok((
-            compose::encode(&film, format).map_err(AppError::internal)?,
-            missing,
-        ))
-    })
-    .await
-    .map_err(AppError::internal)??;
-    // Purged while it was made: its result files may have gone with it.
-    let after = state
-        .sched()
-        .results_version(&id)
-        .ok_or_else(|| no_job(&id))?;
+        .await
+        .map_err(AppError::internal)??;
     if missing > 0 {
         tracing::error!(job = %id, missing, "stored result files are missing: the image lacks those tiles");
     }
     let bytes = Bytes::from(bytes);
-    // Named only if no result came in while it was made (it may hold some of the new results,
-    // not all) and every stored result was read.
-    let named = (images::entity_tag(&after, ext) == etag && missing == 0).then_some(etag);
-    if let Some(etag) = &named {
-        state
-            .image_cache()
-            .put(&id, ext, etag.clone(), bytes.clone());
-    }
+    let named = {
+        let s = state.sched();
+        // Purged while it was made: its result files may have gone with it.
+        let after = s.results_version(&id).ok_or_else(|| no_job(&id))?;
+        // Named only if no result came in while it was made (it may hold some of the new
+        // results, not all) and every stored result was read. Kept under the scheduler's lock,
+        // so that a purge, which forgets the job's images after it, cannot come in between.
+        let named = images::entity_tag(&after, ext) == etag && missing + unreadable == 0;
+        if named {
+            state
+                .image_cache()
+                .put(&id, ext, etag.clone(), bytes.clone());
+        }
+        named.then_some(etag)
+    };
     image_answer(&method, &headers, format, named.as_deref(), bytes)
+}
+
+/// An empty body of no stated length: a HEAD answer (or a 304) that is not to say
+/// `Content-Length: 0` about an image whose length it does not know.
+fn no_length() -> Body {
+    Body::from_stream(futures_util::stream::empty::<
+        Result<Bytes, std::convert::Infallible>,
+    >())
 }
 
 /// An image's answer: the part of `bytes` the request asks for, where the image has a name

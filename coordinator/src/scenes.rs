@@ -365,6 +365,18 @@ pub async fn upload(
     ))
 }
 
+/// A file error while unpacking an upload into `root`: the data directory's (a retryable 503)
+/// unless the archive asked for what no file system gives (a name too long, a name that is
+/// not one), which is the upload's fault (422, `body`).
+fn unpack_io_error(e: std::io::Error, root: &Path) -> AppError {
+    match e.raw_os_error() {
+        Some(libc::ENAMETOOLONG | libc::EINVAL | libc::EILSEQ | libc::ELOOP) => {
+            AppError::invalid("body", format!("an archive member cannot be unpacked: {e}"))
+        }
+        _ => AppError::disk(format!("unpacking into {}", root.display()))(e),
+    }
+}
+
 /// Checks an upload and stores it as scene `id`. Returns whether this upload stored it (the
 /// move into place is what decides: an identical upload may have got there first) and the
 /// scene's metadata.
@@ -392,9 +404,7 @@ fn store_scene(
     };
     let scene_file =
         pkg::unpack(&blob, format, entry.as_deref(), &root, limits).map_err(|e| match e {
-            pkg::PackageError::Io(e) => {
-                AppError::disk(format!("unpacking into {}", root.display()))(e)
-            }
+            pkg::PackageError::Io(e) => unpack_io_error(e, &root),
             // Only a missing or ambiguous scene file is about `?entry=`; the rest is the body's.
             e @ pkg::PackageError::Entry(_) if entry.is_some() => {
                 AppError::invalid("entry", e.to_string())
@@ -506,4 +516,26 @@ pub async fn check_environment_map(
     })
     .await
     .map_err(AppError::internal)?
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use axum::response::IntoResponse;
+
+    /// A member name no file system takes is the upload's fault (422); a disk that cannot take
+    /// the files is the coordinator's, for a while (503, retryable).
+    #[test]
+    fn unpacking_errors_are_the_uploads_or_the_disks() {
+        let status = |errno| {
+            unpack_io_error(std::io::Error::from_raw_os_error(errno), Path::new("/d"))
+                .into_response()
+                .status()
+        };
+        assert_eq!(status(libc::ENAMETOOLONG), 422);
+        assert_eq!(status(libc::EILSEQ), 422);
+        assert_eq!(status(libc::ENOSPC), 503);
+        assert_eq!(status(libc::EROFS), 503);
+        assert_eq!(status(libc::EIO), 503);
+    }
 }

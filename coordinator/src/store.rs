@@ -223,15 +223,19 @@ impl Store {
         &self.results
     }
 
-    /// A database without a single job beside a `results/` that holds the results of jobs is
-    /// not the database they belong to (it was lost, emptied or replaced): starting on it
-    /// would delete them as files no row names. Refused, so that the right one can be put
-    /// back. Folders of purges that a stop interrupted (`.purged-*`) do not count.
+    /// A database that never served (new: the file was deleted or emptied) beside a
+    /// `results/` that holds the results of jobs is not the database they belong to: starting
+    /// on it would set them aside as results of unknown jobs and begin an empty farm. Refused,
+    /// so that the right one can be put back. Folders of purges that a stop interrupted
+    /// (`.purged-*`) and results set aside before (`.orphaned/`) do not count.
     fn check_results_belong(&self) -> rusqlite::Result<()> {
-        let jobs: i64 = self
-            .conn
-            .query_row("SELECT COUNT(*) FROM jobs", [], |r| r.get(0))?;
-        if jobs > 0 {
+        let used: bool = self.conn.query_row(
+            "SELECT EXISTS (SELECT 1 FROM meta WHERE key = 'id_epoch')
+                 OR EXISTS (SELECT 1 FROM jobs)",
+            [],
+            |r| r.get(0),
+        )?;
+        if used {
             return Ok(());
         }
         let held = std::fs::read_dir(&self.results)
@@ -246,8 +250,8 @@ impl Store {
             return Ok(());
         }
         let message = format!(
-            "{} holds no job, but {} holds the stored results of {held} job(s): this is not \
-             their database (it was lost, emptied or replaced). Put the database back from a \
+            "{} is a new database, but {} holds the stored results of {held} job(s): this is \
+             not their database (it was deleted or emptied). Put the database back from a \
              backup, or move {} aside to start an empty farm",
             self.path.display(),
             self.results.display(),
@@ -316,9 +320,13 @@ impl Store {
         Ok(missing.len())
     }
 
-    /// Removes result files no row names: moved into place by a transaction that then failed,
-    /// or left by a job whose rows went (a purge, or tiles of another renderer version)
-    /// while the coordinator stopped before it removed them.
+    /// Removes result files of the database's jobs that no row names: moved into place by a
+    /// transaction that then failed, or tiles of another renderer version discarded while the
+    /// coordinator stopped before it removed them; and what a stop left of a purge
+    /// (`.purged-*`). The folder of a job the database does not know (a database put back
+    /// from an older backup, or another farm's; a purge that a stop interrupted) is not
+    /// deleted but moved into `results/.orphaned/`, with a warning: those may be the only copy
+    /// of finished work.
     fn remove_unnamed_files(&self) -> rusqlite::Result<()> {
         let mut st = self
             .conn
@@ -326,13 +334,37 @@ impl Store {
         let named: std::collections::HashSet<String> =
             st.query_map([], |r| r.get(0))?.collect::<Result<_, _>>()?;
         drop(st);
+        let mut st = self.conn.prepare("SELECT id FROM jobs")?;
+        let known: std::collections::HashSet<String> =
+            st.query_map([], |r| r.get(0))?.collect::<Result<_, _>>()?;
+        drop(st);
         let Ok(jobs) = std::fs::read_dir(&self.results) else {
             return Ok(());
         };
-        let (mut removed, mut bytes) = (0u64, 0u64);
+        let orphaned = self.results.join(ORPHANED);
+        let (mut removed, mut bytes, mut set_aside) = (0u64, 0u64, 0u64);
         for job in jobs.flatten() {
             let dir = job.path();
             let job_name = job.file_name().to_string_lossy().into_owned();
+            if job_name == ORPHANED {
+                continue;
+            }
+            if !job_name.starts_with('.') && !known.contains(&job_name) {
+                let to = (0..)
+                    .map(|n| match n {
+                        0 => orphaned.join(&job_name),
+                        n => orphaned.join(format!("{job_name}-{n}")),
+                    })
+                    .find(|p| !p.exists())
+                    .expect("a free name");
+                let moved =
+                    std::fs::create_dir_all(&orphaned).and_then(|()| std::fs::rename(&dir, &to));
+                match moved {
+                    Ok(()) => set_aside += 1,
+                    Err(e) => tracing::warn!(path = %dir.display(), "cannot set aside: {e}"),
+                }
+                continue;
+            }
             let files = std::fs::read_dir(&dir).into_iter().flatten().flatten();
             let mut kept = 0;
             for f in files {
@@ -357,6 +389,15 @@ impl Store {
                 bytes,
                 "removed result files that no stored result names: left by a write or purge \
                  that a stop interrupted, or by a power loss that undid the last commits"
+            );
+        }
+        if set_aside > 0 {
+            tracing::warn!(
+                jobs = set_aside,
+                path = %orphaned.display(),
+                "set aside the stored results of jobs this database does not know (a database \
+                 put back from an older backup, or another farm's?): delete them once they \
+                 are not needed"
             );
         }
         Ok(())
@@ -886,6 +927,9 @@ fn remove_files(paths: &[PathBuf]) {
     }
 }
 
+/// The folder under `results/` that holds the results of jobs the database does not know.
+const ORPHANED: &str = ".orphaned";
+
 /// A file error as the store's error: a full disk reads as SQLite's own, so it is answered
 /// the same way (503, retryable).
 fn io_error(e: std::io::Error) -> rusqlite::Error {
@@ -1145,7 +1189,7 @@ mod tests {
             let _ = std::fs::remove_file(dir.path().join("raytile.sqlite3-wal"));
             let e = Store::open(dir.path()).err().expect("refused").to_string();
             assert!(
-                e.contains("holds no job")
+                e.contains("a new database")
                     && e.contains("results of 1 job")
                     && e.contains("backup"),
                 "{e}"
@@ -1153,12 +1197,21 @@ mod tests {
             let kept = dir.path().join("results").join("j");
             assert_eq!(std::fs::read_dir(&kept).unwrap().count(), 1, "kept");
         }
-        // Moved aside (or an interrupted purge's leftovers): an empty farm starts.
-        std::fs::rename(
-            dir.path().join("results").join("j"),
-            dir.path().join("results").join(".purged-j-1"),
-        )
-        .unwrap();
+        // A database that knows other jobs (an older backup, another farm's): the results of
+        // the job it does not know are set aside, not deleted.
+        let elsewhere = dir.path().join("elsewhere");
+        std::fs::create_dir(&elsewhere).unwrap();
+        let mut other = Store::open(&elsewhere).unwrap();
+        other.insert_job(&job_row("k", 1, JobState::Done)).unwrap();
+        drop(other);
+        std::fs::rename(elsewhere.join("raytile.sqlite3"), &db).unwrap();
+        let _ = std::fs::remove_file(dir.path().join("raytile.sqlite3-wal"));
+        Store::open(dir.path()).unwrap();
+        let aside = dir.path().join("results").join(".orphaned").join("j");
+        assert_eq!(std::fs::read_dir(&aside).unwrap().count(), 1, "set aside");
+        assert!(!dir.path().join("results").join("j").exists());
+        // Set aside (or an interrupted purge's leftovers): a new database starts.
+        std::fs::remove_file(&db).unwrap();
         Store::open(dir.path()).unwrap();
     }
 
