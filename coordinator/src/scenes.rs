@@ -446,12 +446,19 @@ fn store_scene(
     std::fs::write(&meta_file, text).map_err(AppError::disk(meta_file.display()))?;
     let dest = scene_dir(state, &id);
     let staged = stage.keep();
-    if std::fs::rename(&staged, &dest).is_err() {
+    // scenes/ is made again if it was removed while the coordinator ran.
+    let stored = dest
+        .parent()
+        .map_or(Ok(()), std::fs::create_dir_all)
+        .and_then(|()| std::fs::rename(&staged, &dest));
+    if let Err(e) = stored {
         // Stored meanwhile by an identical upload: keep theirs, and answer as stored.
         let _ = std::fs::remove_dir_all(&staged);
         if let Some(theirs) = meta(state, &id) {
             return Ok((false, theirs));
         }
+        // Not stored at all (scenes/ gone, a read-only disk): no scene to answer with.
+        return Err(AppError::disk(dest.display())(e));
     }
     let m = Arc::new(m);
     state

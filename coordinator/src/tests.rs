@@ -1903,16 +1903,22 @@ async fn images_are_named_kept_revalidated_and_served_by_the_range() {
 }
 
 /// A scene upload that cannot be written to the data directory is answered a retryable 503,
-/// as a database write is, not a 500; a `tmp/` removed while the coordinator runs is made
-/// again by the next upload.
+/// as a database write is, not a 500; `tmp/` and `scenes/` removed while the coordinator runs
+/// are made again by the next upload.
 #[tokio::test]
 async fn scene_uploads_that_cannot_be_written_are_retryable() {
     let dir = tempfile::tempdir().unwrap();
     let st = AppState::open(fake_config(dir.path())).unwrap();
     let tmp = dir.path().join("tmp");
     std::fs::remove_dir_all(&tmp).unwrap();
+    std::fs::remove_dir_all(dir.path().join("scenes")).unwrap();
     let (code, body) = call(&st, post("/v1/scenes", r#"{"objects": []}"#)).await;
     assert_eq!(code, StatusCode::CREATED, "{body}");
+    let stored = dir.path().join("scenes").join(body["id"].as_str().unwrap());
+    assert!(
+        stored.join("meta.json").is_file(),
+        "stored, not only answered"
+    );
     // tmp/ a file: nothing can be written under it.
     std::fs::remove_dir_all(&tmp).unwrap();
     std::fs::write(&tmp, b"in the way").unwrap();
