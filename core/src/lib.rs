@@ -88,4 +88,8 @@ pub use settings::{
 /// surfaces (medium boundaries), as `path` does, and their occlusion rays too: their images of
 /// scenes with interfaces change. A 6-channel `.vol` voxel's mean is summed in f64: densities
 /// read from such files may move by a unit in the last place.
-pub const RENDER_VERSION: u32 = 12;
+/// 13 (2026-12-06): next-event estimation gives each light at infinity (the environment, a
+/// directional light) as many light samples as all the finite lights together, where a scene
+/// has both, instead of choosing by power alone ([`light::LightSet`]): `path`, `volpath` and
+/// `sppm` images of such scenes change; `bdpt` and scenes with lights of one kind do not.
+pub const RENDER_VERSION: u32 = 13;

@@ -275,10 +275,10 @@ fn image_hash(integrator: IntegratorKind) -> String {
 
 /// The hashes of the current arithmetic, pinned with [`raytile_core::RENDER_VERSION`].
 const GOLDEN: [(IntegratorKind, &str); 9] = [
-    (IntegratorKind::Path, "158c1e7f9e4be2cf"),
-    (IntegratorKind::Volpath, "ca9fa39f64ba142b"),
+    (IntegratorKind::Path, "59d8c6194820b115"),
+    (IntegratorKind::Volpath, "df67becc0ebcabab"),
     (IntegratorKind::Bdpt, "672d7c5e534d19ae"),
-    (IntegratorKind::Sppm, "719925b70751749e"),
+    (IntegratorKind::Sppm, "df33d304156ad232"),
     (IntegratorKind::Whitted, "1fb03513b2104f1a"),
     (IntegratorKind::Normals, "7bc0a2763bfb615f"),
     (IntegratorKind::Albedo, "ad105da7432cb490"),

@@ -180,14 +180,14 @@ impl Ctx<'_> {
         if v.infinite {
             // Only the environment can be hit by a ray; a directional light is a delta.
             return match (self.job.environment(), lights.environment()) {
-                (Some(env), Some(e)) => lights.pmf(e) * env.pdf(-w),
+                (Some(env), Some(e)) => lights.emission_pmf(e) * env.pdf(-w),
                 _ => 0.0,
             };
         }
         let Src::Light(i) = v.src else {
             return 0.0;
         };
-        let pmf = lights.pmf(i);
+        let pmf = lights.emission_pmf(i);
         match self.light(i) {
             Some(Light::Point { .. } | Light::Spot { .. }) => pmf,
             Some(&Light::Area { light, prim, .. }) => {

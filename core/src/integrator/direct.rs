@@ -1,6 +1,6 @@
 //! Direct lighting: the light a surface point receives straight from the lights, estimated by
 //! sampling a point or direction on a light and tracing a shadow ray. Shared by the path tracer
-//! (one light chosen by power, weighted by multiple importance sampling against BSDF sampling)
+//! (one light chosen by `LightSet::choose_in`, weighted by multiple importance sampling against BSDF sampling)
 //! and Whitted's tracer (every light, full weight).
 
 use crate::geometry::Interaction;

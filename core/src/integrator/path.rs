@@ -1,7 +1,7 @@
 //! Unidirectional path tracing with next-event estimation and multiple importance sampling.
 //!
 //! At each vertex: add emission found by BSDF sampling (MIS-weighted against light sampling),
-//! sample one light (chosen ∝ power) and add its contribution if unoccluded (MIS-weighted
+//! sample one light (chosen by [`LightSet::choose_in`](crate::light::LightSet::choose_in)) and add its contribution if unoccluded (MIS-weighted
 //! against BSDF sampling; delta lights and delta BSDFs take full weight), then continue the
 //! path by sampling the BSDF. Russian roulette from the third bounce keeps long paths cheap
 //! and unbiased. Each bounce draws a fixed number of sample dimensions, so the Sobol

@@ -327,7 +327,7 @@ struct VisiblePoint {
 }
 
 /// The camera path of one pixel's iteration: emission seen directly or through delta BSDFs,
-/// direct light at the visible point (one light by power, no MIS: emitters found past the
+/// direct light at the visible point (one light as `path` chooses it, no MIS: emitters found past the
 /// visible point are the photons' part), and the visible point itself.
 fn camera_pass(
     scene: &Scene,

@@ -251,12 +251,26 @@ impl Light {
     }
 }
 
-/// The distribution that picks a light for next-event estimation, ∝ power: over a scene's
-/// lights (by index) and then, if there is one, the job's environment (the last index).
+/// The distributions that pick a light, over a scene's lights (by index) and then, if there is
+/// one, the job's environment (the last index):
+///
+/// - for next-event estimation ([`LightSet::choose_in`], [`LightSet::pmf`]): by power, but
+///   where a scene has both finite lights (points, spots, emitting surfaces) and lights at
+///   infinity (the environment, directional lights), each light at infinity gets one share and
+///   the finite lights together one share (pbrt-v4's `BVHLightSampler` does the same), split
+///   by power within each group. The power of a light at infinity is what crosses the scene's
+///   bounding disc, so it grows with the scene's extent: on a wide floor lit by a lamp and the
+///   sky, by power alone the sky took 97 % of the light samples and the lamp's light came from
+///   a few of them (the image's MSE at 64 spp was 230 times as large; docs/speed.md);
+/// - for starting paths at the lights (`bdpt`'s light subpaths, `sppm`'s photons:
+///   [`LightSet::choose`], [`LightSet::emission_pmf`]): by power, so that every path carries
+///   about the same light.
 #[derive(Clone, Debug, Default)]
 pub struct LightSet {
-    /// Selection probabilities.
+    /// Selection for next-event estimation.
     select: Distribution1D,
+    /// Selection by power, for emission.
+    emit: Distribution1D,
     /// Number of lights, the environment included.
     len: usize,
     /// Index of the environment, if any: `lights.len()`.
@@ -280,8 +294,15 @@ impl LightSet {
             .iter()
             .map(|&p| if p.is_finite() { p.max(floor) } else { floor })
             .collect();
+        let at_infinity: Vec<bool> = lights
+            .iter()
+            .map(|l| matches!(l, Light::Directional { .. }))
+            .chain(environment_power.map(|_| true))
+            .collect();
+        let direct = group_shares(&weights, &at_infinity);
         Self {
-            select: Distribution1D::new(&weights),
+            select: Distribution1D::new(&direct),
+            emit: Distribution1D::new(&weights),
             len: powers.len(),
             environment: environment_power.map(|_| lights.len()),
         }
@@ -305,14 +326,24 @@ impl LightSet {
         self.environment
     }
 
-    /// Picks a light: (index, probability).
+    /// Picks a light to start a path at, by power: (index, probability).
     #[inline]
     pub fn choose(&self, u: f32) -> Option<(usize, f32)> {
         if self.len == 0 {
             return None;
         }
-        let (i, p, _) = self.select.sample_discrete(u);
+        let (i, p, _) = self.emit.sample_discrete(u);
         Some((i, p))
+    }
+
+    /// Probability that [`LightSet::choose`] picks light `i`.
+    #[inline]
+    pub fn emission_pmf(&self, i: usize) -> f32 {
+        if self.len == 0 {
+            0.0
+        } else {
+            self.emit.discrete_pdf(i)
+        }
     }
 
     /// Picks a light with `u.x` and stretches `u.x` back over [0, 1) within the chosen light's
@@ -332,7 +363,7 @@ impl LightSet {
         Some((i, p, Vec2::new(x, u.y)))
     }
 
-    /// Probability that [`LightSet::choose`] (or [`LightSet::choose_in`]) picks light `i`.
+    /// Probability that [`LightSet::choose_in`] picks light `i`.
     #[inline]
     pub fn pmf(&self, i: usize) -> f32 {
         if self.len == 0 {
@@ -341,6 +372,33 @@ impl LightSet {
             self.select.discrete_pdf(i)
         }
     }
+}
+
+/// Selection weights for next-event estimation from the power `weights` of lights, some of them
+/// `at_infinity` (see [`LightSet`]): unchanged unless there are lights of both kinds; then each
+/// light at infinity weighs, on average, as much as all the finite lights together, the two
+/// groups split by power within.
+fn group_shares(weights: &[f32], at_infinity: &[bool]) -> Vec<f32> {
+    let sum = |infinite: bool| -> f64 {
+        weights
+            .iter()
+            .zip(at_infinity)
+            .filter(|(_, &i)| i == infinite)
+            .map(|(&w, _)| w as f64)
+            .sum()
+    };
+    let (finite, infinite) = (sum(false), sum(true));
+    let n_infinite = at_infinity.iter().filter(|&&i| i).count();
+    if !(finite > 0.0 && infinite > 0.0) {
+        return weights.to_vec();
+    }
+    // The finite lights keep their weights; the lights at infinity share n × that total.
+    let scale = n_infinite as f64 * finite / infinite;
+    weights
+        .iter()
+        .zip(at_infinity)
+        .map(|(&w, &i)| if i { (w as f64 * scale) as f32 } else { w })
+        .collect()
 }
 
 /// Converts an area density at a point on a light to a solid-angle density at the receiver.
@@ -398,7 +456,8 @@ mod tests {
         );
         assert!((set.pmf(0) - 0.25).abs() < 1e-5 && (set.pmf(1) - 0.75).abs() < 1e-5);
         assert_eq!((set.len(), set.environment()), (2, None));
-        // An environment comes last, chosen by its power too.
+        // An environment comes last: chosen by its power to start paths, and as often as the
+        // finite lights together for next-event estimation.
         let point = Light::Point {
             position: Vec3A::ZERO,
             intensity: Vec3A::ONE,
@@ -407,12 +466,56 @@ mod tests {
         let p = point.power(1.0);
         let set = LightSet::new(&[point], 1.0, Some(3.0 * p));
         assert_eq!((set.len(), set.environment()), (2, Some(1)));
-        assert!((set.pmf(1) - 0.75).abs() < 1e-5);
+        assert!((set.emission_pmf(1) - 0.75).abs() < 1e-5);
+        assert!((set.pmf(1) - 0.5).abs() < 1e-5);
         assert_eq!(set.choose(0.9).map(|c| c.0), Some(1));
         assert!(LightSet::new(&[], 1.0, None).choose(0.5).is_none());
         assert!(LightSet::new(&[], 1.0, None)
             .choose_in(Vec2::splat(0.5), 0.5)
             .is_none());
+    }
+
+    /// Lights at infinity (a directional light, the environment) and finite ones: for
+    /// next-event estimation each light at infinity has, on average, the share of all the
+    /// finite lights together, whatever the scene's size; within each group, and to start
+    /// paths, by power.
+    #[test]
+    fn lights_at_infinity_share_with_the_finite_ones_by_count_then_by_power() {
+        let point = |i: f32| Light::Point {
+            position: Vec3A::ZERO,
+            intensity: Vec3A::splat(i),
+            range: f32::INFINITY,
+        };
+        let sun = Light::Directional {
+            to_light: Vec3A::Y,
+            irradiance: Vec3A::splat(1.0),
+        };
+        for radius in [1.0, 100.0] {
+            let sun_power = sun.power(radius);
+            let lights = [point(1.0), sun.clone(), point(3.0)];
+            let set = LightSet::new(&lights, radius, Some(3.0 * sun_power));
+            // Two lights at infinity: each group weight a third on average; the finite third
+            // split 1 : 3, the infinite two thirds 1 : 3 (sun : environment).
+            let want = [1.0 / 12.0, 2.0 / 3.0 / 4.0, 3.0 / 12.0, 2.0 / 3.0 * 0.75];
+            for (i, w) in want.iter().enumerate() {
+                assert!(
+                    (set.pmf(i) - w).abs() < 1e-5,
+                    "{radius}: {i}: {}",
+                    set.pmf(i)
+                );
+            }
+            let powers = [
+                point(1.0).power(radius),
+                sun_power,
+                point(3.0).power(radius),
+            ];
+            let total = powers.iter().sum::<f32>() + 3.0 * sun_power;
+            assert!((set.emission_pmf(0) - powers[0] / total).abs() < 1e-5);
+            assert!((set.emission_pmf(3) - 3.0 * sun_power / total).abs() < 1e-5);
+        }
+        // One kind only: by power, both ways.
+        let set = LightSet::new(std::slice::from_ref(&sun), 1.0, Some(sun.power(1.0)));
+        assert!((set.pmf(1) - 0.5).abs() < 1e-5 && (set.emission_pmf(1) - 0.5).abs() < 1e-5);
     }
 
     #[test]

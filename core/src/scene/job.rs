@@ -443,8 +443,8 @@ mod tests {
         let from = Vec3A::new(0.2, -0.5, 0.3);
         let mut checked = 0;
         for i in 0..400 {
-            let (index, pmf) = job.lights().choose(rnd(3 * i)).unwrap();
-            let u = Vec2::new(rnd(3 * i + 1), rnd(3 * i + 2));
+            let pick = Vec2::new(rnd(3 * i), rnd(3 * i + 1));
+            let (index, pmf, u) = job.lights().choose_in(pick, rnd(3 * i + 2)).unwrap();
             let Some(s) = job.sample_light(&scene, index, from, u) else {
                 continue;
             };
