@@ -388,16 +388,20 @@ fn group_shares(weights: &[f32], at_infinity: &[bool]) -> Vec<f32> {
             .sum()
     };
     let (finite, infinite) = (sum(false), sum(true));
-    let n_infinite = at_infinity.iter().filter(|&&i| i).count();
-    if !(finite > 0.0 && infinite > 0.0) {
+    let n_infinite = at_infinity.iter().filter(|&&i| i).count() as f64;
+    if !(finite > 0.0 && infinite > 0.0 && (finite + infinite).is_finite()) {
         return weights.to_vec();
     }
-    // The finite lights keep their weights; the lights at infinity share n × that total.
-    let scale = n_infinite as f64 * finite / infinite;
+    // Shares of the whole, in f64 (no weight overflows f32 on the way): the finite lights
+    // 1 / (n + 1) together, the n lights at infinity n / (n + 1).
+    let (to_finite, to_infinite) = (
+        1.0 / ((n_infinite + 1.0) * finite),
+        n_infinite / ((n_infinite + 1.0) * infinite),
+    );
     weights
         .iter()
         .zip(at_infinity)
-        .map(|(&w, &i)| if i { (w as f64 * scale) as f32 } else { w })
+        .map(|(&w, &i)| (w as f64 * if i { to_infinite } else { to_finite }) as f32)
         .collect()
 }
 
@@ -513,6 +517,14 @@ mod tests {
             assert!((set.emission_pmf(0) - powers[0] / total).abs() < 1e-5);
             assert!((set.emission_pmf(3) - 3.0 * sun_power / total).abs() < 1e-5);
         }
+        // Powers near f32's largest: no share overflows and none is lost.
+        let huge = |i: f32| Light::Point {
+            position: Vec3A::ZERO,
+            intensity: Vec3A::splat(i),
+            range: f32::INFINITY,
+        };
+        let set = LightSet::new(&[huge(1e37), huge(1e37), sun.clone()], 1.0, None);
+        assert!((set.pmf(2) - 0.5).abs() < 1e-5 && (set.pmf(0) - 0.25).abs() < 1e-5);
         // One kind only: by power, both ways.
         let set = LightSet::new(std::slice::from_ref(&sun), 1.0, Some(sun.power(1.0)));
         assert!((set.pmf(1) - 0.5).abs() < 1e-5 && (set.emission_pmf(1) - 0.5).abs() < 1e-5);
