@@ -1320,6 +1320,26 @@ async fn results_claiming_more_dropped_samples_than_the_pass_has_are_refused() {
 }
 
 /// The bytes of a pass-0 result for the 4 × 2 tile at the origin.
+/// A new worker leases the one task of `job` (a 4×2 frame in one tile) and uploads `pixels` as
+/// its result: the upload's answer.
+async fn lease_and_upload_4x2(
+    st: &AppState,
+    job: &str,
+    pixels: Vec<[f32; 4]>,
+) -> (StatusCode, serde_json::Value) {
+    let (_, w) = register_worker(st).await;
+    let worker = w["worker_id"].as_str().unwrap();
+    let (_, lease) = call(st, post(&format!("/v1/workers/{worker}/lease"), "")).await;
+    let upload = Request::put(format!(
+        "/v1/jobs/{job}/tasks/{}/result?worker={worker}&lease={}",
+        lease["task"],
+        lease["lease_id"].as_str().unwrap()
+    ))
+    .body(Body::from(result_4x2(pixels, 0)))
+    .unwrap();
+    call(st, upload).await
+}
+
 fn result_4x2(pixels: Vec<[f32; 4]>, bad_samples: u64) -> Vec<u8> {
     let acc = raytile_proto::tile::TileAccum {
         tile: raytile_proto::Tile {
@@ -1687,18 +1707,8 @@ async fn results_stored_as_files_make_the_same_frame_and_go_with_their_job() {
             empty_scene_job(&st, r#""width": 4, "height": 2, "spp": 1, "tile_size": 16"#).await;
         assert_eq!(code, StatusCode::CREATED, "{job}");
         let job = job["id"].as_str().unwrap().to_string();
-        let (_, w) = register_worker(&st).await;
-        let worker = w["worker_id"].as_str().unwrap();
-        let (_, lease) = call(&st, post(&format!("/v1/workers/{worker}/lease"), "")).await;
         let pixels = (0..8).map(|i| [i as f32 / 8.0, 0.5, 0.25, 1.0]).collect();
-        let upload = Request::put(format!(
-            "/v1/jobs/{job}/tasks/{}/result?worker={worker}&lease={}",
-            lease["task"],
-            lease["lease_id"].as_str().unwrap()
-        ))
-        .body(Body::from(result_4x2(pixels, 0)))
-        .unwrap();
-        let (code, body) = call(&st, upload).await;
+        let (code, body) = lease_and_upload_4x2(&st, &job, pixels).await;
         assert_eq!((code, &body["accepted"]), (StatusCode::OK, &true.into()));
         (job.clone(), image(&st, &job).await)
     }
@@ -1864,17 +1874,8 @@ async fn images_are_named_kept_revalidated_and_served_by_the_range() {
     drop(held);
 
     // A result stored: a new name, a new image.
-    let (_, w) = register_worker(&st).await;
-    let worker = w["worker_id"].as_str().unwrap();
-    let (_, lease) = call(&st, post(&format!("/v1/workers/{worker}/lease"), "")).await;
-    let upload = Request::put(format!(
-        "/v1/jobs/{job}/tasks/{}/result?worker={worker}&lease={}",
-        lease["task"],
-        lease["lease_id"].as_str().unwrap()
-    ))
-    .body(Body::from(result_4x2(vec![[0.5, 0.25, 1.0, 1.0]; 8], 0)))
-    .unwrap();
-    assert_eq!(call(&st, upload).await.0, StatusCode::OK);
+    let (code, _) = lease_and_upload_4x2(&st, &job, vec![[0.5, 0.25, 1.0, 1.0]; 8]).await;
+    assert_eq!(code, StatusCode::OK);
     let (code, h, second) = send(&st, with(&[("if-none-match", &tag)])).await;
     assert_eq!(code, StatusCode::OK, "the old name is not current");
     let tag2 = h["etag"].to_str().unwrap().to_string();
