@@ -576,45 +576,53 @@ async fn job_image(
     };
     let job_id = id.clone();
     // Pass by pass, one stored tile decoded at a time: the frame and one tile in memory.
-    let (bytes, missing, unreadable) =
-        tokio::task::spawn_blocking(move || -> Result<_, AppError> {
-            let _permit = permit;
-            let (mut missing, mut unreadable) = (0, 0);
-            let film = compose::compose_by_pass(&layout, |tasks, add| {
-                missing +=
-                    crate::store::for_each_result(&conn, &results, &job_id, tasks, |idx, data| {
-                        match proto::tile::decode(data) {
-                            Ok((acc, _)) => add(idx, acc),
-                            Err(e) => {
-                                unreadable += 1;
-                                tracing::error!(job = %job_id, idx, "stored result unreadable: {e}")
-                            }
+    let (bytes, lost) = tokio::task::spawn_blocking(move || -> Result<_, AppError> {
+        let _permit = permit;
+        // Tasks whose stored result is missing, damaged or does not decode.
+        let mut lost = Vec::new();
+        let film = compose::compose_by_pass(&layout, |tasks, add| {
+            let mut unreadable = Vec::new();
+            let gone =
+                crate::store::for_each_result(&conn, &results, &job_id, tasks, |idx, data| {
+                    match proto::tile::decode(data) {
+                        Ok((acc, _)) => add(idx, acc),
+                        Err(e) => {
+                            unreadable.push(idx);
+                            tracing::error!(job = %job_id, idx, "stored result unreadable: {e}")
                         }
-                    })?;
-                Ok::<_, rusqlite::Error>(())
-            })
-            .map_err(AppError::internal)?;
-            // The store's connection is not needed while the image is encoded.
-            drop(conn);
-            let mut bytes = compose::encode(&film, format).map_err(AppError::internal)?;
-            // Kept, the buffer should hold what is counted.
-            bytes.shrink_to_fit();
-            Ok((bytes, missing, unreadable))
+                    }
+                })?;
+            lost.extend(gone.into_iter().chain(unreadable));
+            Ok::<_, rusqlite::Error>(())
         })
-        .await
-        .map_err(AppError::internal)??;
-    if missing > 0 {
-        tracing::error!(job = %id, missing, "stored result files are missing: the image lacks those tiles");
-    }
+        .map_err(AppError::internal)?;
+        // The store's connection is not needed while the image is encoded.
+        drop(conn);
+        let mut bytes = compose::encode(&film, format).map_err(AppError::internal)?;
+        // Kept, the buffer should hold what is counted.
+        bytes.shrink_to_fit();
+        Ok((bytes, lost))
+    })
+    .await
+    .map_err(AppError::internal)??;
     let bytes = Bytes::from(bytes);
     let named = {
-        let s = state.sched();
+        let mut s = state.sched();
         // Purged while it was made: its result files may have gone with it.
         let after = s.results_version(&id).ok_or_else(|| no_job(&id))?;
         // Named only if no result came in while it was made (it may hold some of the new
         // results, not all) and every stored result was read. Kept under the scheduler's lock,
         // so that a purge, which forgets the job's images after it, cannot come in between.
-        let named = images::entity_tag(&after, ext) == etag && missing + unreadable == 0;
+        let unchanged = images::entity_tag(&after, ext) == etag;
+        if unchanged && !lost.is_empty() {
+            // Rendered again where the job can be; the image lacks them until then. Only while
+            // the job's results are still those read: one of them may since have been
+            // rendered again, and the next image looks again.
+            if s.repair(&id, &lost, state.now())? > 0 {
+                state.notify.notify_waiters();
+            }
+        }
+        let named = unchanged && lost.is_empty();
         if named {
             state
                 .image_cache()

@@ -189,7 +189,7 @@ each has an `id` that increases by one with every change the coordinator makes (
 `job_submitted` {job: JobStatus}; `job_progress` {job, tiles_done, tiles_total, passes_done, passes, tasks_done, tasks_total}; \
 `job_state` {job, state, error?} (running, done, failed, cancelled); `job_priority` {job, priority}; `job_purged` {job}; \
 `task_leased` {job, task, tile, pass, worker}; `task_done` {job, task, tile, pass, worker}; \
-`task_failed` {job, task, tile, pass, worker, error}; `task_queued` {job, task, tile, pass, reason: expired|released}; \
+`task_failed` {job, task, tile, pass, worker, error}; `task_queued` {job, task, tile, pass, reason: expired|released|lost}; \
 `worker_registered` {worker, name, threads}; `worker_seen` {worker, last_seen_ms, tasks_done}; `worker_gone` {worker}. \
 A comment line keeps the connection alive every 15 s.";
 

@@ -90,6 +90,10 @@ pub struct JobRow {
     pub started_ms: Option<u64>,
     /// End time.
     pub finished_ms: Option<u64>,
+    /// The renderer version ([`raytile_core::RENDER_VERSION`]) that made every stored tile
+    /// of the job, where known: `None` for a job finished before a release that recorded it.
+    /// Only a job whose tiles the current renderer made can have a lost tile rendered again.
+    pub render_version: Option<u32>,
 }
 
 /// A task's state as stored: the scheduler's state less the lease deadline, which lives in
@@ -193,15 +197,12 @@ impl Store {
         let conn = Connection::open(&path)?;
         conn.busy_timeout(std::time::Duration::from_secs(10))?;
         conn.execute_batch(SCHEMA)?;
-        // A database of a release before result files: its rows hold their data.
-        let has_file: bool = conn.query_row(
-            "SELECT COUNT(*) FROM pragma_table_info('results') WHERE name = 'file'",
-            [],
-            |r| r.get::<_, i64>(0).map(|n| n > 0),
-        )?;
-        if !has_file {
-            conn.execute_batch("ALTER TABLE results ADD COLUMN file TEXT")?;
-        }
+        // Columns later releases added: a database of a release before result files holds
+        // its rows' data; one before checksums has none to check (NULL); one before jobs
+        // recorded their renderer does not know which made a finished job's tiles.
+        add_column(&conn, "results", "file", "TEXT")?;
+        add_column(&conn, "results", "sum", "INTEGER")?;
+        add_column(&conn, "jobs", "render_version", "INTEGER")?;
         let results = dir.join("results");
         std::fs::create_dir_all(&results).map_err(|e| io_error_at(&results, e))?;
         let mut store = Store {
@@ -213,6 +214,7 @@ impl Store {
         };
         store.check_results_belong()?;
         store.discard_other_renderer_tiles()?;
+        store.mark_unfinished_jobs_current()?;
         store.remove_unnamed_files()?;
         store.requeue_missing_files()?;
         Ok(store)
@@ -264,9 +266,10 @@ impl Store {
     }
 
     /// Rows whose result file is gone (removed by hand, or lost by a file system that did not
-    /// keep a synced rename) are deleted, and their tasks of unfinished jobs queued again: the
-    /// tiles are rendered again rather than missing from the frame. A finished job's frame
-    /// goes without them, with an error in the log. Returns how many rows were deleted.
+    /// keep a synced rename) are deleted, and their tasks queued again: the tiles are rendered
+    /// again rather than missing from the frame. A finished (`done`) job whose tiles the
+    /// current renderer made is running again until they are; the frame of any other finished
+    /// job goes without them, with an error in the log. Returns how many rows were deleted.
     fn requeue_missing_files(&mut self) -> rusqlite::Result<usize> {
         let missing: Vec<(String, u32)> = {
             let mut st = self
@@ -288,7 +291,8 @@ impl Store {
             return Ok(0);
         }
         let tx = self.conn.transaction()?;
-        let mut finished = 0;
+        let mut lacking = 0;
+        let mut reopened = std::collections::BTreeSet::new();
         for (job, idx) in &missing {
             tx.execute(
                 "DELETE FROM results WHERE job_id = ?1 AND idx = ?2",
@@ -298,26 +302,58 @@ impl Store {
                 &format!(
                     "UPDATE tasks SET state = '{TASK_QUEUED}', worker = NULL, lease = NULL
                      WHERE job_id = ?1 AND idx = ?2 AND job_id IN
-                         (SELECT id FROM jobs WHERE state IN ('{}', '{}'))",
+                         (SELECT id FROM jobs WHERE state IN ('{}', '{}')
+                             OR (state = '{}' AND render_version = ?3))",
                     job_state_name(JobState::Queued),
-                    job_state_name(JobState::Running)
+                    job_state_name(JobState::Running),
+                    job_state_name(JobState::Done),
                 ),
-                params![job, idx],
+                params![job, idx, raytile_core::RENDER_VERSION],
             )?;
             if requeued == 0 {
-                finished += 1;
+                lacking += 1;
                 tracing::error!(%job, idx, "the result file of a finished job's task is missing");
+                continue;
+            }
+            let reopen = tx.execute(
+                &format!(
+                    "UPDATE jobs SET state = '{}', finished_ms = NULL WHERE id = ?1 AND state = '{}'",
+                    job_state_name(JobState::Running),
+                    job_state_name(JobState::Done),
+                ),
+                params![job],
+            )?;
+            if reopen > 0 {
+                reopened.insert(job.clone());
             }
         }
         tx.commit()?;
+        for job in &reopened {
+            tracing::warn!(%job, "a finished job lost stored tiles: it runs again until they are rendered again");
+        }
         tracing::warn!(
             count = missing.len(),
-            queued_again = missing.len() - finished,
-            of_finished_jobs = finished,
-            "result files named by the database are missing: the tasks of unfinished jobs are \
-             queued again; finished jobs' frames lack those tiles"
+            queued_again = missing.len() - lacking,
+            lacking,
+            "result files named by the database are missing: their tasks are queued again, but \
+             for finished jobs that another renderer version made, whose frames lack those tiles"
         );
         Ok(missing.len())
+    }
+
+    /// Records the current renderer as the maker of every unfinished job's tiles: after
+    /// [`Store::discard_other_renderer_tiles`] it is, whatever the database said before.
+    fn mark_unfinished_jobs_current(&mut self) -> rusqlite::Result<()> {
+        self.conn.execute(
+            &format!(
+                "UPDATE jobs SET render_version = ?1 WHERE state IN ('{}', '{}')
+                 AND render_version IS NOT ?1",
+                job_state_name(JobState::Queued),
+                job_state_name(JobState::Running)
+            ),
+            params![raytile_core::RENDER_VERSION],
+        )?;
+        Ok(())
     }
 
     /// Removes result files of the database's jobs that no row names: moved into place by a
@@ -506,6 +542,21 @@ impl Store {
                 }
             }
         }
+        // The files of results dropped, removed once the rows that name them are gone.
+        let mut dropped = Vec::new();
+        for w in writes {
+            if let Write::DropResult { job, row } = *w {
+                let file: Option<Option<String>> = self
+                    .conn
+                    .query_row(
+                        "SELECT file FROM results WHERE job_id = ?1 AND idx = ?2",
+                        params![job, row.idx],
+                        |r| r.get(0),
+                    )
+                    .optional()?;
+                dropped.extend(file.flatten().map(|f| self.results.join(f)));
+            }
+        }
         let done = (|| {
             #[cfg(test)]
             self.faults.check()?;
@@ -519,6 +570,7 @@ impl Store {
             remove_files(&placed);
         }
         done?;
+        remove_files(&dropped);
         for w in writes {
             if let Write::DeleteJob(job) = *w {
                 self.remove_job_files(job);
@@ -593,7 +645,8 @@ impl Store {
     /// Every job, in submission order.
     pub fn jobs(&self) -> rusqlite::Result<Vec<JobRow>> {
         let mut st = self.conn.prepare(
-            "SELECT id, seq, scene, settings, priority, state, error, created_ms, started_ms, finished_ms
+            "SELECT id, seq, scene, settings, priority, state, error, created_ms, started_ms,
+                 finished_ms, render_version
              FROM jobs ORDER BY seq",
         )?;
         let rows = st.query_map([], |r| {
@@ -608,6 +661,7 @@ impl Store {
                 created_ms: r.get::<_, i64>(7)? as u64,
                 started_ms: r.get::<_, Option<i64>>(8)?.map(|v| v as u64),
                 finished_ms: r.get::<_, Option<i64>>(9)?.map(|v| v as u64),
+                render_version: r.get(10)?,
             })
         })?;
         rows.collect()
@@ -687,6 +741,14 @@ pub enum Write<'a> {
         /// The same bytes, already written to a file: stored as that file instead.
         file: Option<&'a Staged>,
     },
+    /// A stored result found missing or damaged, deleted (its file too, once stored) with the
+    /// task's new state (queued: it is rendered again).
+    DropResult {
+        /// Job id.
+        job: &'a str,
+        /// The task, queued again.
+        row: &'a TaskRow,
+    },
     /// A worker's failure count on a job.
     Blocked {
         /// Job id.
@@ -725,10 +787,11 @@ fn apply(tx: &Connection, w: &Write<'_>) -> rusqlite::Result<()> {
     match *w {
         Write::InsertJob(j) => {
             tx.execute(
-                "INSERT INTO jobs (id, seq, scene, settings, priority, state, error, created_ms, started_ms, finished_ms)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
+                "INSERT INTO jobs (id, seq, scene, settings, priority, state, error, created_ms, started_ms, finished_ms, render_version)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)",
                 params![j.id, j.seq as i64, j.scene, j.settings, j.priority, job_state_name(j.state), j.error,
-                        j.created_ms as i64, j.started_ms.map(|v| v as i64), j.finished_ms.map(|v| v as i64)],
+                        j.created_ms as i64, j.started_ms.map(|v| v as i64), j.finished_ms.map(|v| v as i64),
+                        j.render_version],
             )?;
         }
         Write::Job {
@@ -756,13 +819,24 @@ fn apply(tx: &Connection, w: &Write<'_>) -> rusqlite::Result<()> {
             data,
             file,
         } => {
-            let (data, file) = match file {
-                Some(staged) => (&[][..], Some(result_file_name(job, row.idx, staged))),
-                None => (data, None),
+            let (data, file, sum) = match file {
+                Some(staged) => (
+                    &[][..],
+                    Some(result_file_name(job, row.idx, staged)),
+                    staged.sum,
+                ),
+                None => (data, None, crc32fast::hash(data)),
             };
             tx.execute(
-                "INSERT OR IGNORE INTO results (job_id, idx, data, file) VALUES (?1, ?2, ?3, ?4)",
-                params![job, row.idx, data, file],
+                "INSERT OR IGNORE INTO results (job_id, idx, data, file, sum) VALUES (?1, ?2, ?3, ?4, ?5)",
+                params![job, row.idx, data, file, sum],
+            )?;
+            write_task(tx, job, row)?;
+        }
+        Write::DropResult { job, row } => {
+            tx.execute(
+                "DELETE FROM results WHERE job_id = ?1 AND idx = ?2",
+                params![job, row.idx],
             )?;
             write_task(tx, job, row)?;
         }
@@ -843,35 +917,49 @@ impl Faults {
 
 /// Reads the stored results of a job's tasks `tasks` as (task index, bytes), through `conn`
 /// (result files from `results`, [`Store::results_dir`]), calling `f` for each so the caller
-/// never holds them all at once. Returns how many result files were missing (skipped): the
-/// caller says whether that is damage or a purge under way.
+/// never holds them all at once. Returns the tasks whose stored result was skipped: its file
+/// missing, or its bytes no longer those stored (their checksum differs). The caller says
+/// whether that is damage or a purge under way.
 pub fn for_each_result(
     conn: &Connection,
     results: &Path,
     job: &str,
     tasks: std::ops::Range<usize>,
     mut f: impl FnMut(u32, &[u8]),
-) -> rusqlite::Result<usize> {
-    let mut missing = 0;
+) -> rusqlite::Result<Vec<u32>> {
+    let mut damaged = Vec::new();
     let mut st = conn.prepare_cached(
-        "SELECT idx, data, file FROM results WHERE job_id = ?1 AND idx >= ?2 AND idx < ?3
+        "SELECT idx, data, file, sum FROM results WHERE job_id = ?1 AND idx >= ?2 AND idx < ?3
          ORDER BY idx",
     )?;
     let mut rows = st.query(params![job, tasks.start as i64, tasks.end as i64])?;
     while let Some(r) = rows.next()? {
         let idx: u32 = r.get(0)?;
-        match r.get_ref(2)?.as_str_or_null()? {
+        let sum: Option<u32> = r.get(3)?;
+        let from_file;
+        let data: &[u8] = match r.get_ref(2)?.as_str_or_null()? {
             Some(file) => match std::fs::read(results.join(file)) {
-                Ok(data) => f(idx, &data),
-                // Purged while the frame was being made, or removed by hand: the frame goes
-                // without it, as with a stored result that does not decode.
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => missing += 1,
+                Ok(bytes) => {
+                    from_file = bytes;
+                    &from_file
+                }
+                // Purged while the frame was being made, or removed by hand.
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                    damaged.push(idx);
+                    continue;
+                }
                 Err(e) => return Err(io_error(e)),
             },
-            None => f(idx, r.get_ref(1)?.as_blob()?),
+            None => r.get_ref(1)?.as_blob()?,
+        };
+        if sum.is_none_or(|s| s == crc32fast::hash(data)) {
+            f(idx, data);
+        } else {
+            tracing::error!(%job, idx, "a stored result's bytes do not match its checksum");
+            damaged.push(idx);
         }
     }
-    Ok(missing)
+    Ok(damaged)
 }
 
 /// A result written to a file in the data directory's `tmp/` and synced, before the
@@ -882,6 +970,8 @@ pub struct Staged {
     path: PathBuf,
     /// Unique among this process's staged files: part of the stored file's name.
     name: String,
+    /// The bytes' CRC-32, stored in the row and checked when the file is read.
+    sum: u32,
 }
 
 impl Staged {
@@ -898,6 +988,7 @@ impl Staged {
         let staged = Staged {
             path: tmp.join(format!("result-{name}")),
             name,
+            sum: crc32fast::hash(bytes),
         };
         let at = |e| io_error_at(&staged.path, e);
         // Made again if it was removed while the coordinator ran.
@@ -914,6 +1005,20 @@ impl Drop for Staged {
         // Moved into place, it is no longer there.
         let _ = std::fs::remove_file(&self.path);
     }
+}
+
+/// Adds `column` of type `decl` to `table` where a database made by an earlier release lacks
+/// it.
+fn add_column(conn: &Connection, table: &str, column: &str, decl: &str) -> rusqlite::Result<()> {
+    let has: bool = conn.query_row(
+        "SELECT COUNT(*) FROM pragma_table_info(?1) WHERE name = ?2",
+        params![table, column],
+        |r| r.get::<_, i64>(0).map(|n| n > 0),
+    )?;
+    if !has {
+        conn.execute_batch(&format!("ALTER TABLE {table} ADD COLUMN {column} {decl}"))?;
+    }
+    Ok(())
 }
 
 /// A result file's name under `results/`, as its row stores it: `JOB/TASK-UNIQUE`.
@@ -954,6 +1059,7 @@ fn failure(e: &std::io::Error, message: String) -> rusqlite::Error {
 mod tests {
     use super::*;
     use axum::response::IntoResponse;
+    use raytile_core::RENDER_VERSION;
 
     #[test]
     fn states_read_back_as_written() {
@@ -1021,6 +1127,7 @@ mod tests {
 
     fn job_row(id: &str, seq: u64, state: JobState) -> JobRow {
         JobRow {
+            render_version: Some(RENDER_VERSION),
             id: id.into(),
             seq,
             scene: "s".into(),
@@ -1115,8 +1222,20 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         std::fs::create_dir_all(dir.path().join("tmp")).unwrap();
         let mut store = Store::open(dir.path()).unwrap();
-        for (id, state) in [("run", JobState::Running), ("fin", JobState::Done)] {
-            store.insert_job(&job_row(id, 0, state)).unwrap();
+        // A running job; done jobs whose tiles this renderer, an older one and an unknown one
+        // made; a cancelled job.
+        let jobs = [
+            ("run", JobState::Running, Some(RENDER_VERSION)),
+            ("fin", JobState::Done, Some(RENDER_VERSION)),
+            ("old", JobState::Done, Some(RENDER_VERSION - 1)),
+            ("unknown", JobState::Done, None),
+            ("cancelled", JobState::Cancelled, Some(RENDER_VERSION)),
+        ];
+        for (id, state, render_version) in jobs {
+            let mut row = job_row(id, 0, state);
+            row.render_version = render_version;
+            row.finished_ms = state.is_final().then_some(5);
+            store.insert_job(&row).unwrap();
             for idx in 0..2 {
                 let staged = Staged::write(dir.path(), &[idx as u8; 8]).unwrap();
                 let row = done(idx);
@@ -1131,7 +1250,7 @@ mod tests {
             }
         }
         drop(store);
-        for job in ["run", "fin"] {
+        for (job, ..) in jobs {
             let first = std::fs::read_dir(dir.path().join("results").join(job))
                 .unwrap()
                 .flatten()
@@ -1142,8 +1261,6 @@ mod tests {
         }
         let mut store = Store::open(dir.path()).unwrap();
         assert_eq!(store.requeue_missing_files().unwrap(), 0, "done at open");
-        assert_eq!(results(&store, "run"), [(1, vec![1; 8])]);
-        assert_eq!(results(&store, "fin"), [(1, vec![1; 8])]);
         let states = |job| -> Vec<StoredTask> {
             store
                 .tasks(job)
@@ -1153,8 +1270,96 @@ mod tests {
                 .collect()
         };
         let done_w = StoredTask::Done { worker: "w".into() };
-        assert_eq!(states("run"), [StoredTask::Queued, done_w.clone()]);
-        assert_eq!(states("fin"), [done_w.clone(), done_w]);
+        let rows = store.jobs().unwrap();
+        for (job, state, _) in jobs {
+            assert_eq!(results(&store, job), [(1, vec![1; 8])], "{job}");
+            let repaired = matches!(job, "run" | "fin");
+            let expected = if repaired {
+                [StoredTask::Queued, done_w.clone()]
+            } else {
+                [done_w.clone(), done_w.clone()]
+            };
+            assert_eq!(states(job), expected, "{job}");
+            let row = rows.iter().find(|r| r.id == job).unwrap();
+            // The done job this renderer made runs again until the tile is made again.
+            let state = if job == "fin" {
+                JobState::Running
+            } else {
+                state
+            };
+            assert_eq!(row.state, state, "{job}");
+            assert_eq!(row.finished_ms.is_some(), state.is_final(), "{job}");
+        }
+    }
+
+    /// A stored result whose bytes changed on disk or in the database (its checksum differs)
+    /// is not handed out as a tile but named as damaged, like a missing file.
+    #[test]
+    fn a_damaged_result_is_named_not_read() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir_all(dir.path().join("tmp")).unwrap();
+        let mut store = Store::open(dir.path()).unwrap();
+        store
+            .insert_job(&job_row("j", 0, JobState::Running))
+            .unwrap();
+        for idx in 0..4 {
+            let bytes = [idx as u8 + 1; 8];
+            // Tasks 0 and 1 inline, 2 and 3 as files.
+            let staged = (idx >= 2).then(|| Staged::write(dir.path(), &bytes).unwrap());
+            let row = done(idx);
+            store
+                .write(&[Write::Result {
+                    job: "j",
+                    row: &row,
+                    data: &bytes,
+                    file: staged.as_ref(),
+                }])
+                .unwrap();
+        }
+        let read = |store: &Store| {
+            let mut got = Vec::new();
+            let lost = for_each_result(&store.conn, &store.results, "j", 0..4, |i, d| {
+                got.push((i, d.to_vec()))
+            })
+            .unwrap();
+            (got.into_iter().map(|(i, _)| i).collect::<Vec<_>>(), lost)
+        };
+        assert_eq!(read(&store), (vec![0, 1, 2, 3], vec![]));
+        // One byte of task 1's blob, and of task 3's file, changed.
+        store
+            .conn
+            .execute(
+                "UPDATE results SET data = x'0202020202020203' WHERE job_id = 'j' AND idx = 1",
+                [],
+            )
+            .unwrap();
+        let file: String = store
+            .conn
+            .query_row("SELECT file FROM results WHERE idx = 3", [], |r| r.get(0))
+            .unwrap();
+        std::fs::write(store.results.join(&file), [4, 4, 4, 4, 0, 4, 4, 4]).unwrap();
+        assert_eq!(read(&store), (vec![0, 2], vec![1, 3]));
+        // Dropped, a result's row and its file go, and its task is queued.
+        let queued = TaskRow {
+            idx: 3,
+            state: StoredTask::Queued,
+            failures: 0,
+        };
+        store
+            .write(&[Write::DropResult {
+                job: "j",
+                row: &queued,
+            }])
+            .unwrap();
+        assert!(!store.results.join(&file).exists());
+        assert_eq!(read(&store), (vec![0, 2], vec![1]));
+        assert_eq!(store.tasks("j").unwrap()[3].state, StoredTask::Queued);
+        // A row from before checksums (no sum) is read as it is.
+        store
+            .conn
+            .execute("UPDATE results SET sum = NULL WHERE idx = 1", [])
+            .unwrap();
+        assert_eq!(read(&store), (vec![0, 1, 2], vec![]));
     }
 
     /// A database lost or emptied beside the result files of its jobs is refused at start,

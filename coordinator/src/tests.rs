@@ -1319,7 +1319,6 @@ async fn results_claiming_more_dropped_samples_than_the_pass_has_are_refused() {
     );
 }
 
-/// The bytes of a pass-0 result for the 4 × 2 tile at the origin.
 /// A new worker leases the one task of `job` (a 4×2 frame in one tile) and uploads `pixels` as
 /// its result: the upload's answer.
 async fn lease_and_upload_4x2(
@@ -1340,6 +1339,7 @@ async fn lease_and_upload_4x2(
     call(st, upload).await
 }
 
+/// The bytes of a pass-0 result for the 4 × 2 tile at the origin.
 fn result_4x2(pixels: Vec<[f32; 4]>, bad_samples: u64) -> Vec<u8> {
     let acc = raytile_proto::tile::TileAccum {
         tile: raytile_proto::Tile {
@@ -1768,6 +1768,89 @@ async fn results_stored_as_files_make_the_same_frame_and_go_with_their_job() {
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
     assert!(files(&results).is_empty(), "{:?}", files(&results));
+}
+
+/// A stored result found damaged (its bytes changed, in the database or in its file) or
+/// missing when an image is made is left out of that image, which gets no entity tag, and its
+/// task is queued again: the done job runs again, a worker renders the tile, and the job
+/// finishes with the frame it had.
+#[tokio::test]
+async fn a_damaged_result_is_rendered_again_and_its_job_finishes_again() {
+    for (file_bytes, damage) in [(usize::MAX, "blob"), (0, "file"), (0, "gone")] {
+        let dir = tempfile::tempdir().unwrap();
+        let mut c = fake_config(dir.path());
+        c.result_file_bytes = file_bytes;
+        // Every image read from the store (a kept one is served as it was made).
+        c.image_cache_bytes = 0;
+        let st = AppState::open(c).unwrap();
+        let (_, job) =
+            empty_scene_job(&st, r#""width": 4, "height": 2, "spp": 1, "tile_size": 16"#).await;
+        let job = job["id"].as_str().unwrap().to_string();
+        let pixels: Vec<[f32; 4]> = (0..8).map(|i| [i as f32 / 8.0, 0.5, 0.25, 1.0]).collect();
+        let (code, body) = lease_and_upload_4x2(&st, &job, pixels.clone()).await;
+        assert_eq!((code, &body["accepted"]), (StatusCode::OK, &true.into()));
+        let uri = format!("/v1/jobs/{job}/image?format=exr");
+        let fetch = || async {
+            let resp = app(st.clone()).oneshot(get(&uri)).await.unwrap();
+            assert_eq!(resp.status(), StatusCode::OK);
+            let tagged = resp.headers().contains_key("etag");
+            let body = axum::body::to_bytes(resp.into_body(), usize::MAX)
+                .await
+                .unwrap();
+            (tagged, body.to_vec())
+        };
+        let (tagged, want) = fetch().await;
+        assert!(tagged);
+        let status_uri = format!("/v1/jobs/{job}");
+        let state = |st: AppState| {
+            let uri = status_uri.clone();
+            async move {
+                let (_, status) = call(&st, get(&uri)).await;
+                (status["state"].clone(), status["tasks_done"].clone())
+            }
+        };
+        assert_eq!(state(st.clone()).await, ("done".into(), 1.into()));
+
+        let db = rusqlite::Connection::open(dir.path().join("raytile.sqlite3")).unwrap();
+        let file: Option<String> = db
+            .query_row("SELECT file FROM results", [], |r| r.get(0))
+            .unwrap();
+        match damage {
+            "blob" => {
+                let mut data: Vec<u8> = db
+                    .query_row("SELECT data FROM results", [], |r| r.get(0))
+                    .unwrap();
+                let last = data.len() - 1;
+                data[last] ^= 0x40;
+                db.execute("UPDATE results SET data = ?1", [data]).unwrap();
+            }
+            _ => {
+                let path = dir.path().join("results").join(file.unwrap());
+                if damage == "gone" {
+                    std::fs::remove_file(path).unwrap();
+                } else {
+                    let mut bytes = std::fs::read(&path).unwrap();
+                    let last = bytes.len() - 1;
+                    bytes[last] ^= 0x40;
+                    std::fs::write(&path, bytes).unwrap();
+                }
+            }
+        }
+        let (tagged, partial) = fetch().await;
+        assert!(!tagged, "{damage}: an image lacking a tile has no name");
+        assert_ne!(partial, want, "{damage}: the damaged tile is left out");
+        assert_eq!(
+            state(st.clone()).await,
+            ("running".into(), 0.into()),
+            "{damage}: queued again"
+        );
+        let (code, body) = lease_and_upload_4x2(&st, &job, pixels).await;
+        assert_eq!((code, &body["accepted"]), (StatusCode::OK, &true.into()));
+        assert_eq!(state(st.clone()).await, ("done".into(), 1.into()));
+        let (tagged, again) = fetch().await;
+        assert!(tagged);
+        assert_eq!(again, want, "{damage}: the frame it had");
+    }
 }
 
 /// A job image is named by an entity tag that changes when a result is stored and at every

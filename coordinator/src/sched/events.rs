@@ -111,7 +111,8 @@ pub enum Event {
         /// The worker's message.
         error: String,
     },
-    /// A task went back to the queue: its lease expired, or its worker handed it back.
+    /// A task went back to the queue: its lease expired, its worker handed it back, or its
+    /// stored result was lost.
     TaskQueued {
         /// Job id.
         job: String,
@@ -121,7 +122,7 @@ pub enum Event {
         tile: Tile,
         /// Its pass.
         pass: u32,
-        /// `expired` or `released`.
+        /// `expired`, `released` or `lost`.
         reason: &'static str,
     },
     /// A worker registered.

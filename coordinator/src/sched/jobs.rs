@@ -22,6 +22,9 @@ pub(super) struct Job {
     pub settings: RenderSettings,
     /// Priority: higher first.
     pub priority: i32,
+    /// The renderer version that made every stored tile, where known (see
+    /// [`JobRow::render_version`]).
+    pub render_version: Option<u32>,
     /// State, error and times; changed only through [`Job::apply`].
     life: JobLife,
     /// Task index → tile and pass (shared with image composition, outside the lock).
@@ -71,6 +74,7 @@ impl Job {
             scene,
             settings,
             priority,
+            render_version: Some(raytile_core::RENDER_VERSION),
             life: JobLife::queued(now_ms),
             layout,
             tasks,
@@ -108,6 +112,7 @@ impl Job {
             started_ms: row.started_ms,
             finished_ms: row.finished_ms,
         };
+        job.render_version = row.render_version;
         job.worker_failures = worker_failures;
         let mut leases = Vec::new();
         for tr in task_rows {
@@ -154,6 +159,7 @@ impl Job {
             created_ms: self.life.created_ms,
             started_ms: self.life.started_ms,
             finished_ms: self.life.finished_ms,
+            render_version: self.render_version,
         }
     }
 

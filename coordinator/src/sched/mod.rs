@@ -813,9 +813,79 @@ impl Sched {
         Ok(true)
     }
 
-    /// Re-queues every lease whose deadline has passed at `now`, and fails the jobs every live
-    /// worker is blocked from; returns how many leases expired. Only the leases out are
-    /// looked at, not every task of every job.
+    /// Tasks `lost` of job `job_id`, whose stored results an image found missing or damaged,
+    /// are queued again with their results deleted, so that the tile is rendered again (to
+    /// the same bits) rather than missing from the frame. A done job runs again until they
+    /// are, if the current renderer made its tiles (a finished job of an older renderer, a
+    /// cancelled or a failed one, keeps its frame as it is). Returns how many were queued.
+    pub fn repair(&mut self, job_id: &str, lost: &[u32], now: Now) -> Result<usize, SchedError> {
+        let Some(job) = self.jobs.get_mut(job_id) else {
+            return Ok(0);
+        };
+        let state = job.life().state;
+        let current = job.render_version == Some(raytile_core::RENDER_VERSION);
+        if !(matches!(state, JobState::Queued | JobState::Running)
+            || state == JobState::Done && current)
+        {
+            tracing::error!(job = %job_id, tasks = ?lost, ?state,
+                "stored results are lost, and the job cannot render them again: its frame lacks those tiles");
+            return Ok(0);
+        }
+        let mut queued: Vec<(usize, state::Task)> = Vec::new();
+        for &idx in lost {
+            let i = idx as usize;
+            if i >= job.tasks().len() || queued.iter().any(|(q, _)| *q == i) {
+                continue;
+            }
+            let (out, task) = job.next_task(i, TaskEvent::Lost);
+            if out == Outcome::Changed {
+                queued.push((i, task));
+            }
+        }
+        if queued.is_empty() {
+            return Ok(0);
+        }
+        let reopened = job.next_life(JobEvent::Reopen, now.wall_ms);
+        let rows: Vec<TaskRow> = queued.iter().map(|(i, t)| Job::task_row(*i, t)).collect();
+        let mut writes: Vec<Write> = rows
+            .iter()
+            .map(|row| Write::DropResult { job: job_id, row })
+            .collect();
+        writes.extend(reopened.as_ref().map(|l| life_write(job_id, l)));
+        self.store.write(&writes)?;
+        let n = queued.len();
+        for (i, t) in queued {
+            job.set_task(i, t);
+            if let Some(work) = job.work(i) {
+                self.events.emit(|| Event::TaskQueued {
+                    job: job_id.into(),
+                    task: i as u32,
+                    tile: work.tile,
+                    pass: work.pass,
+                    reason: "lost",
+                });
+            }
+        }
+        let (tiles_done, passes_done) = job.progress();
+        let layout = &job.layout;
+        self.events.emit(|| Event::JobProgress {
+            job: job_id.into(),
+            tiles_done,
+            tiles_total: layout.tile_count() as u64,
+            passes_done,
+            passes: layout.pass_count() as u32,
+            tasks_done: job.tasks_done() as u64,
+            tasks_total: layout.task_count() as u64,
+        });
+        if let Some(l) = reopened {
+            self.events.emit(|| job_state_event(job_id, &l));
+            job.set_life(l);
+        }
+        tracing::warn!(job = %job_id, tasks = n, ?state,
+            "stored results were missing or damaged: their tasks are queued to be rendered again");
+        Ok(n)
+    }
+
     /// Gives every lease out at least until `until` (deadlines live in memory: nothing is
     /// stored); returns how many it extended. For a coordinator that was not running for
     /// longer than a lease lives (see [`crate::timeout_checker`]).
@@ -840,6 +910,9 @@ impl Sched {
         n
     }
 
+    /// Re-queues every lease whose deadline has passed at `now`, and fails the jobs every live
+    /// worker is blocked from; returns how many leases expired. Only the leases out are
+    /// looked at, not every task of every job.
     pub fn expire(&mut self, now: Now) -> Result<usize, SchedError> {
         let mut expired = Vec::new();
         for (lease, (job_id, idx)) in &self.leases {

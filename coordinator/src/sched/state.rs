@@ -94,6 +94,8 @@ pub enum TaskEvent {
         /// The clock.
         now: Instant,
     },
+    /// The stored result of a done task was found missing or damaged: it is rendered again.
+    Lost,
 }
 
 /// What a [`transition`] did.
@@ -112,6 +114,7 @@ pub fn transition(task: &mut Task, ev: TaskEvent) -> Outcome {
     use TaskState::*;
     let next = match (&task.state, ev) {
         (Done { .. }, TaskEvent::Complete { .. }) => return Outcome::AlreadyDone,
+        (Done { .. }, TaskEvent::Lost) => Queued,
         (Done { .. } | Failed, _) => return Outcome::Ignored,
         (_, TaskEvent::Complete { worker }) => Done { worker },
         (
@@ -179,6 +182,8 @@ pub enum JobEvent {
     },
     /// Cancelled by a user.
     Cancel,
+    /// A done job lost stored tiles (missing or damaged), which are to be rendered again.
+    Reopen,
 }
 
 impl JobLife {
@@ -194,8 +199,14 @@ impl JobLife {
     }
 
     /// The job state machine: every change of a job's state goes through here. Returns
-    /// whether anything changed (so the caller persists it). A final job never changes.
+    /// whether anything changed (so the caller persists it). A final job never changes, but
+    /// that a done job whose stored tiles were lost runs again until they are made again.
     pub fn apply(&mut self, ev: JobEvent, now_ms: u64) -> bool {
+        if ev == JobEvent::Reopen && self.state == JobState::Done {
+            self.state = JobState::Running;
+            self.finished_ms = None;
+            return true;
+        }
         if self.state.is_final() {
             return false;
         }
@@ -211,6 +222,8 @@ impl JobLife {
                 JobState::Failed
             }
             JobEvent::Cancel => JobState::Cancelled,
+            // An unfinished job has nothing finished to reopen.
+            JobEvent::Reopen => return false,
         };
         if state.is_final() {
             self.finished_ms = Some(now_ms);
@@ -315,7 +328,12 @@ mod tests {
             (j.state, j.finished_ms, j.error.as_deref()),
             (JobState::Failed, Some(30), Some("boom"))
         );
-        for ev in [JobEvent::Start, JobEvent::Finish, JobEvent::Cancel] {
+        for ev in [
+            JobEvent::Start,
+            JobEvent::Finish,
+            JobEvent::Cancel,
+            JobEvent::Reopen,
+        ] {
             assert!(!j.apply(ev, 40));
         }
         assert_eq!((j.state, j.finished_ms), (JobState::Failed, Some(30)));
@@ -325,6 +343,28 @@ mod tests {
         assert_eq!(
             (j.state, j.started_ms, j.finished_ms),
             (JobState::Cancelled, None, Some(50))
+        );
+    }
+
+    #[test]
+    fn only_a_done_job_reopens_and_it_finishes_again() {
+        let mut j = JobLife::queued(10);
+        assert!(!j.apply(JobEvent::Reopen, 15), "nothing finished to reopen");
+        assert!(j.apply(JobEvent::Start, 20));
+        assert!(!j.apply(JobEvent::Reopen, 25));
+        assert!(j.apply(JobEvent::Finish, 30));
+        assert!(j.apply(JobEvent::Reopen, 40));
+        assert_eq!(
+            (j.state, j.started_ms, j.finished_ms),
+            (JobState::Running, Some(20), None)
+        );
+        assert!(j.apply(JobEvent::Finish, 50));
+        assert_eq!((j.state, j.finished_ms), (JobState::Done, Some(50)));
+        let mut c = JobLife::queued(10);
+        assert!(c.apply(JobEvent::Cancel, 20));
+        assert!(
+            !c.apply(JobEvent::Reopen, 30),
+            "a cancelled job stays cancelled"
         );
     }
 }
