@@ -2,10 +2,12 @@
 
     python bench/media-compare.py [--raytile target/release/raytile] [--spp 256] [--size 64]
 
-Three scenes, written by this script in both formats (bench/out/media/): a homogeneous
+Four scenes, written by this script in both formats (bench/out/media/): a homogeneous
 chromatic, forward-scattering sphere and a heterogeneous grid (a .vol file both renderers
 read) in a box, each inside a `null`/`interface` boundary under a uniform sky of radiance 1
-and a small area light; and a chromatic sphere lit by the area light alone. Each renderer renders each scene twice (seeds 1 and 2). Reported per
+and a small area light; a chromatic sphere lit by the area light alone; and a ball of
+coloured glass (a dielectric boundary around a medium that only absorbs) under the sky and
+the light. Each renderer renders each scene twice (seeds 1 and 2). Reported per
 scene and channel: the image means and their relative difference (must be within 2 %), and
 for every 32×32-pixel block the difference of the block means in standard errors (the noise
 of a block mean is measured from the per-pixel differences of the two seeds, so the picture's
@@ -50,6 +52,14 @@ def scenes():
             "grid": 24,
             "sky": True,
         },
+        # Coloured glass: a dielectric boundary (index 1.5) around a medium that only absorbs,
+        # so the light inside is refracted, reflected within and attenuated by Beer's law.
+        "glass": {
+            "medium": {"sigma_t": [0.4, 1.2, 3.0], "albedo": [0.0, 0.0, 0.0], "g": 0.0},
+            "grid": None,
+            "sky": True,
+            "glass": True,
+        },
     }
 
 
@@ -85,7 +95,8 @@ def raytile_scene(name, s, vol):
     return sky | {
         "camera": CAMERA,
         "media": {"m": medium},
-        "materials": {"b": {"type": "interface"}, "lamp": {"type": "emitter", "emission": LIGHT["emission"]}},
+        "materials": {"b": {"type": "glass", "ior": 1.5} if s.get("glass") else {"type": "interface"},
+                      "lamp": {"type": "emitter", "emission": LIGHT["emission"]}},
         "objects": [
             {"shape": shape, "material": "b", "interior": "m", "transform": transform},
             {"shape": {"type": "rectangle", "corner": c, "edge_u": [e, 0, 0], "edge_v": [0, 0, e]},
@@ -121,7 +132,10 @@ def mitsuba_scene(mi, s, vol, size, spp, seed, depth):
             "phase": phase,
         }
         shape = {"type": "sphere", "radius": 0.8}
-    shape.update({"bsdf": {"type": "null"}, "interior": medium})
+    # Both indices given: Mitsuba's defaults are BK7 (1.5046) inside and air (1.000277) outside.
+    bsdf = ({"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0} if s.get("glass")
+            else {"type": "null"})
+    shape.update({"bsdf": bsdf, "interior": medium})
     c, e = LIGHT["corner"], LIGHT["size"]
     centre = [c[0] + e / 2, c[1], c[2] + e / 2]
     # Mitsuba's rectangle is [-1, 1]² in z = 0 facing +z: turn it to face down.
@@ -170,12 +184,15 @@ def main():
     p.add_argument("--spp", type=int, default=256)
     p.add_argument("--size", type=int, default=64)
     p.add_argument("--depth", type=int, default=64)
+    p.add_argument("--only", help="render only this scene")
     a = p.parse_args()
     import mitsuba as mi
     mi.set_variant("scalar_rgb")
     os.makedirs(OUT, exist_ok=True)
     failed = False
     for name, s in scenes().items():
+        if a.only and name != a.only:
+            continue
         vol = None
         if s["grid"]:
             vol = os.path.join(OUT, f"{name}.vol")

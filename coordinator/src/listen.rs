@@ -10,8 +10,10 @@
 //! - an HTTP/1.1 request with no `Host`, more than one, or one that is not a host and maybe a
 //!   port, is answered 400 before the router sees it (RFC 9112, section 3.2);
 //! - a request body that pauses for [`ServeLimits::body_timeout`] between two reads fails (as
-//!   nginx's `client_body_timeout`), so an upload that stops coming does not hold its
-//!   connection, nor a large result's slot (one that keeps coming, however slowly, does).
+//!   nginx's `client_body_timeout`), and one that, past that long from its first read, has
+//!   come at less than [`ServeLimits::min_body_rate`] on average fails too (as Apache's
+//!   `mod_reqtimeout` with `MinRate`): an upload that stops coming, or trickles, does not hold
+//!   its connection, nor a large result's slot.
 //!
 //! A client that closes its side of the connection is taken to be gone, as before (hyper's
 //! `half_close` stays off): a long poll or an image request it left is dropped, so no lease is
@@ -23,13 +25,18 @@
 
 use crate::error::AppError;
 use axum::body::Body;
+use axum::body::Bytes;
 use axum::http::{header, Request, Response, Version};
 use axum::response::IntoResponse;
+use axum::BoxError;
 use axum::Router;
+use hyper::body::Frame;
 use hyper::body::Incoming;
 use hyper_util::rt::{TokioIo, TokioTimer};
 use std::convert::Infallible;
+use std::pin::Pin;
 use std::sync::Arc;
+use std::task::{Context, Poll};
 use std::time::Duration;
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{watch, Semaphore};
@@ -46,6 +53,10 @@ pub struct ServeLimits {
     pub header_timeout: Duration,
     /// Longest pause between two reads of a request's body, once the handler reads it.
     pub body_timeout: Duration,
+    /// Least average rate of a request's body in bytes a second, once `body_timeout` has
+    /// passed since the handler began to read it (that time is free: a body may take
+    /// `body_timeout` plus its length over this rate); 0 for none.
+    pub min_body_rate: u64,
 }
 
 impl Default for ServeLimits {
@@ -54,6 +65,7 @@ impl Default for ServeLimits {
             max_connections: 4096,
             header_timeout: Duration::from_secs(30),
             body_timeout: Duration::from_secs(60),
+            min_body_rate: 32 * 1024,
         }
     }
 }
@@ -119,7 +131,15 @@ async fn connection(
             if let Some(refused) = host_problem(&req) {
                 return Ok::<_, Infallible>(refused.into_response());
             }
-            let req = req.map(|b| Body::new(TimeoutBody::new(body_timeout, b)));
+            let req = req.map(|b| {
+                Body::new(MinRateBody {
+                    inner: Box::pin(TimeoutBody::new(body_timeout, b)),
+                    min_rate: limits.min_body_rate,
+                    grace: body_timeout,
+                    started: None,
+                    read: 0,
+                })
+            });
             app.oneshot(req).await
         }
     });
@@ -134,6 +154,74 @@ async fn connection(
             conn.as_mut().graceful_shutdown();
             log_end(conn.await);
         }
+    }
+}
+
+/// A request body that, once `grace` has passed since it was first read, must have come at
+/// `min_rate` bytes a second beyond it: past `grace + read / min_rate` it fails at its next
+/// frame. (A body that stops coming altogether is [`TimeoutBody`]'s.)
+struct MinRateBody<B> {
+    inner: Pin<Box<B>>,
+    min_rate: u64,
+    grace: Duration,
+    started: Option<tokio::time::Instant>,
+    read: u64,
+}
+
+/// Why a body that came too slowly failed (the handler answers 400 naming `body`).
+#[derive(Debug, thiserror::Error)]
+#[error(
+    "the body came at {rate:.0} bytes a second, below the least this coordinator reads \
+     ({min_rate} a second past the first {grace} s, --min-body-rate)"
+)]
+struct TooSlow {
+    rate: f64,
+    min_rate: u64,
+    grace: f64,
+}
+
+impl<B> hyper::body::Body for MinRateBody<B>
+where
+    B: hyper::body::Body<Data = Bytes>,
+    B::Error: Into<BoxError>,
+{
+    type Data = Bytes;
+    type Error = BoxError;
+
+    fn poll_frame(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+    ) -> Poll<Option<Result<Frame<Bytes>, BoxError>>> {
+        let this = &mut *self;
+        let started = *this.started.get_or_insert_with(tokio::time::Instant::now);
+        let frame = match this.inner.as_mut().poll_frame(cx) {
+            Poll::Pending => return Poll::Pending,
+            Poll::Ready(None) => return Poll::Ready(None),
+            Poll::Ready(Some(Err(e))) => return Poll::Ready(Some(Err(e.into()))),
+            Poll::Ready(Some(Ok(frame))) => frame,
+        };
+        this.read += frame.data_ref().map_or(0, |d| d.len() as u64);
+        let elapsed = started.elapsed();
+        if this.min_rate > 0 && elapsed > this.grace {
+            let owed = this.min_rate as f64 * (elapsed - this.grace).as_secs_f64();
+            if (this.read as f64) < owed {
+                return Poll::Ready(Some(Err(TooSlow {
+                    rate: this.read as f64 / elapsed.as_secs_f64(),
+                    min_rate: this.min_rate,
+                    grace: this.grace.as_secs_f64(),
+                }
+                .into())));
+            }
+        }
+        Poll::Ready(Some(Ok(frame)))
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.inner.is_end_stream()
+    }
+
+    fn size_hint(&self) -> hyper::body::SizeHint {
+        self.inner.size_hint()
     }
 }
 

@@ -109,6 +109,11 @@ struct Args {
     /// longer fails.
     #[arg(long, default_value_t = ServeLimits::default().body_timeout.as_secs_f64())]
     body_timeout: f64,
+    /// Least average rate of a request's body, in bytes a second, past its first
+    /// --body-timeout seconds: an upload that trickles slower fails (400), rather than hold
+    /// its connection and a large result's slot for hours. 0 for no least rate.
+    #[arg(long, default_value_t = ServeLimits::default().min_body_rate)]
+    min_body_rate: u64,
     /// Do not serve: ask the coordinator listening on --listen for /healthz and exit 0 when
     /// it answers 200 (a container health check; images have no curl).
     #[arg(long)]
@@ -186,6 +191,7 @@ async fn real_main(a: Args) -> anyhow::Result<()> {
         max_connections: a.max_connections,
         header_timeout: secs(a.header_timeout, "header-timeout")?,
         body_timeout: secs(a.body_timeout, "body-timeout")?,
+        min_body_rate: a.min_body_rate,
     };
     for (flag, t) in [
         ("header-timeout", cfg.serve_limits.header_timeout),

@@ -280,12 +280,13 @@ async fn an_upload_to_a_job_that_is_gone_gets_its_404() {
 }
 
 /// An upload whose body stops coming fails after the body timeout, answered 400 naming `body`,
-/// instead of holding its connection (and a large result's slot) for ever; one that keeps
-/// coming, however slowly, is read.
+/// instead of holding its connection (and a large result's slot) for ever; with no least rate,
+/// one that keeps coming, however slowly, is read.
 #[tokio::test]
 async fn a_stalled_body_fails_after_the_body_timeout() {
     let c = start(ServeLimits {
         body_timeout: Duration::from_millis(300),
+        min_body_rate: 0,
         ..ServeLimits::default()
     })
     .await;
@@ -311,6 +312,62 @@ async fn a_stalled_body_fails_after_the_body_timeout() {
     s.write_all(head.as_bytes()).await.unwrap();
     for part in body.chunks(body.len().div_ceil(10)) {
         tokio::time::sleep(Duration::from_millis(150)).await;
+        s.write_all(part).await.unwrap();
+    }
+    let got = read_to_close(&mut s, Duration::from_secs(10)).await;
+    assert!(status(&got).starts_with("HTTP/1.1 20"), "{got}");
+    let _ = c.stop.send(());
+    c.task.await.unwrap().unwrap();
+}
+
+/// A body that keeps coming, but slower than the least rate once the body timeout has passed,
+/// fails (400 naming `body`, saying the rate); one at a higher rate is read whole, however long
+/// it takes.
+#[tokio::test]
+async fn a_trickling_body_fails_below_the_least_rate() {
+    let c = start(ServeLimits {
+        body_timeout: Duration::from_millis(300),
+        min_body_rate: 200,
+        ..ServeLimits::default()
+    })
+    .await;
+    // 5 bytes every 100 ms: 50 bytes a second. Past 300 ms it owes 200 a second beyond them,
+    // so it fails from about 400 ms, well before its 1000 bytes are sent.
+    let mut s = TcpStream::connect(c.addr).await.unwrap();
+    s.write_all(b"POST /v1/scenes HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 1000\r\n\r\n")
+        .await
+        .unwrap();
+    let t = Instant::now();
+    let (mut rd, mut wr) = s.into_split();
+    let trickle = tokio::spawn(async move {
+        for _ in 0..200 {
+            tokio::time::sleep(Duration::from_millis(100)).await;
+            if wr.write_all(b"     ").await.is_err() {
+                break;
+            }
+        }
+    });
+    let mut got = Vec::new();
+    let _ = tokio::time::timeout(Duration::from_secs(10), rd.read_to_end(&mut got)).await;
+    let got = String::from_utf8_lossy(&got).to_string();
+    assert!(t.elapsed() < Duration::from_secs(5), "{:?}", t.elapsed());
+    assert_eq!(status(&got), "HTTP/1.1 400 Bad Request", "{got}");
+    assert!(
+        got.contains(r#""field":"body""#) && got.contains("--min-body-rate"),
+        "{got}"
+    );
+    trickle.abort();
+
+    // 100 bytes every 100 ms, 1000 a second, for 1.5 s: read whole.
+    let body = format!("{{\"objects\": []{}}}", " ".repeat(1484));
+    let mut s = TcpStream::connect(c.addr).await.unwrap();
+    let head = format!(
+        "POST /v1/scenes HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
+        body.len()
+    );
+    s.write_all(head.as_bytes()).await.unwrap();
+    for part in body.as_bytes().chunks(100) {
+        tokio::time::sleep(Duration::from_millis(100)).await;
         s.write_all(part).await.unwrap();
     }
     let got = read_to_close(&mut s, Duration::from_secs(10)).await;
