@@ -435,31 +435,50 @@ pub async fn submit_and_follow(
         )
         .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
-    while !status.state.is_final() {
-        tokio::time::sleep(Duration::from_millis(100)).await;
-        status = c.job(&status.id).await?;
-        bar.set_position(status.tasks_done);
-        bar.set_message(format!(
-            "{} ({} workers)",
-            status.state.name(),
-            status.workers.len()
+    loop {
+        while !status.state.is_final() {
+            tokio::time::sleep(Duration::from_millis(100)).await;
+            status = c.job(&status.id).await?;
+            bar.set_position(status.tasks_done);
+            bar.set_message(format!(
+                "{} ({} workers)",
+                status.state.name(),
+                status.workers.len()
+            ));
+        }
+        if status.state != JobState::Done {
+            bar.finish_and_clear();
+        }
+        match status.state {
+            JobState::Done => {}
+            JobState::Failed => bail!(
+                "job {} failed: {}",
+                status.id,
+                status.error.as_deref().unwrap_or("unknown error")
+            ),
+            _ => bail!("job {} was {}", status.id, status.state.name()),
+        }
+        let (Some(out), Some(format)) = (output, format) else {
+            break;
+        };
+        let bytes = c.job_image(&status.id, format.name()).await?;
+        // Making the frame reads every stored tile: one found lost or damaged is rendered
+        // again, and the job runs again (and may be done again already). Its frame is written
+        // once it has every tile.
+        let after = c.job(&status.id).await?;
+        if after.state == JobState::Done && after.finished_ms == status.finished_ms {
+            bar.finish_and_clear();
+            std::fs::write(out, &bytes).with_context(|| format!("writing {}", out.display()))?;
+            eprintln!("wrote {}", out.display());
+            break;
+        }
+        bar.println(format!(
+            "raytile: job {} lost stored tiles; they are rendered again",
+            status.id
         ));
+        status = after;
     }
     bar.finish_and_clear();
-    match status.state {
-        JobState::Done => {}
-        JobState::Failed => bail!(
-            "job {} failed: {}",
-            status.id,
-            status.error.as_deref().unwrap_or("unknown error")
-        ),
-        _ => bail!("job {} was {}", status.id, status.state.name()),
-    }
-    if let (Some(out), Some(format)) = (output, format) {
-        let bytes = c.job_image(&status.id, format.name()).await?;
-        std::fs::write(out, &bytes).with_context(|| format!("writing {}", out.display()))?;
-        eprintln!("wrote {}", out.display());
-    }
     Ok(status)
 }
 

@@ -618,8 +618,11 @@ async fn job_image(
             // Rendered again where the job can be; the image lacks them until then. Only while
             // the job's results are still those read: one of them may since have been
             // rendered again, and the next image looks again.
-            if s.repair(&id, &lost, state.now())? > 0 {
-                state.notify.notify_waiters();
+            match s.repair(&id, &lost, state.now()) {
+                Ok(0) => {}
+                Ok(_) => state.notify.notify_waiters(),
+                // The image is served all the same; the next one looks again.
+                Err(e) => tracing::error!(job = %id, "lost tiles not queued again: {e}"),
             }
         }
         let named = unchanged && lost.is_empty();

@@ -171,11 +171,13 @@ struct MinRateBody<B> {
 /// Why a body that came too slowly failed (the handler answers 400 naming `body`).
 #[derive(Debug, thiserror::Error)]
 #[error(
-    "the body came at {rate:.0} bytes a second, below the least this coordinator reads \
-     ({min_rate} a second past the first {grace} s, --min-body-rate)"
+    "the body came too slowly: {read} bytes in {elapsed:.1} s, where this coordinator reads \
+     bodies that come at {min_rate} bytes a second or more past their first {grace} s \
+     (--min-body-rate)"
 )]
 struct TooSlow {
-    rate: f64,
+    read: u64,
+    elapsed: f64,
     min_rate: u64,
     grace: f64,
 }
@@ -206,7 +208,8 @@ where
             let owed = this.min_rate as f64 * (elapsed - this.grace).as_secs_f64();
             if (this.read as f64) < owed {
                 return Poll::Ready(Some(Err(TooSlow {
-                    rate: this.read as f64 / elapsed.as_secs_f64(),
+                    read: this.read,
+                    elapsed: elapsed.as_secs_f64(),
                     min_rate: this.min_rate,
                     grace: this.grace.as_secs_f64(),
                 }

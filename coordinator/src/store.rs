@@ -204,6 +204,10 @@ impl Store {
         add_column(&conn, "results", "sum", "INTEGER")?;
         add_column(&conn, "jobs", "render_version", "INTEGER")?;
         let results = dir.join("results");
+        let had_results = results.try_exists().map_err(|e| io_error_at(&results, e))?;
+        if !had_results {
+            check_no_files_named(&conn, &results)?;
+        }
         std::fs::create_dir_all(&results).map_err(|e| io_error_at(&results, e))?;
         let mut store = Store {
             conn,
@@ -281,7 +285,9 @@ impl Store {
             let mut out = Vec::new();
             for row in rows {
                 let (job, idx, file) = row?;
-                if !self.results.join(&file).exists() {
+                // Only a file known to be gone: one that cannot be looked at (permissions, an
+                // I/O error) is left to the reads, which say why.
+                if matches!(self.results.join(&file).try_exists(), Ok(false)) {
                     out.push((job, idx));
                 }
             }
@@ -300,7 +306,8 @@ impl Store {
             )?;
             let requeued = tx.execute(
                 &format!(
-                    "UPDATE tasks SET state = '{TASK_QUEUED}', worker = NULL, lease = NULL
+                    "UPDATE tasks SET state = '{TASK_QUEUED}', worker = NULL, lease = NULL,
+                         failures = 0
                      WHERE job_id = ?1 AND idx = ?2 AND job_id IN
                          (SELECT id FROM jobs WHERE state IN ('{}', '{}')
                              OR (state = '{}' AND render_version = ?3))",
@@ -324,6 +331,8 @@ impl Store {
                 params![job],
             )?;
             if reopen > 0 {
+                // As a repair while running does: no worker blocked from it any more.
+                tx.execute("DELETE FROM blocked WHERE job_id = ?1", params![job])?;
                 reopened.insert(job.clone());
             }
         }
@@ -458,6 +467,18 @@ impl Store {
             return Ok(0);
         }
         let tx = self.conn.transaction()?;
+        // Another renderer ran on this database since this one last did: a finished job that
+        // says this renderer made its tiles may have been finished by that one (a release
+        // that did not record it), so it is no longer known.
+        tx.execute(
+            &format!(
+                "UPDATE jobs SET render_version = NULL WHERE state NOT IN ('{}', '{}')
+                 AND render_version = ?1",
+                job_state_name(JobState::Queued),
+                job_state_name(JobState::Running)
+            ),
+            params![raytile_core::RENDER_VERSION],
+        )?;
         let unfinished = format!(
             "SELECT id FROM jobs WHERE state IN ('{}', '{}')",
             job_state_name(JobState::Queued),
@@ -570,7 +591,11 @@ impl Store {
             remove_files(&placed);
         }
         done?;
-        remove_files(&dropped);
+        if !dropped.is_empty() {
+            // A large result can be hundreds of MB: unlinked on a thread of its own, as a
+            // purge's, not under the caller's lock.
+            std::thread::spawn(move || remove_files(&dropped));
+        }
         for w in writes {
             if let Write::DeleteJob(job) = *w {
                 self.remove_job_files(job);
@@ -749,6 +774,8 @@ pub enum Write<'a> {
         /// The task, queued again.
         row: &'a TaskRow,
     },
+    /// Every worker's failure count on a job, forgotten (a done job that runs again).
+    ClearBlocked(&'a str),
     /// A worker's failure count on a job.
     Blocked {
         /// Job id.
@@ -851,6 +878,9 @@ fn apply(tx: &Connection, w: &Write<'_>) -> rusqlite::Result<()> {
                 params![job, worker, failures],
             )?;
         }
+        Write::ClearBlocked(job) => {
+            tx.execute("DELETE FROM blocked WHERE job_id = ?1", params![job])?;
+        }
         Write::DeleteJob(job) => {
             for table in ["results", "tasks", "blocked"] {
                 tx.execute(
@@ -943,8 +973,12 @@ pub fn for_each_result(
                     from_file = bytes;
                     &from_file
                 }
-                // Purged while the frame was being made, or removed by hand.
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                // Purged while the frame was being made, removed by hand, or unreadable on a
+                // failing disk (EIO): rendered again, if its job still can be.
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound || is_media_error(&e) => {
+                    if e.kind() != std::io::ErrorKind::NotFound {
+                        tracing::error!(%job, idx, file, "a stored result cannot be read: {e}");
+                    }
                     damaged.push(idx);
                     continue;
                 }
@@ -1005,6 +1039,34 @@ impl Drop for Staged {
         // Moved into place, it is no longer there.
         let _ = std::fs::remove_file(&self.path);
     }
+}
+
+/// A database that names result files beside no `results/` folder at all: a volume not
+/// mounted, or the folder removed. Refused, rather than render every such tile again.
+fn check_no_files_named(conn: &Connection, results: &Path) -> rusqlite::Result<()> {
+    let named: i64 = conn.query_row(
+        "SELECT COUNT(*) FROM results WHERE file IS NOT NULL",
+        [],
+        |r| r.get(0),
+    )?;
+    if named == 0 {
+        return Ok(());
+    }
+    let message = format!(
+        "the database names {named} result file(s) under {}, which does not exist: is its \
+         volume mounted? Put the folder back; to go on without those results (their tiles \
+         are rendered again where their jobs can be), create it empty",
+        results.display()
+    );
+    Err(rusqlite::Error::SqliteFailure(
+        rusqlite::ffi::Error::new(rusqlite::ffi::SQLITE_CANTOPEN),
+        Some(message),
+    ))
+}
+
+/// Whether reading a file failed on its bytes (the medium, EIO), not on access to it.
+fn is_media_error(e: &std::io::Error) -> bool {
+    e.kind() == std::io::ErrorKind::InvalidData || e.raw_os_error() == Some(libc::EIO)
 }
 
 /// Adds `column` of type `decl` to `table` where a database made by an earlier release lacks
@@ -1292,6 +1354,41 @@ mod tests {
         }
     }
 
+    /// A database that names result files beside no `results/` folder (a volume not mounted)
+    /// is refused, naming the folder; once the folder is there, empty, it starts and queues
+    /// those tiles again.
+    #[test]
+    fn result_files_named_beside_no_results_folder_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir_all(dir.path().join("tmp")).unwrap();
+        let mut store = Store::open(dir.path()).unwrap();
+        store
+            .insert_job(&job_row("j", 0, JobState::Running))
+            .unwrap();
+        let staged = Staged::write(dir.path(), &[1; 8]).unwrap();
+        let row = done(0);
+        store
+            .write(&[Write::Result {
+                job: "j",
+                row: &row,
+                data: &[],
+                file: Some(&staged),
+            }])
+            .unwrap();
+        drop(store);
+        let results = dir.path().join("results");
+        std::fs::remove_dir_all(&results).unwrap();
+        let e = Store::open(dir.path()).err().expect("refused").to_string();
+        assert!(
+            e.contains("names 1 result file") && e.contains(&results.display().to_string()),
+            "{e}"
+        );
+        assert!(!results.exists(), "not made by a refused start");
+        std::fs::create_dir(&results).unwrap();
+        let store = Store::open(dir.path()).unwrap();
+        assert_eq!(store.tasks("j").unwrap()[0].state, StoredTask::Queued);
+    }
+
     /// A stored result whose bytes changed on disk or in the database (its checksum differs)
     /// is not handed out as a tile but named as damaged, like a missing file.
     #[test]
@@ -1351,7 +1448,11 @@ mod tests {
                 row: &queued,
             }])
             .unwrap();
-        assert!(!store.results.join(&file).exists());
+        let gone = std::time::Instant::now();
+        while store.results.join(&file).exists() && gone.elapsed().as_secs() < 10 {
+            std::thread::sleep(std::time::Duration::from_millis(10));
+        }
+        assert!(!store.results.join(&file).exists(), "removed, on a thread");
         assert_eq!(read(&store), (vec![0, 2], vec![1]));
         assert_eq!(store.tasks("j").unwrap()[3].state, StoredTask::Queued);
         // A row from before checksums (no sum) is read as it is.

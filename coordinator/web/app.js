@@ -807,7 +807,13 @@ function jobPage(main, id) {
     else if (ev.type === "task_done") {
       t.passes_done++;
       t.workers.delete(ev.worker);
-    } else t.workers.clear();
+    } else {
+      // A stored result lost is a pass of the tile to render again.
+      if (ev.type === "task_queued" && ev.reason === "lost") {
+        t.passes_done = Math.max(0, t.passes_done - 1);
+      }
+      t.workers.clear();
+    }
   };
 
   const refreshWorkers = async () => {

@@ -158,7 +158,8 @@ impl JobState {
         Self::ALL.into_iter().find(|k| k.name() == s)
     }
 
-    /// Whether the job will not change any more.
+    /// Whether the job has ended: it changes no more, but that a `Done` job whose stored
+    /// tiles were lost (missing or damaged) is `Running` again until they are rendered again.
     pub fn is_final(self) -> bool {
         matches!(self, Self::Done | Self::Failed | Self::Cancelled)
     }

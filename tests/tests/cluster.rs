@@ -581,6 +581,70 @@ mod faults {
         c.stop().await;
     }
 
+    /// A finished job whose stored tiles were lost while the coordinator was stopped (a result
+    /// file deleted) or damaged (a byte of another changed) is running again after the restart,
+    /// and again when an image reads the damaged one; the workers render just those two tiles
+    /// again, and the job ends with the frame a local render makes.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn lost_and_damaged_tiles_of_a_finished_job_are_rendered_again() {
+        let scene = cornell();
+        let dir = tempfile::tempdir().unwrap();
+        let data = dir.path().join("data");
+        let mut cfg = test_config(&data);
+        // Every result a file, so that one can be removed and another changed by hand.
+        cfg.result_file_bytes = 0;
+        let c = Coord::start(cfg.clone(), 0).await;
+        let port = c.port;
+        let ws: Vec<Worker> = (0..2)
+            .map(|i| Worker::start(&c.base, 1, dir.path(), &format!("w{i}")))
+            .collect();
+        let id = upload(&c.base, std::fs::read(&scene).unwrap()).await;
+        let j = submit(&c.base, &job(&id, 16)).await;
+        let done = wait_for(&c.base, &j.id, 120, |s| s.state.is_final()).await;
+        assert_eq!(done.state, JobState::Done);
+        let want = local_exr(&scene, &done.settings);
+        assert_eq!(image(&c.base, &j.id, "exr").await, want);
+        c.stop().await;
+
+        let mut files: Vec<PathBuf> = std::fs::read_dir(data.join("results").join(&j.id))
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .collect();
+        files.sort();
+        assert_eq!(files.len() as u64, done.tasks_total);
+        std::fs::remove_file(&files[3]).unwrap();
+        let mut bytes = std::fs::read(&files[7]).unwrap();
+        let last = bytes.len() - 1;
+        bytes[last] ^= 0x01;
+        std::fs::write(&files[7], bytes).unwrap();
+
+        let c = Coord::start(cfg, port).await;
+        let after = status(&c.base, &j.id).await;
+        assert_eq!(
+            (after.state, after.tasks_done),
+            (JobState::Running, done.tasks_total - 1),
+            "the missing file's task is queued again at start"
+        );
+        // The frame reads every stored tile: the damaged one is queued too.
+        let partial = image(&c.base, &j.id, "exr").await;
+        assert_ne!(partial, want);
+        let again = wait_for(&c.base, &j.id, 120, |s| {
+            s.state.is_final() && s.tasks_done == s.tasks_total
+        })
+        .await;
+        assert_eq!(again.state, JobState::Done);
+        assert_eq!(image(&c.base, &j.id, "exr").await, want);
+        let renders: u64 = ws
+            .iter()
+            .map(|w| w.stats.renders.load(Ordering::Relaxed))
+            .sum();
+        assert_eq!(renders, done.tasks_total + 2, "just the two tiles again");
+        for w in ws {
+            w.stop().await;
+        }
+        c.stop().await;
+    }
+
     /// The same with real processes and SIGKILL (slow: RAYTILE_SLOW_TESTS=1, built binaries).
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn sigkilled_worker_process() {

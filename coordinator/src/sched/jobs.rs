@@ -188,7 +188,7 @@ impl Job {
         &self.life
     }
 
-    /// Whether the job will not change any more.
+    /// Whether the job has ended (see [`JobState::is_final`](raytile_proto::JobState::is_final)).
     pub fn is_final(&self) -> bool {
         self.life.state.is_final()
     }

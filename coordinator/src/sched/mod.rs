@@ -852,11 +852,24 @@ impl Sched {
             .map(|row| Write::DropResult { job: job_id, row })
             .collect();
         writes.extend(reopened.as_ref().map(|l| life_write(job_id, l)));
+        if reopened.is_some() {
+            // A done job starts over with no worker blocked from it: those blocked may be all
+            // that is left, and the job would fail for want of one.
+            writes.push(Write::ClearBlocked(job_id));
+        }
         self.store.write(&writes)?;
+        if reopened.is_some() {
+            job.worker_failures.clear();
+        }
         let n = queued.len();
+        if n > events::RESYNC_OVER {
+            self.events.emit(|| Event::Resync {
+                reason: format!("{n} lost tiles queued again"),
+            });
+        }
         for (i, t) in queued {
             job.set_task(i, t);
-            if let Some(work) = job.work(i) {
+            if let Some(work) = job.work(i).filter(|_| n <= events::RESYNC_OVER) {
                 self.events.emit(|| Event::TaskQueued {
                     job: job_id.into(),
                     task: i as u32,

@@ -114,7 +114,12 @@ pub fn transition(task: &mut Task, ev: TaskEvent) -> Outcome {
     use TaskState::*;
     let next = match (&task.state, ev) {
         (Done { .. }, TaskEvent::Complete { .. }) => return Outcome::AlreadyDone,
-        (Done { .. }, TaskEvent::Lost) => Queued,
+        (Done { .. }, TaskEvent::Lost) => {
+            // A new start: the failures before its result are not held against it.
+            task.failures = 0;
+            task.failed_by = None;
+            Queued
+        }
         (Done { .. } | Failed, _) => return Outcome::Ignored,
         (_, TaskEvent::Complete { worker }) => Done { worker },
         (
@@ -344,6 +349,18 @@ mod tests {
             (j.state, j.started_ms, j.finished_ms),
             (JobState::Cancelled, None, Some(50))
         );
+    }
+
+    #[test]
+    fn a_lost_result_queues_its_task_with_no_failures_held() {
+        let mut t = Task {
+            state: TaskState::Done { worker: "w".into() },
+            failures: 2,
+            failed_by: Some("v".into()),
+        };
+        assert_eq!(transition(&mut t, TaskEvent::Lost), Outcome::Changed);
+        assert_eq!(t, Task::queued());
+        assert_eq!(transition(&mut t, TaskEvent::Lost), Outcome::Ignored);
     }
 
     #[test]
