@@ -5,7 +5,7 @@ use crate::compose;
 use crate::error::{AppError, Json, Path, Query};
 use crate::images;
 use crate::scenes::{self, UploadQuery};
-use crate::sched::{Delivery, Heartbeat, ResultOutcome, TaskLayout};
+use crate::sched::{Delivery, Heartbeat, ResultOutcome, Retried, TaskLayout};
 use crate::store::Staged;
 use crate::AppState;
 use axum::body::{Body, Bytes};
@@ -66,6 +66,7 @@ fn build() -> Routes {
         .add(Method::GET, "/v1/jobs/{id}/image", job_image)
         .add(Method::GET, "/v1/jobs/{id}/tiles", job_tiles)
         .add(Method::POST, "/v1/jobs/{id}/priority", set_priority)
+        .add(Method::POST, "/v1/jobs/{id}/retry", retry_job)
         .add(Method::GET, "/v1/events", events)
         .add(
             Method::PUT,
@@ -429,6 +430,46 @@ async fn cancel_job(
         state.sched().cancel(&id, now)?
     };
     st.map(Json).ok_or_else(|| no_job(&id))
+}
+
+/// `POST /v1/jobs/{id}/retry`: a failed or cancelled job goes on with the tiles it has.
+async fn retry_job(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Json<proto::JobStatus>, AppError> {
+    let lim = &state.cfg.limits;
+    let now = state.now();
+    let mut s = state.sched();
+    let status = s.job_status(&id).ok_or_else(|| no_job(&id))?;
+    if matches!(
+        status.state,
+        proto::JobState::Failed | proto::JobState::Cancelled
+    ) {
+        // Retried, it is an unfinished job again, held to the same limits as a new one.
+        if s.unfinished_jobs() >= lim.max_queued_jobs {
+            return Err(AppError::TooMany(format!(
+                "{} unfinished jobs already (limit {})",
+                s.unfinished_jobs(),
+                lim.max_queued_jobs
+            )));
+        }
+        let queued = s.unfinished_tasks();
+        if queued + status.tasks_total > lim.max_queued_tasks {
+            return Err(AppError::TooMany(format!(
+                "unfinished jobs hold {queued} tasks already; this job's {} would pass the limit of {}",
+                status.tasks_total, lim.max_queued_tasks
+            )));
+        }
+    }
+    match s.retry(&id, now)?.ok_or_else(|| no_job(&id))? {
+        Retried::Resumed(status) => {
+            drop(s);
+            state.notify.notify_waiters();
+            Ok(Json(status))
+        }
+        Retried::Unchanged(status) => Ok(Json(status)),
+        Retried::Refused(why) => Err(AppError::Conflict(why)),
+    }
 }
 
 async fn job_tiles(

@@ -189,7 +189,7 @@ each has an `id` that increases by one with every change the coordinator makes (
 `job_submitted` {job: JobStatus}; `job_progress` {job, tiles_done, tiles_total, passes_done, passes, tasks_done, tasks_total}; \
 `job_state` {job, state, error?} (running, done, failed, cancelled; a done job whose stored tiles were lost runs again); `job_priority` {job, priority}; `job_purged` {job}; \
 `task_leased` {job, task, tile, pass, worker}; `task_done` {job, task, tile, pass, worker}; \
-`task_failed` {job, task, tile, pass, worker, error}; `task_queued` {job, task, tile, pass, reason: expired|released|lost}; \
+`task_failed` {job, task, tile, pass, worker, error}; `task_queued` {job, task, tile, pass, reason: expired|released|lost|retried}; \
 `worker_registered` {worker, name, threads}; `worker_seen` {worker, last_seen_ms, tasks_done}; `worker_gone` {worker}. \
 A comment line keeps the connection alive every 15 s.";
 
@@ -260,6 +260,11 @@ pub fn document() -> Value {
             "/v1/jobs/{id}/priority": {"post": with_body(json_body("PriorityRequest"), op("Change a job's priority (higher runs first)", json!([job_id]),
                 Inputs { params: true, json: true, writes: true },
                 json!({"200": ok_json("Job", "JobStatus"), "404": err("Unknown job"), "422": err("No priority, a priority that is not a 32-bit integer (field priority), or an unknown field (field named)")})))},
+            "/v1/jobs/{id}/retry": {"post": op("Retry a failed or cancelled job: it goes on (running, or queued if it never started) with the tiles it has, its failed tiles queued again with no failures held against them or against any worker. An unfinished job is answered as it is",
+                json!([job_id]), Inputs { params: true, writes: true, ..none },
+                json!({"200": ok_json("Job", "JobStatus"), "404": err("Unknown job"),
+                    "409": err("The job is done, or its tiles were made by another renderer version (code conflict): submit it again instead"),
+                    "429": err("Retried, the job would pass --max-queued-jobs or --max-queued-tasks (code too_many)")}))},
             "/v1/events": {"get": op(EVENTS_SUMMARY, json!([]), none,
                 json!({"200": {"description": EVENTS_DESCRIPTION, "content": {"text/event-stream": {"schema": {"type": "string"}}}}}))},
             "/v1/jobs/{id}/tasks/{task}/result": {"put": with_body(binary_body(), op("Upload a tile result (workers): binary, see docs/farm.md",

@@ -1770,6 +1770,109 @@ async fn results_stored_as_files_make_the_same_frame_and_go_with_their_job() {
     assert!(files(&results).is_empty(), "{:?}", files(&results));
 }
 
+/// A failed job is retried with the tiles it has: its failed tile is queued again with no
+/// failure held against it, and the worker that failed it, blocked before, may take it; a
+/// cancelled job goes on the same way; a done job is 409, an unfinished one is answered as it
+/// is, an unknown one 404, and past the queue limits 429.
+#[tokio::test]
+async fn failed_and_cancelled_jobs_are_retried_with_the_tiles_they_have() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut c = fake_config(dir.path());
+    c.max_task_failures = 1;
+    c.block_worker_after = 1;
+    let st = AppState::open(c).unwrap();
+    let (_, job) =
+        empty_scene_job(&st, r#""width": 4, "height": 2, "spp": 1, "tile_size": 16"#).await;
+    let job = job["id"].as_str().unwrap().to_string();
+    let retry = |j: &str| post(&format!("/v1/jobs/{j}/retry"), "");
+    let (code, body) = call(&st, retry(&job)).await;
+    assert_eq!(
+        (code, &body["state"]),
+        (StatusCode::OK, &"queued".into()),
+        "as it is"
+    );
+
+    // The one task fails, and with it the job.
+    let (_, w) = register_worker(&st).await;
+    let worker = w["worker_id"].as_str().unwrap().to_string();
+    let lease_uri = format!("/v1/workers/{worker}/lease");
+    let (_, lease) = call(&st, post(&lease_uri, "")).await;
+    let lease_id = lease["lease_id"].as_str().unwrap();
+    let (code, _) = call(
+        &st,
+        post(
+            &format!("/v1/leases/{lease_id}/failure"),
+            r#"{"error": "out of memory"}"#,
+        ),
+    )
+    .await;
+    assert_eq!(code, StatusCode::NO_CONTENT);
+    let (_, status) = call(&st, get(&format!("/v1/jobs/{job}"))).await;
+    assert_eq!(status["state"], "failed", "{status}");
+
+    let (code, body) = call(&st, retry(&job)).await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    assert_eq!(
+        (&body["state"], &body["error"], &body["finished_ms"]),
+        (
+            &"running".into(),
+            &serde_json::Value::Null,
+            &serde_json::Value::Null
+        ),
+        "{body}"
+    );
+    // The worker blocked from it may take it again, and finish it.
+    let (code, lease) = call(&st, post(&lease_uri, "")).await;
+    assert_eq!(code, StatusCode::OK, "{lease}");
+    let upload = Request::put(format!(
+        "/v1/jobs/{job}/tasks/{}/result?worker={worker}&lease={}",
+        lease["task"],
+        lease["lease_id"].as_str().unwrap()
+    ))
+    .body(Body::from(result_4x2(vec![[0.5, 0.5, 0.5, 1.0]; 8], 0)))
+    .unwrap();
+    let (code, body) = call(&st, upload).await;
+    assert_eq!((code, &body["accepted"]), (StatusCode::OK, &true.into()));
+    let (_, status) = call(&st, get(&format!("/v1/jobs/{job}"))).await;
+    assert_eq!(status["state"], "done");
+    let (code, body) = call(&st, retry(&job)).await;
+    assert_eq!(
+        (code, &body["error"]["code"]),
+        (StatusCode::CONFLICT, &"conflict".into())
+    );
+
+    // Cancelled before it started: queued again.
+    let (_, other) =
+        empty_scene_job(&st, r#""width": 4, "height": 2, "spp": 1, "tile_size": 16"#).await;
+    let other = other["id"].as_str().unwrap().to_string();
+    let del = Request::delete(format!("/v1/jobs/{other}"))
+        .body(Body::empty())
+        .unwrap();
+    assert_eq!(call(&st, del).await.1["state"], "cancelled");
+    let (code, body) = call(&st, retry(&other)).await;
+    assert_eq!((code, &body["state"]), (StatusCode::OK, &"queued".into()));
+    assert_eq!(call(&st, retry("j-none")).await.0, StatusCode::NOT_FOUND);
+
+    // At the queue's limit, a retry is refused as a new job would be.
+    let dir = tempfile::tempdir().unwrap();
+    let mut c = fake_config(dir.path());
+    c.limits.max_queued_jobs = 1;
+    let st = AppState::open(c).unwrap();
+    let (_, first) = empty_scene_job(&st, r#""width": 4, "height": 2"#).await;
+    let first = first["id"].as_str().unwrap().to_string();
+    let del = Request::delete(format!("/v1/jobs/{first}"))
+        .body(Body::empty())
+        .unwrap();
+    call(&st, del).await;
+    let (code, _) = empty_scene_job(&st, r#""width": 4, "height": 2"#).await;
+    assert_eq!(code, StatusCode::CREATED);
+    let (code, body) = call(&st, retry(&first)).await;
+    assert_eq!(
+        (code, &body["error"]["code"]),
+        (StatusCode::TOO_MANY_REQUESTS, &"too_many".into())
+    );
+}
+
 /// A stored result found damaged (its bytes changed, in the database or in its file) or
 /// missing when an image is made is left out of that image, which gets no entity tag, and its
 /// task is queued again: the done job runs again, a worker renders the tile, and the job

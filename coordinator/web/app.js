@@ -307,6 +307,16 @@ function jobActions(job, onChange) {
       }),
     }, "Cancel"));
   }
+  if (job.state === "failed" || job.state === "cancelled") {
+    out.push(h("button", {
+      type: "button", "aria-label": "Retry job " + id + " with the tiles it has",
+      title: "Go on with the tiles it has: its failed tiles are rendered again",
+      onclick: (e) => act(e.target, async () => {
+        await api("/v1/jobs/" + encodeURIComponent(id) + "/retry", { method: "POST" });
+        onChange();
+      }),
+    }, "Retry"));
+  }
   out.push(h("button", {
     type: "button", "aria-label": "Raise the priority of job " + id, title: "Raise priority",
     onclick: (e) => act(e.target, async () => {

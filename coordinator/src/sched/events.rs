@@ -122,7 +122,7 @@ pub enum Event {
         tile: Tile,
         /// Its pass.
         pass: u32,
-        /// `expired`, `released` or `lost`.
+        /// `expired`, `released`, `lost` or `retried`.
         reason: &'static str,
     },
     /// A worker registered.

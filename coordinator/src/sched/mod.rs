@@ -144,6 +144,17 @@ pub enum SchedError {
     Store(#[from] rusqlite::Error),
 }
 
+/// What a retry did to a job.
+#[derive(Debug)]
+pub enum Retried {
+    /// A failed or cancelled job goes on: its status now.
+    Resumed(JobStatus),
+    /// The job is unfinished: nothing to retry.
+    Unchanged(JobStatus),
+    /// It cannot be retried, and why.
+    Refused(String),
+}
+
 /// Everything the scheduler knows.
 pub struct Sched {
     cfg: SchedConfig,
@@ -1097,6 +1108,79 @@ impl Sched {
             }
         }
         Ok(Some(job.status()))
+    }
+
+    /// Retries job `job_id` at `now`: a failed or cancelled job goes on (running, or queued if
+    /// it never started) with the tiles it has, its failed tasks queued again and every task
+    /// and worker starting over with no failures held against them. An unfinished job is
+    /// left as it is. `None` if the job is unknown.
+    pub fn retry(&mut self, job_id: &str, now: Now) -> Result<Option<Retried>, SchedError> {
+        let Some(job) = self.jobs.get_mut(job_id) else {
+            return Ok(None);
+        };
+        let state = job.life().state;
+        if !matches!(state, JobState::Failed | JobState::Cancelled) {
+            return Ok(Some(if state == JobState::Done {
+                Retried::Refused(
+                    "the job is done: there is nothing to render again (submit it again to \
+                     render it anew)"
+                        .into(),
+                )
+            } else {
+                Retried::Unchanged(job.status())
+            }));
+        }
+        if job.render_version != Some(raytile_core::RENDER_VERSION) {
+            return Ok(Some(Retried::Refused(
+                "the job's tiles were made by another renderer version, which a frame cannot \
+                 mix with this one's: submit it again instead"
+                    .into(),
+            )));
+        }
+        let life = job
+            .next_life(JobEvent::Retry, now.wall_ms)
+            .expect("a failed or cancelled job is retried");
+        let mut changed = Vec::new();
+        for i in 0..job.tasks().len() {
+            let (out, task) = job.next_task(i, TaskEvent::Retry);
+            if out == Outcome::Changed {
+                changed.push((i, task));
+            }
+        }
+        let rows: Vec<TaskRow> = changed.iter().map(|(i, t)| Job::task_row(*i, t)).collect();
+        let mut writes = vec![life_write(job_id, &life), Write::ClearBlocked(job_id)];
+        writes.extend(rows.iter().map(|row| Write::Task { job: job_id, row }));
+        self.store.write(&writes)?;
+        job.worker_failures.clear();
+        let requeued: Vec<usize> = changed
+            .iter()
+            .filter(|(i, _)| job.tasks()[*i].state == state::TaskState::Failed)
+            .map(|(i, _)| *i)
+            .collect();
+        for (i, t) in changed {
+            job.set_task(i, t);
+        }
+        self.events.emit(|| job_state_event(job_id, &life));
+        job.set_life(life);
+        let n = requeued.len();
+        if n > events::RESYNC_OVER {
+            self.events.emit(|| Event::Resync {
+                reason: format!("{n} failed tasks queued again"),
+            });
+        }
+        for i in requeued.into_iter().filter(|_| n <= events::RESYNC_OVER) {
+            if let Some(work) = job.work(i) {
+                self.events.emit(|| Event::TaskQueued {
+                    job: job_id.into(),
+                    task: i as u32,
+                    tile: work.tile,
+                    pass: work.pass,
+                    reason: "retried",
+                });
+            }
+        }
+        tracing::info!(job = %job_id, from = ?state, "job retried");
+        Ok(Some(Retried::Resumed(job.status())))
     }
 
     /// Cancels a job if it is not finished, then deletes it with its tiles from memory and the

@@ -96,6 +96,9 @@ pub enum TaskEvent {
     },
     /// The stored result of a done task was found missing or damaged: it is rendered again.
     Lost,
+    /// A user retries the task's failed or cancelled job: a failed task is queued again, and
+    /// every task not done starts over with no failures held against it.
+    Retry,
 }
 
 /// What a [`transition`] did.
@@ -114,6 +117,16 @@ pub fn transition(task: &mut Task, ev: TaskEvent) -> Outcome {
     use TaskState::*;
     let next = match (&task.state, ev) {
         (Done { .. }, TaskEvent::Complete { .. }) => return Outcome::AlreadyDone,
+        (Failed, TaskEvent::Retry) => {
+            task.failures = 0;
+            task.failed_by = None;
+            Queued
+        }
+        (Queued, TaskEvent::Retry) if task.failures > 0 || task.failed_by.is_some() => {
+            task.failures = 0;
+            task.failed_by = None;
+            Queued
+        }
         (Done { .. }, TaskEvent::Lost) => {
             // A new start: the failures before its result are not held against it.
             task.failures = 0;
@@ -189,6 +202,8 @@ pub enum JobEvent {
     Cancel,
     /// A done job lost stored tiles (missing or damaged), which are to be rendered again.
     Reopen,
+    /// A user retries a failed or cancelled job: it goes on with the tiles it has.
+    Retry,
 }
 
 impl JobLife {
@@ -212,6 +227,16 @@ impl JobLife {
             self.finished_ms = None;
             return true;
         }
+        if ev == JobEvent::Retry && matches!(self.state, JobState::Failed | JobState::Cancelled) {
+            self.state = if self.started_ms.is_some() {
+                JobState::Running
+            } else {
+                JobState::Queued
+            };
+            self.error = None;
+            self.finished_ms = None;
+            return true;
+        }
         if self.state.is_final() {
             return false;
         }
@@ -227,8 +252,8 @@ impl JobLife {
                 JobState::Failed
             }
             JobEvent::Cancel => JobState::Cancelled,
-            // An unfinished job has nothing finished to reopen.
-            JobEvent::Reopen => return false,
+            // An unfinished job has nothing finished to reopen, nor anything to retry.
+            JobEvent::Reopen | JobEvent::Retry => return false,
         };
         if state.is_final() {
             self.finished_ms = Some(now_ms);
@@ -361,6 +386,42 @@ mod tests {
         assert_eq!(transition(&mut t, TaskEvent::Lost), Outcome::Changed);
         assert_eq!(t, Task::queued());
         assert_eq!(transition(&mut t, TaskEvent::Lost), Outcome::Ignored);
+    }
+
+    #[test]
+    fn a_failed_or_cancelled_job_is_retried_as_it_was_before_it_ended() {
+        let mut j = JobLife::queued(10);
+        assert!(!j.apply(JobEvent::Retry, 15), "not ended");
+        assert!(j.apply(JobEvent::Cancel, 20));
+        assert!(j.apply(JobEvent::Retry, 30));
+        assert_eq!(
+            (j.state, j.started_ms, j.finished_ms),
+            (JobState::Queued, None, None),
+            "never started: queued again"
+        );
+        assert!(j.apply(JobEvent::Start, 40));
+        let fail = JobEvent::Fail {
+            error: "boom".into(),
+        };
+        assert!(j.apply(fail, 50));
+        assert!(j.apply(JobEvent::Retry, 60));
+        assert_eq!(
+            (j.state, j.started_ms, j.finished_ms, j.error.as_deref()),
+            (JobState::Running, Some(40), None, None)
+        );
+        assert!(j.apply(JobEvent::Finish, 70));
+        assert!(!j.apply(JobEvent::Retry, 80), "a done job is not retried");
+        let mut t = Task {
+            state: TaskState::Failed,
+            failures: 3,
+            failed_by: Some("w".into()),
+        };
+        assert_eq!(transition(&mut t, TaskEvent::Retry), Outcome::Changed);
+        assert_eq!(t, Task::queued());
+        assert_eq!(transition(&mut t, TaskEvent::Retry), Outcome::Ignored);
+        t.failures = 1;
+        assert_eq!(transition(&mut t, TaskEvent::Retry), Outcome::Changed);
+        assert_eq!(t, Task::queued());
     }
 
     #[test]
