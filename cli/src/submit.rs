@@ -435,6 +435,16 @@ pub async fn submit_and_follow(
         )
         .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
+    // Frames of a done job made without a tag, in a row.
+    let mut untagged = 0;
+    // Said above the progress bar when it shows, on stderr when it does not (not a terminal).
+    let say = |m: String| {
+        if bar.is_hidden() {
+            eprintln!("{m}");
+        } else {
+            bar.println(m);
+        }
+    };
     loop {
         while !status.state.is_final() {
             tokio::time::sleep(Duration::from_millis(100)).await;
@@ -461,26 +471,45 @@ pub async fn submit_and_follow(
         let (Some(out), Some(format)) = (output, format) else {
             break;
         };
-        let bytes = c.job_image(&status.id, format.name()).await?;
-        // Making the frame reads every stored tile: one found lost or damaged is rendered
-        // again, and the job runs again (and may be done again already). Its frame is written
-        // once it has every tile.
+        let (bytes, tag) = c.job_image_tagged(&status.id, format.name()).await?;
+        // Making the frame reads every stored tile: one found lost or damaged is left out (the
+        // frame has no tag) and rendered again, and the job runs again (and may be done again
+        // already). The frame is written once it has every tile; a frame that stays without a
+        // tag while its job stays done (the tile could not be queued again) is written after
+        // a few tries, with a warning.
         let after = c.job(&status.id).await?;
-        if after.state == JobState::Done && after.finished_ms == status.finished_ms {
+        let same = after.state == JobState::Done && after.finished_ms == status.finished_ms;
+        if same && (tag.is_some() || untagged >= UNTAGGED_TRIES) {
             bar.finish_and_clear();
+            if tag.is_none() {
+                eprintln!(
+                    "raytile: warning: job {}'s frame lacks stored tiles that were lost and \
+                     could not be rendered again (see the coordinator's log)",
+                    status.id
+                );
+            }
             std::fs::write(out, &bytes).with_context(|| format!("writing {}", out.display()))?;
             eprintln!("wrote {}", out.display());
             break;
         }
-        bar.println(format!(
+        if same {
+            untagged += 1;
+            tokio::time::sleep(Duration::from_secs(1)).await;
+            continue;
+        }
+        say(format!(
             "raytile: job {} lost stored tiles; they are rendered again",
             status.id
         ));
+        untagged = 0;
         status = after;
     }
     bar.finish_and_clear();
     Ok(status)
 }
+
+/// Frames of a done job made without a tag, one second apart, before `submit` writes one.
+const UNTAGGED_TRIES: u32 = 5;
 
 #[cfg(test)]
 mod tests {

@@ -340,13 +340,21 @@ impl Store {
         for job in &reopened {
             tracing::warn!(%job, "a finished job lost stored tiles: it runs again until they are rendered again");
         }
-        tracing::warn!(
-            count = missing.len(),
-            queued_again = missing.len() - lacking,
-            lacking,
-            "result files named by the database are missing: their tasks are queued again, but \
-             for finished jobs that another renderer version made, whose frames lack those tiles"
-        );
+        if lacking == 0 {
+            tracing::warn!(
+                count = missing.len(),
+                "result files named by the database are missing: their tasks are queued again"
+            );
+        } else {
+            tracing::warn!(
+                count = missing.len(),
+                queued_again = missing.len() - lacking,
+                lacking,
+                "result files named by the database are missing: their tasks are queued again, \
+                 but for finished jobs that cannot be rendered again (another renderer version \
+                 made them, or they were cancelled or failed), whose frames lack those tiles"
+            );
+        }
         Ok(missing.len())
     }
 
@@ -965,9 +973,27 @@ pub fn for_each_result(
     let mut rows = st.query(params![job, tasks.start as i64, tasks.end as i64])?;
     while let Some(r) = rows.next()? {
         let idx: u32 = r.get(0)?;
-        let sum: Option<u32> = r.get(3)?;
+        // A row whose columns do not read as their types (a sum out of range, text where bytes
+        // belong) is as damaged as bytes that fail their sum.
+        let columns = (|| -> rusqlite::Result<_> {
+            let sum: Option<u32> = r.get(3)?;
+            let file = r.get_ref(2)?.as_str_or_null()?;
+            let blob = match file {
+                Some(_) => None,
+                None => Some(r.get_ref(1)?.as_blob()?),
+            };
+            Ok((sum, file, blob))
+        })();
+        let (sum, file, blob) = match columns {
+            Ok(c) => c,
+            Err(e) => {
+                tracing::error!(%job, idx, "a stored result's row is damaged: {e}");
+                damaged.push(idx);
+                continue;
+            }
+        };
         let from_file;
-        let data: &[u8] = match r.get_ref(2)?.as_str_or_null()? {
+        let data: &[u8] = match file {
             Some(file) => match std::fs::read(results.join(file)) {
                 Ok(bytes) => {
                     from_file = bytes;
@@ -984,7 +1010,7 @@ pub fn for_each_result(
                 }
                 Err(e) => return Err(io_error(e)),
             },
-            None => r.get_ref(1)?.as_blob()?,
+            None => blob.unwrap_or_default(),
         };
         if sum.is_none_or(|s| s == crc32fast::hash(data)) {
             f(idx, data);
@@ -1461,6 +1487,22 @@ mod tests {
             .execute("UPDATE results SET sum = NULL WHERE idx = 1", [])
             .unwrap();
         assert_eq!(read(&store), (vec![0, 1, 2], vec![]));
+        // Columns that do not read as their types: a sum past 32 bits, text for bytes.
+        store
+            .conn
+            .execute(
+                "UPDATE results SET sum = sum + 4294967296 WHERE idx = 0",
+                [],
+            )
+            .unwrap();
+        store
+            .conn
+            .execute(
+                "UPDATE results SET data = CAST(data AS TEXT) WHERE idx = 1",
+                [],
+            )
+            .unwrap();
+        assert_eq!(read(&store), (vec![2], vec![0, 1]));
     }
 
     /// A database lost or emptied beside the result files of its jobs is refused at start,

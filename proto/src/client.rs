@@ -274,12 +274,34 @@ impl Client {
     /// `GET /v1/jobs/{id}/image?format=`: the frame so far, encoded as `format` (`png`, `exr`,
     /// `hdr`: the tracer's `ImageFormat::name`).
     pub async fn job_image(&self, id: &str, format: &str) -> Result<Bytes, ClientError> {
+        Ok(self.job_image_tagged(id, format).await?.0)
+    }
+
+    /// The same, with the image's `ETag`: `None` when the frame is not one state of the job's
+    /// stored results (a result arrived while it was made, or a stored tile was missing or
+    /// damaged and is left out).
+    pub async fn job_image_tagged(
+        &self,
+        id: &str,
+        format: &str,
+    ) -> Result<(Bytes, Option<String>), ClientError> {
         let path = format!("/v1/jobs/{id}/image");
-        self.bytes(
-            self.request(Method::GET, &path)
-                .query(&[("format", format)]),
-        )
-        .await
+        let resp = self
+            .send(
+                self.request(Method::GET, &path)
+                    .query(&[("format", format)]),
+            )
+            .await?;
+        let etag = resp
+            .headers()
+            .get(reqwest::header::ETAG)
+            .and_then(|v| v.to_str().ok())
+            .map(String::from);
+        let bytes = resp
+            .bytes()
+            .await
+            .map_err(|e| ClientError::Body(chain(&e)))?;
+        Ok((bytes, etag))
     }
 
     /// `GET /v1/workers`.
