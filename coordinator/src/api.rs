@@ -441,6 +441,9 @@ async fn retry_job(
     let now = state.now();
     let mut s = state.sched();
     let status = s.job_status(&id).ok_or_else(|| no_job(&id))?;
+    if let Some(why) = s.retry_refusal(&id) {
+        return Err(AppError::Conflict(why));
+    }
     if matches!(
         status.state,
         proto::JobState::Failed | proto::JobState::Cancelled
@@ -621,7 +624,7 @@ async fn job_image(
         let _permit = permit;
         // Tasks whose stored result is missing, damaged or does not decode.
         let mut lost = Vec::new();
-        let film = compose::compose_by_pass(&layout, |tasks, add| {
+        let (film, refused) = compose::compose_by_pass(&layout, |tasks, add| {
             let mut unreadable = Vec::new();
             let gone =
                 crate::store::for_each_result(&conn, &results, &job_id, tasks, |idx, data| {
@@ -637,6 +640,7 @@ async fn job_image(
             Ok::<_, rusqlite::Error>(())
         })
         .map_err(AppError::internal)?;
+        lost.extend(refused);
         // The store's connection is not needed while the image is encoded.
         drop(conn);
         let mut bytes = compose::encode(&film, format).map_err(AppError::internal)?;

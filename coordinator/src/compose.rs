@@ -44,7 +44,7 @@ pub fn compose(layout: &TaskLayout, results: Vec<(u32, TileAccum)>) -> Film {
         Ok::<(), std::convert::Infallible>(())
     };
     match compose_by_pass(layout, read) {
-        Ok(film) => film,
+        Ok((film, _)) => film,
         Err(never) => match never {},
     }
 }
@@ -52,11 +52,14 @@ pub fn compose(layout: &TaskLayout, results: Vec<(u32, TileAccum)>) -> Film {
 /// Builds the frame pass by pass: `read_pass(tasks, add)` hands every stored result among the
 /// task indices `tasks` (one pass's) to `add`, one at a time, so that the frame and one tile
 /// are all that is held. A tile takes the passes before its first missing one, added in pass
-/// order, as a local render adds them; a result that is not the task's tile is left out.
+/// order, as a local render adds them. A result that is not its task's tile and pass, or that
+/// the film refuses, is left out, and its task is returned with the frame: a stored result
+/// that is damaged, like one that does not decode.
 pub fn compose_by_pass<E>(
     layout: &TaskLayout,
     mut read_pass: impl FnMut(Range<usize>, &mut dyn FnMut(u32, TileAccum)) -> Result<(), E>,
-) -> Result<Film, E> {
+) -> Result<(Film, Vec<u32>), E> {
+    let mut refused = Vec::new();
     let mut film = Film::new(layout.width(), layout.height());
     // Tiles whose passes so far are all present.
     let mut open = vec![true; layout.tile_count()];
@@ -68,21 +71,32 @@ pub fn compose_by_pass<E>(
                 return;
             };
             let t = work.tile_index as usize;
-            if work.pass as usize != pass || acc.tile != work.tile || !open[t] || seen[t] {
+            if work.pass as usize != pass || acc.tile != work.tile {
+                tracing::error!(
+                    task = idx,
+                    "stored result left out: not its task's tile and pass"
+                );
+                refused.push(idx);
+                return;
+            }
+            if !open[t] || seen[t] {
                 return;
             }
             // The core's own film operations, so the coordinator and a local render share
             // every bit. A tile the film refuses counts as missing.
             match film.add_tile(&acc) {
                 Ok(()) => seen[t] = true,
-                Err(e) => tracing::error!(task = idx, "stored result left out: {e}"),
+                Err(e) => {
+                    tracing::error!(task = idx, "stored result left out: {e}");
+                    refused.push(idx);
+                }
             }
         })?;
         for (o, s) in open.iter_mut().zip(&seen) {
             *o &= *s;
         }
     }
-    Ok(film)
+    Ok((film, refused))
 }
 
 /// Encodes the film with the core's encoder and default output options.
@@ -166,6 +180,27 @@ mod tests {
         // A result for a task the job does not have is ignored.
         let f = compose(&layout, vec![(0, fake(t, 0)), (2, fake(t, 1))]);
         assert!(f.pixels.iter().all(|p| p[3] == 1.0));
+        // A stored result of other pixels than its task's is left out and named, as a
+        // damaged one; the pass after it is only left out.
+        let other = Tile {
+            x0: 0,
+            y0: 0,
+            x1: 8,
+            y1: 8,
+        };
+        let stored = [(0, fake(other, 0)), (1, fake(t, 1))];
+        let read = |tasks: Range<usize>, add: &mut dyn FnMut(u32, TileAccum)| {
+            for (i, acc) in stored
+                .iter()
+                .filter(|(i, _)| tasks.contains(&(*i as usize)))
+            {
+                add(*i, acc.clone());
+            }
+            Ok::<(), std::convert::Infallible>(())
+        };
+        let (f, refused) = compose_by_pass(&layout, read).unwrap();
+        assert_eq!(refused, [0]);
+        assert!(f.pixels.iter().all(|p| p[3] == 0.0));
     }
 
     fn bits(f: &Film) -> Vec<u32> {

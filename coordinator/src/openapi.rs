@@ -187,7 +187,7 @@ const EVENTS_DESCRIPTION: &str = "A text/event-stream that stays open. Each even
 each has an `id` that increases by one with every change the coordinator makes (resyncs have none). Types: \
 `resync` {reason} (sent first, and whenever the subscriber fell behind or many things changed at once: fetch everything again); \
 `job_submitted` {job: JobStatus}; `job_progress` {job, tiles_done, tiles_total, passes_done, passes, tasks_done, tasks_total}; \
-`job_state` {job, state, error?} (running, done, failed, cancelled; a done job whose stored tiles were lost runs again); `job_priority` {job, priority}; `job_purged` {job}; \
+`job_state` {job, state, error?} (running, done, failed, cancelled; a done job whose stored tiles were lost runs again; a retried job is queued or running again); `job_priority` {job, priority}; `job_purged` {job}; \
 `task_leased` {job, task, tile, pass, worker}; `task_done` {job, task, tile, pass, worker}; \
 `task_failed` {job, task, tile, pass, worker, error}; `task_queued` {job, task, tile, pass, reason: expired|released|lost|retried}; \
 `worker_registered` {worker, name, threads}; `worker_seen` {worker, last_seen_ms, tasks_done}; `worker_gone` {worker}. \

@@ -271,23 +271,28 @@ impl Store {
 
     /// Rows whose result file is gone (removed by hand, or lost by a file system that did not
     /// keep a synced rename) are deleted, and their tasks queued again: the tiles are rendered
-    /// again rather than missing from the frame. A finished (`done`) job whose tiles the
-    /// current renderer made is running again until they are; the frame of any other finished
-    /// job goes without them, with an error in the log. Returns how many rows were deleted.
+    /// again rather than missing from the frame. A `done` job whose tiles the current renderer
+    /// made is running again until they are; a cancelled or failed one keeps its state, and
+    /// renders them if it is retried. The frame of a finished job of another renderer goes
+    /// without them, with an error in the log. Returns how many rows were deleted.
     fn requeue_missing_files(&mut self) -> rusqlite::Result<usize> {
         let missing: Vec<(String, u32)> = {
             let mut st = self
                 .conn
                 .prepare("SELECT job_id, idx, file FROM results WHERE file IS NOT NULL")?;
             let rows = st.query_map([], |r| {
-                Ok((r.get::<_, String>(0)?, r.get(1)?, r.get::<_, String>(2)?))
+                let file = r.get_ref(2)?.as_str().ok().map(String::from);
+                Ok((r.get::<_, String>(0)?, r.get(1)?, file))
             })?;
             let mut out = Vec::new();
             for row in rows {
                 let (job, idx, file) = row?;
                 // Only a file known to be gone: one that cannot be looked at (permissions, an
-                // I/O error) is left to the reads, which say why.
-                if matches!(self.results.join(&file).try_exists(), Ok(false)) {
+                // I/O error) is left to the reads, which say why. A name that is not text is
+                // damaged: it names no file.
+                let gone =
+                    file.is_none_or(|f| matches!(self.results.join(f).try_exists(), Ok(false)));
+                if gone {
                     out.push((job, idx));
                 }
             }
@@ -310,10 +315,9 @@ impl Store {
                          failures = 0
                      WHERE job_id = ?1 AND idx = ?2 AND job_id IN
                          (SELECT id FROM jobs WHERE state IN ('{}', '{}')
-                             OR (state = '{}' AND render_version = ?3))",
+                             OR render_version = ?3)",
                     job_state_name(JobState::Queued),
                     job_state_name(JobState::Running),
-                    job_state_name(JobState::Done),
                 ),
                 params![job, idx, raytile_core::RENDER_VERSION],
             )?;
@@ -575,12 +579,13 @@ impl Store {
         let mut dropped = Vec::new();
         for w in writes {
             if let Write::DropResult { job, row } = *w {
+                // A damaged name (not text) names no file to remove.
                 let file: Option<Option<String>> = self
                     .conn
                     .query_row(
                         "SELECT file FROM results WHERE job_id = ?1 AND idx = ?2",
                         params![job, row.idx],
-                        |r| r.get(0),
+                        |r| Ok(r.get_ref(0)?.as_str().ok().map(String::from)),
                     )
                     .optional()?;
                 dropped.extend(file.flatten().map(|f| self.results.join(f)));
@@ -1361,7 +1366,8 @@ mod tests {
         let rows = store.jobs().unwrap();
         for (job, state, _) in jobs {
             assert_eq!(results(&store, job), [(1, vec![1; 8])], "{job}");
-            let repaired = matches!(job, "run" | "fin");
+            // The cancelled job keeps its state, the task queued for a retry.
+            let repaired = matches!(job, "run" | "fin" | "cancelled");
             let expected = if repaired {
                 [StoredTask::Queued, done_w.clone()]
             } else {

@@ -827,17 +827,17 @@ impl Sched {
     /// Tasks `lost` of job `job_id`, whose stored results an image found missing or damaged,
     /// are queued again with their results deleted, so that the tile is rendered again (to
     /// the same bits) rather than missing from the frame. A done job runs again until they
-    /// are, if the current renderer made its tiles (a finished job of an older renderer, a
-    /// cancelled or a failed one, keeps its frame as it is). Returns how many were queued.
+    /// are, and a cancelled or failed one renders them if it is retried, where the current
+    /// renderer made the job's tiles (a finished job of another renderer keeps its frame as
+    /// it is). Returns how many were queued.
     pub fn repair(&mut self, job_id: &str, lost: &[u32], now: Now) -> Result<usize, SchedError> {
         let Some(job) = self.jobs.get_mut(job_id) else {
             return Ok(0);
         };
         let state = job.life().state;
         let current = job.render_version == Some(raytile_core::RENDER_VERSION);
-        if !(matches!(state, JobState::Queued | JobState::Running)
-            || state == JobState::Done && current)
-        {
+        // A cancelled or failed job keeps its state, its lost tasks queued for a retry.
+        if !(matches!(state, JobState::Queued | JobState::Running) || current) {
             tracing::error!(job = %job_id, tasks = ?lost, ?state,
                 "stored results are lost, and the job cannot render them again: its frame lacks those tiles");
             return Ok(0);
@@ -1115,27 +1115,15 @@ impl Sched {
     /// and worker starting over with no failures held against them. An unfinished job is
     /// left as it is. `None` if the job is unknown.
     pub fn retry(&mut self, job_id: &str, now: Now) -> Result<Option<Retried>, SchedError> {
+        if let Some(why) = self.retry_refusal(job_id) {
+            return Ok(Some(Retried::Refused(why)));
+        }
         let Some(job) = self.jobs.get_mut(job_id) else {
             return Ok(None);
         };
         let state = job.life().state;
         if !matches!(state, JobState::Failed | JobState::Cancelled) {
-            return Ok(Some(if state == JobState::Done {
-                Retried::Refused(
-                    "the job is done: there is nothing to render again (submit it again to \
-                     render it anew)"
-                        .into(),
-                )
-            } else {
-                Retried::Unchanged(job.status())
-            }));
-        }
-        if job.render_version != Some(raytile_core::RENDER_VERSION) {
-            return Ok(Some(Retried::Refused(
-                "the job's tiles were made by another renderer version, which a frame cannot \
-                 mix with this one's: submit it again instead"
-                    .into(),
-            )));
+            return Ok(Some(Retried::Unchanged(job.status())));
         }
         let life = job
             .next_life(JobEvent::Retry, now.wall_ms)
@@ -1152,6 +1140,15 @@ impl Sched {
         writes.extend(rows.iter().map(|row| Write::Task { job: job_id, row }));
         self.store.write(&writes)?;
         job.worker_failures.clear();
+        // Leases the job's end ended may still be on record until the next expiry: they are
+        // over (their tasks were queued), and must not end the tasks' new leases.
+        let ended = &mut self.ended_leases;
+        self.leases.retain(|lease, (j, _)| {
+            if j == job_id {
+                ended.insert(lease.clone(), format!("job {}", state.name()));
+            }
+            j != job_id
+        });
         let requeued: Vec<usize> = changed
             .iter()
             .filter(|(i, _)| job.tasks()[*i].state == state::TaskState::Failed)
@@ -1181,6 +1178,30 @@ impl Sched {
         }
         tracing::info!(job = %job_id, from = ?state, "job retried");
         Ok(Some(Retried::Resumed(job.status())))
+    }
+
+    /// Why job `job_id` cannot be retried: it is done, or another renderer made its tiles.
+    /// `None` for a job that can be, one that is unfinished (a retry leaves it as it is), and
+    /// an unknown one.
+    pub fn retry_refusal(&self, job_id: &str) -> Option<String> {
+        let job = self.jobs.get(job_id)?;
+        match job.life().state {
+            JobState::Done => Some(
+                "the job is done: there is nothing to render again (submit it again to render \
+                 it anew)"
+                    .into(),
+            ),
+            JobState::Failed | JobState::Cancelled
+                if job.render_version != Some(raytile_core::RENDER_VERSION) =>
+            {
+                Some(
+                    "the job's tiles were made by another renderer version, which a frame \
+                     cannot mix with this one's: submit it again instead"
+                        .into(),
+                )
+            }
+            _ => None,
+        }
     }
 
     /// Cancels a job if it is not finished, then deletes it with its tiles from memory and the
