@@ -5,7 +5,7 @@ use crate::compose;
 use crate::error::{AppError, Json, Path, Query};
 use crate::images;
 use crate::scenes::{self, UploadQuery};
-use crate::sched::{Delivery, Heartbeat, ResultOutcome, Retried, TaskLayout};
+use crate::sched::{Delivery, Heartbeat, ResultOutcome, Retried, Sched, TaskLayout};
 use crate::store::Staged;
 use crate::AppState;
 use axum::body::{Body, Bytes};
@@ -364,21 +364,7 @@ async fn create_job(
     };
     let status = {
         let mut s = state.sched();
-        if s.unfinished_jobs() >= lim.max_queued_jobs {
-            return Err(AppError::TooMany(format!(
-                "{} unfinished jobs already (limit {})",
-                s.unfinished_jobs(),
-                lim.max_queued_jobs
-            )));
-        }
-        let queued = s.unfinished_tasks();
-        if queued + layout.task_count() as u64 > lim.max_queued_tasks {
-            return Err(AppError::TooMany(format!(
-                "unfinished jobs hold {queued} tasks already; this job's {} would pass the limit of {}",
-                layout.task_count(),
-                lim.max_queued_tasks
-            )));
-        }
+        check_queue_room(&s, lim, layout.task_count() as u64)?;
         s.create_job(
             req.scene.clone(),
             settings,
@@ -432,6 +418,25 @@ async fn cancel_job(
     st.map(Json).ok_or_else(|| no_job(&id))
 }
 
+/// A 429 unless the queue has room for one more unfinished job of `tasks` tasks.
+fn check_queue_room(s: &Sched, lim: &crate::Limits, tasks: u64) -> Result<(), AppError> {
+    if s.unfinished_jobs() >= lim.max_queued_jobs {
+        return Err(AppError::TooMany(format!(
+            "{} unfinished jobs already (limit {})",
+            s.unfinished_jobs(),
+            lim.max_queued_jobs
+        )));
+    }
+    let queued = s.unfinished_tasks();
+    if queued + tasks > lim.max_queued_tasks {
+        return Err(AppError::TooMany(format!(
+            "unfinished jobs hold {queued} tasks already; this job's {tasks} would pass the limit of {}",
+            lim.max_queued_tasks
+        )));
+    }
+    Ok(())
+}
+
 /// `POST /v1/jobs/{id}/retry`: a failed or cancelled job goes on with the tiles it has.
 async fn retry_job(
     State(state): State<AppState>,
@@ -449,20 +454,7 @@ async fn retry_job(
         proto::JobState::Failed | proto::JobState::Cancelled
     ) {
         // Retried, it is an unfinished job again, held to the same limits as a new one.
-        if s.unfinished_jobs() >= lim.max_queued_jobs {
-            return Err(AppError::TooMany(format!(
-                "{} unfinished jobs already (limit {})",
-                s.unfinished_jobs(),
-                lim.max_queued_jobs
-            )));
-        }
-        let queued = s.unfinished_tasks();
-        if queued + status.tasks_total > lim.max_queued_tasks {
-            return Err(AppError::TooMany(format!(
-                "unfinished jobs hold {queued} tasks already; this job's {} would pass the limit of {}",
-                status.tasks_total, lim.max_queued_tasks
-            )));
-        }
+        check_queue_room(&s, lim, status.tasks_total)?;
     }
     match s.retry(&id, now)?.ok_or_else(|| no_job(&id))? {
         Retried::Resumed(status) => {

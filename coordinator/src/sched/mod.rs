@@ -197,6 +197,21 @@ fn job_state_event(id: &str, life: &JobLife) -> Event {
     }
 }
 
+/// The event that says how far job `id` is.
+fn job_progress_event(id: &str, job: &Job) -> Event {
+    let (tiles_done, passes_done) = job.progress();
+    let layout = &job.layout;
+    Event::JobProgress {
+        job: id.into(),
+        tiles_done,
+        tiles_total: layout.tile_count() as u64,
+        passes_done,
+        passes: layout.pass_count() as u32,
+        tasks_done: job.tasks_done() as u64,
+        tasks_total: layout.task_count() as u64,
+    }
+}
+
 /// The tasks of job `job_id` still out on a lease in `leases`, each as it is once its lease
 /// ends with the job (queued again, no failure counted), in task order: a job that ends
 /// (cancelled or failed) holds no leases, so no tile of it shows a worker any more. The
@@ -640,17 +655,7 @@ impl Sched {
             pass: work.pass,
             worker: d.worker.into(),
         });
-        let (tiles_done, passes_done) = job.progress();
-        let layout = &job.layout;
-        self.events.emit(|| Event::JobProgress {
-            job: job_id.into(),
-            tiles_done,
-            tiles_total: layout.tile_count() as u64,
-            passes_done,
-            passes: layout.pass_count() as u32,
-            tasks_done: job.tasks_done() as u64,
-            tasks_total: layout.task_count() as u64,
-        });
+        self.events.emit(|| job_progress_event(job_id, job));
         if let Some(l) = finished {
             self.events.emit(|| job_state_event(job_id, &l));
             job.set_life(l);
@@ -890,17 +895,7 @@ impl Sched {
                 });
             }
         }
-        let (tiles_done, passes_done) = job.progress();
-        let layout = &job.layout;
-        self.events.emit(|| Event::JobProgress {
-            job: job_id.into(),
-            tiles_done,
-            tiles_total: layout.tile_count() as u64,
-            passes_done,
-            passes: layout.pass_count() as u32,
-            tasks_done: job.tasks_done() as u64,
-            tasks_total: layout.task_count() as u64,
-        });
+        self.events.emit(|| job_progress_event(job_id, job));
         if let Some(l) = reopened {
             self.events.emit(|| job_state_event(job_id, &l));
             job.set_life(l);
