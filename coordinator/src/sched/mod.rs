@@ -212,6 +212,29 @@ fn job_progress_event(id: &str, job: &Job) -> Event {
     }
 }
 
+/// Publishes that `tasks` of job `id` went back to the queue for `reason`: a `task_queued`
+/// each, or one `resync` for more than [`events::RESYNC_OVER`].
+fn emit_queued(events: &mut Events, id: &str, job: &Job, tasks: &[usize], reason: &'static str) {
+    let n = tasks.len();
+    if n > events::RESYNC_OVER {
+        events.emit(|| Event::Resync {
+            reason: format!("{n} tasks queued again ({reason})"),
+        });
+        return;
+    }
+    for &i in tasks {
+        if let Some(work) = job.work(i) {
+            events.emit(|| Event::TaskQueued {
+                job: id.into(),
+                task: i as u32,
+                tile: work.tile,
+                pass: work.pass,
+                reason,
+            });
+        }
+    }
+}
+
 /// The tasks of job `job_id` still out on a lease in `leases`, each as it is once its lease
 /// ends with the job (queued again, no failure counted), in task order: a job that ends
 /// (cancelled or failed) holds no leases, so no tile of it shows a worker any more. The
@@ -878,23 +901,12 @@ impl Sched {
             job.worker_failures.clear();
         }
         let n = queued.len();
-        if n > events::RESYNC_OVER {
-            self.events.emit(|| Event::Resync {
-                reason: format!("{n} lost tiles queued again"),
-            });
-        }
+        let mut tasks = Vec::with_capacity(n);
         for (i, t) in queued {
             job.set_task(i, t);
-            if let Some(work) = job.work(i).filter(|_| n <= events::RESYNC_OVER) {
-                self.events.emit(|| Event::TaskQueued {
-                    job: job_id.into(),
-                    task: i as u32,
-                    tile: work.tile,
-                    pass: work.pass,
-                    reason: "lost",
-                });
-            }
+            tasks.push(i);
         }
+        emit_queued(&mut self.events, job_id, job, &tasks, "lost");
         self.events.emit(|| job_progress_event(job_id, job));
         if let Some(l) = reopened {
             self.events.emit(|| job_state_event(job_id, &l));
@@ -1154,23 +1166,7 @@ impl Sched {
         }
         self.events.emit(|| job_state_event(job_id, &life));
         job.set_life(life);
-        let n = requeued.len();
-        if n > events::RESYNC_OVER {
-            self.events.emit(|| Event::Resync {
-                reason: format!("{n} failed tasks queued again"),
-            });
-        }
-        for i in requeued.into_iter().filter(|_| n <= events::RESYNC_OVER) {
-            if let Some(work) = job.work(i) {
-                self.events.emit(|| Event::TaskQueued {
-                    job: job_id.into(),
-                    task: i as u32,
-                    tile: work.tile,
-                    pass: work.pass,
-                    reason: "retried",
-                });
-            }
-        }
+        emit_queued(&mut self.events, job_id, job, &requeued, "retried");
         tracing::info!(job = %job_id, from = ?state, "job retried");
         Ok(Some(Retried::Resumed(job.status())))
     }
