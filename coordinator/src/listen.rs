@@ -21,7 +21,9 @@
 //!
 //! On shutdown it stops accepting, asks every connection to finish its request in progress and
 //! close, and returns when all have; dropped before that (the caller's hard stop), it closes
-//! them.
+//! them. A connection with no request in the router (idle, or still sending a request's
+//! headers) is closed at once: there is nothing to finish, and a client in the middle of its
+//! headers would otherwise hold the stop until the hard stop.
 
 use crate::error::AppError;
 use axum::body::Body;
@@ -35,6 +37,7 @@ use hyper::body::Incoming;
 use hyper_util::rt::{TokioIo, TokioTimer};
 use std::convert::Infallible;
 use std::pin::Pin;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::task::{Context, Poll};
 use std::time::Duration;
@@ -125,8 +128,12 @@ async fn connection(
     // overflow.
     let day = Duration::from_secs(86_400);
     let body_timeout = limits.body_timeout.min(day);
+    // Requests in the router or still sending their answer's body.
+    let busy = Arc::new(AtomicUsize::new(0));
+    let in_service = busy.clone();
     let service = hyper::service::service_fn(move |req: Request<Incoming>| {
         let app = app.clone();
+        let busy = Busy::new(&in_service);
         async move {
             if let Some(refused) = host_problem(&req) {
                 return Ok::<_, Infallible>(refused.into_response());
@@ -140,7 +147,9 @@ async fn connection(
                     read: 0,
                 })
             });
-            app.oneshot(req).await
+            let resp = app.oneshot(req).await?;
+            // Busy until the answer's body is sent (an image, an event stream).
+            Ok(resp.map(|body| Body::new(Guarded { body, _busy: busy })))
         }
     });
     let mut http = hyper::server::conn::http1::Builder::new();
@@ -151,9 +160,56 @@ async fn connection(
     tokio::select! {
         r = conn.as_mut() => log_end(r),
         () = stopped(&mut stop) => {
+            // Nothing to finish: the connection goes now.
+            if busy.load(Ordering::SeqCst) == 0 {
+                return;
+            }
             conn.as_mut().graceful_shutdown();
             log_end(conn.await);
         }
+    }
+}
+
+/// One request in the router, or whose answer is still being sent: counted in a connection's
+/// `busy` while it lives.
+struct Busy(Arc<AtomicUsize>);
+
+impl Busy {
+    fn new(count: &Arc<AtomicUsize>) -> Busy {
+        count.fetch_add(1, Ordering::SeqCst);
+        Busy(count.clone())
+    }
+}
+
+impl Drop for Busy {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
+/// An answer's body that keeps its request counted as [`Busy`] until it is sent or dropped.
+struct Guarded {
+    body: Body,
+    _busy: Busy,
+}
+
+impl hyper::body::Body for Guarded {
+    type Data = Bytes;
+    type Error = axum::Error;
+
+    fn poll_frame(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+    ) -> Poll<Option<Result<Frame<Bytes>, axum::Error>>> {
+        Pin::new(&mut self.body).poll_frame(cx)
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.body.is_end_stream()
+    }
+
+    fn size_hint(&self) -> hyper::body::SizeHint {
+        self.body.size_hint()
     }
 }
 

@@ -227,6 +227,28 @@ async fn shutdown_closes_idle_connections_at_once() {
     assert_eq!(idle.read(&mut buf).await.unwrap_or(0), 0, "closed");
 }
 
+/// A connection in the middle of its request's headers has no request to finish: shutdown
+/// closes it at once rather than wait for the hard stop.
+#[tokio::test]
+async fn shutdown_does_not_wait_for_a_request_still_sending_its_headers() {
+    let c = start(ServeLimits::default()).await;
+    let mut half = TcpStream::connect(c.addr).await.unwrap();
+    half.write_all(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\nAccept: ")
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let t = Instant::now();
+    let _ = c.stop.send(());
+    c.task.await.unwrap().unwrap();
+    assert!(
+        t.elapsed() < Duration::from_secs(3),
+        "stopping took {:?} with a request's headers half sent",
+        t.elapsed()
+    );
+    let mut buf = [0u8; 512];
+    assert_eq!(half.read(&mut buf).await.unwrap_or(0), 0, "closed");
+}
+
 /// A request still in progress 5 s after shutdown began (here an upload whose body stopped
 /// coming) does not keep the coordinator from stopping, and its connection is closed then.
 #[tokio::test]
