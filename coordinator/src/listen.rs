@@ -160,11 +160,14 @@ async fn connection(
     tokio::select! {
         r = conn.as_mut() => log_end(r),
         () = stopped(&mut stop) => {
-            // Nothing to finish: the connection goes now.
+            conn.as_mut().graceful_shutdown();
             if busy.load(Ordering::SeqCst) == 0 {
+                // No request to finish: at most an answer's last bytes still being written,
+                // or a request whose headers have not all come. A moment for the first, then
+                // the connection goes.
+                let _ = tokio::time::timeout(Duration::from_millis(250), conn.as_mut()).await;
                 return;
             }
-            conn.as_mut().graceful_shutdown();
             log_end(conn.await);
         }
     }
