@@ -21,9 +21,9 @@
 //!
 //! On shutdown it stops accepting, asks every connection to finish its request in progress and
 //! close, and returns when all have; dropped before that (the caller's hard stop), it closes
-//! them. A connection with no request in the router (idle, or still sending a request's
-//! headers) is closed at once: there is nothing to finish, and a client in the middle of its
-//! headers would otherwise hold the stop until the hard stop.
+//! them. A connection in the middle of a request's headers (bytes came since its last request,
+//! none is being served) has nothing to finish: it gets a moment, then is closed, where it
+//! would otherwise hold the stop until the hard stop.
 
 use crate::error::AppError;
 use axum::body::Body;
@@ -37,7 +37,7 @@ use hyper::body::Incoming;
 use hyper_util::rt::{TokioIo, TokioTimer};
 use std::convert::Infallible;
 use std::pin::Pin;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::task::{Context, Poll};
 use std::time::Duration;
@@ -128,9 +128,8 @@ async fn connection(
     // overflow.
     let day = Duration::from_secs(86_400);
     let body_timeout = limits.body_timeout.min(day);
-    // Requests in the router or still sending their answer's body.
-    let busy = Arc::new(AtomicUsize::new(0));
-    let in_service = busy.clone();
+    let activity = Arc::new(Activity::default());
+    let in_service = activity.clone();
     let service = hyper::service::service_fn(move |req: Request<Incoming>| {
         let app = app.clone();
         let busy = Busy::new(&in_service);
@@ -155,38 +154,116 @@ async fn connection(
     let mut http = hyper::server::conn::http1::Builder::new();
     http.timer(TokioTimer::new())
         .header_read_timeout(limits.header_timeout.min(day));
+    let stream = Marked {
+        inner: stream,
+        activity: activity.clone(),
+    };
     let conn = http.serve_connection(TokioIo::new(stream), service);
     let mut conn = std::pin::pin!(conn);
     tokio::select! {
         r = conn.as_mut() => log_end(r),
         () = stopped(&mut stop) => {
             conn.as_mut().graceful_shutdown();
-            if busy.load(Ordering::SeqCst) == 0 {
-                // No request to finish: at most an answer's last bytes still being written,
-                // or a request whose headers have not all come. A moment for the first, then
-                // the connection goes.
-                let _ = tokio::time::timeout(Duration::from_millis(250), conn.as_mut()).await;
-                return;
+            if activity.mid_headers() {
+                // A request whose headers have not all come has nothing to finish: a moment
+                // for them, then the connection goes (unless they came, and it is served).
+                let wait = Duration::from_millis(250);
+                match tokio::time::timeout(wait, conn.as_mut()).await {
+                    Ok(r) => return log_end(r),
+                    Err(_) if activity.busy.load(Ordering::SeqCst) == 0 => return,
+                    Err(_) => {}
+                }
             }
             log_end(conn.await);
         }
     }
 }
 
-/// One request in the router, or whose answer is still being sent: counted in a connection's
-/// `busy` while it lives.
-struct Busy(Arc<AtomicUsize>);
+/// What a connection is doing, as far as a stop needs to know.
+#[derive(Default)]
+struct Activity {
+    /// Requests in the router, or whose answer's body is still being sent.
+    busy: AtomicUsize,
+    /// Bytes were read since the last request was handed to the router or answered: the
+    /// start of a request not yet whole.
+    read_since: AtomicBool,
+}
+
+impl Activity {
+    /// Whether the connection is in the middle of a request's headers: bytes came, and no
+    /// request is being served.
+    fn mid_headers(&self) -> bool {
+        self.busy.load(Ordering::SeqCst) == 0 && self.read_since.load(Ordering::SeqCst)
+    }
+}
+
+/// One request in the router, or whose answer is still being sent: counted in its
+/// connection's [`Activity`] while it lives. The bytes read before and during it were its own.
+struct Busy(Arc<Activity>);
 
 impl Busy {
-    fn new(count: &Arc<AtomicUsize>) -> Busy {
-        count.fetch_add(1, Ordering::SeqCst);
-        Busy(count.clone())
+    fn new(activity: &Arc<Activity>) -> Busy {
+        activity.busy.fetch_add(1, Ordering::SeqCst);
+        activity.read_since.store(false, Ordering::SeqCst);
+        Busy(activity.clone())
     }
 }
 
 impl Drop for Busy {
     fn drop(&mut self) {
-        self.0.fetch_sub(1, Ordering::SeqCst);
+        self.0.read_since.store(false, Ordering::SeqCst);
+        self.0.busy.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
+/// A connection's stream that notes in its [`Activity`] when bytes are read.
+struct Marked {
+    inner: TcpStream,
+    activity: Arc<Activity>,
+}
+
+impl tokio::io::AsyncRead for Marked {
+    fn poll_read(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut tokio::io::ReadBuf<'_>,
+    ) -> Poll<std::io::Result<()>> {
+        let before = buf.filled().len();
+        let polled = Pin::new(&mut self.inner).poll_read(cx, buf);
+        if buf.filled().len() > before {
+            self.activity.read_since.store(true, Ordering::SeqCst);
+        }
+        polled
+    }
+}
+
+impl tokio::io::AsyncWrite for Marked {
+    fn poll_write(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &[u8],
+    ) -> Poll<std::io::Result<usize>> {
+        Pin::new(&mut self.inner).poll_write(cx, buf)
+    }
+
+    fn poll_write_vectored(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        bufs: &[std::io::IoSlice<'_>],
+    ) -> Poll<std::io::Result<usize>> {
+        Pin::new(&mut self.inner).poll_write_vectored(cx, bufs)
+    }
+
+    fn is_write_vectored(&self) -> bool {
+        self.inner.is_write_vectored()
+    }
+
+    fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        Pin::new(&mut self.inner).poll_flush(cx)
+    }
+
+    fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        Pin::new(&mut self.inner).poll_shutdown(cx)
     }
 }
 

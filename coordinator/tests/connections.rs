@@ -249,6 +249,74 @@ async fn shutdown_does_not_wait_for_a_request_still_sending_its_headers() {
     assert_eq!(half.read(&mut buf).await.unwrap_or(0), 0, "closed");
 }
 
+/// An answer still being written when the stop comes (a large download whose client reads
+/// late) is sent whole before its connection closes.
+#[tokio::test]
+async fn shutdown_lets_an_answer_being_written_finish() {
+    let c = start(ServeLimits::default()).await;
+    // A scene of 8 MB (a JSON scene padded with spaces), so that its download outgrows the
+    // sockets' buffers.
+    let mut scene = br#"{"objects": []}"#.to_vec();
+    scene.resize(8 << 20, b' ');
+    let mut up = TcpStream::connect(c.addr).await.unwrap();
+    let head = format!(
+        "POST /v1/scenes HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
+        scene.len()
+    );
+    up.write_all(head.as_bytes()).await.unwrap();
+    up.write_all(&scene).await.unwrap();
+    let created = read_to_close(&mut up, Duration::from_secs(30)).await;
+    assert!(status(&created).starts_with("HTTP/1.1 20"), "{created}");
+    let body = &created[created.find("\r\n\r\n").unwrap() + 4..];
+    let id: serde_json::Value = serde_json::from_str(body).unwrap();
+    let id = id["id"].as_str().unwrap().to_string();
+
+    let mut down = TcpStream::connect(c.addr).await.unwrap();
+    down.write_all(format!("GET /v1/scenes/{id} HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").as_bytes())
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let _ = c.stop.send(());
+    // The client reads only after the stop began.
+    tokio::time::sleep(Duration::from_millis(700)).await;
+    let mut got = Vec::new();
+    let _ = tokio::time::timeout(Duration::from_secs(10), down.read_to_end(&mut got)).await;
+    let split = got.windows(4).position(|w| w == b"\r\n\r\n").unwrap() + 4;
+    let head = String::from_utf8_lossy(&got[..split]).to_lowercase();
+    assert!(head.starts_with("http/1.1 200"), "{head}");
+    assert_eq!(got.len() - split, scene.len(), "the whole scene, {head}");
+    c.task.await.unwrap().unwrap();
+}
+
+/// The same for an answer held whole in memory (as a job's image is): its body is handed to
+/// the connection in one piece, so the request is over while most of it waits to be written.
+#[tokio::test]
+async fn shutdown_lets_an_answer_held_in_memory_finish() {
+    const SIZE: usize = 32 << 20;
+    let app = axum::Router::new().route("/big", axum::routing::get(|| async { vec![b'x'; SIZE] }));
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    let (stop, rx) = tokio::sync::watch::channel(false);
+    let server = tokio::spawn(raytile_coordinator::listen::serve(
+        listener,
+        app,
+        ServeLimits::default(),
+        rx,
+    ));
+    let mut s = TcpStream::connect(addr).await.unwrap();
+    s.write_all(b"GET /big HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    stop.send(true).unwrap();
+    tokio::time::sleep(Duration::from_millis(700)).await;
+    let mut got = Vec::new();
+    let _ = tokio::time::timeout(Duration::from_secs(10), s.read_to_end(&mut got)).await;
+    let split = got.windows(4).position(|w| w == b"\r\n\r\n").unwrap() + 4;
+    assert_eq!(got.len() - split, SIZE, "the whole answer");
+    server.await.unwrap();
+}
+
 /// A request still in progress 5 s after shutdown began (here an upload whose body stopped
 /// coming) does not keep the coordinator from stopping, and its connection is closed then.
 #[tokio::test]
