@@ -45,6 +45,22 @@ async fn read_to_close(s: &mut TcpStream, wait: Duration) -> String {
     String::from_utf8_lossy(&got).into_owned()
 }
 
+/// Uploads `scene` on a connection of its own, in pieces of `piece` bytes each sent after
+/// `pause`, and reads the answer until the server closes the connection.
+async fn post_scene(addr: SocketAddr, scene: &[u8], piece: usize, pause: Duration) -> String {
+    let mut s = TcpStream::connect(addr).await.unwrap();
+    let head = format!(
+        "POST /v1/scenes HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
+        scene.len()
+    );
+    s.write_all(head.as_bytes()).await.unwrap();
+    for part in scene.chunks(piece) {
+        tokio::time::sleep(pause).await;
+        s.write_all(part).await.unwrap();
+    }
+    read_to_close(&mut s, Duration::from_secs(30)).await
+}
+
 fn status(response: &str) -> &str {
     response.lines().next().unwrap_or_default()
 }
@@ -258,14 +274,7 @@ async fn shutdown_lets_an_answer_being_written_finish() {
     // sockets' buffers.
     let mut scene = br#"{"objects": []}"#.to_vec();
     scene.resize(8 << 20, b' ');
-    let mut up = TcpStream::connect(c.addr).await.unwrap();
-    let head = format!(
-        "POST /v1/scenes HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
-        scene.len()
-    );
-    up.write_all(head.as_bytes()).await.unwrap();
-    up.write_all(&scene).await.unwrap();
-    let created = read_to_close(&mut up, Duration::from_secs(30)).await;
+    let created = post_scene(c.addr, &scene, scene.len(), Duration::ZERO).await;
     assert!(status(&created).starts_with("HTTP/1.1 20"), "{created}");
     let body = &created[created.find("\r\n\r\n").unwrap() + 4..];
     let id: serde_json::Value = serde_json::from_str(body).unwrap();
@@ -394,17 +403,13 @@ async fn a_stalled_body_fails_after_the_body_timeout() {
 
     // Ten pauses of 150 ms, each under the timeout: read whole.
     let body = br#"{"objects": []}"#;
-    let mut s = TcpStream::connect(c.addr).await.unwrap();
-    let head = format!(
-        "POST /v1/scenes HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
-        body.len()
-    );
-    s.write_all(head.as_bytes()).await.unwrap();
-    for part in body.chunks(body.len().div_ceil(10)) {
-        tokio::time::sleep(Duration::from_millis(150)).await;
-        s.write_all(part).await.unwrap();
-    }
-    let got = read_to_close(&mut s, Duration::from_secs(10)).await;
+    let got = post_scene(
+        c.addr,
+        body,
+        body.len().div_ceil(10),
+        Duration::from_millis(150),
+    )
+    .await;
     assert!(status(&got).starts_with("HTTP/1.1 20"), "{got}");
     let _ = c.stop.send(());
     c.task.await.unwrap().unwrap();
@@ -450,17 +455,7 @@ async fn a_trickling_body_fails_below_the_least_rate() {
 
     // 100 bytes every 100 ms, 1000 a second, for 1.5 s: read whole.
     let body = format!("{{\"objects\": []{}}}", " ".repeat(1484));
-    let mut s = TcpStream::connect(c.addr).await.unwrap();
-    let head = format!(
-        "POST /v1/scenes HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
-        body.len()
-    );
-    s.write_all(head.as_bytes()).await.unwrap();
-    for part in body.as_bytes().chunks(100) {
-        tokio::time::sleep(Duration::from_millis(100)).await;
-        s.write_all(part).await.unwrap();
-    }
-    let got = read_to_close(&mut s, Duration::from_secs(10)).await;
+    let got = post_scene(c.addr, body.as_bytes(), 100, Duration::from_millis(100)).await;
     assert!(status(&got).starts_with("HTTP/1.1 20"), "{got}");
     let _ = c.stop.send(());
     c.task.await.unwrap().unwrap();
