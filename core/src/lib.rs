@@ -92,4 +92,7 @@ pub use settings::{
 /// directional light) as many light samples as all the finite lights together, where a scene
 /// has both, instead of choosing by power alone ([`light::LightSet`]): `path`, `volpath` and
 /// `sppm` images of such scenes change; `bdpt` and scenes with lights of one kind do not.
-pub const RENDER_VERSION: u32 = 13;
+/// 14 (2026-12-07): tangents that raytile generates for a glTF normal map (a primitive without
+/// TANGENT) have the bitangent sign glTF's downward texture coordinates need: images of such
+/// models change (their normal maps' green channel bent normals the wrong way).
+pub const RENDER_VERSION: u32 = 14;

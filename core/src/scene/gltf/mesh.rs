@@ -239,16 +239,25 @@ impl Loader<'_> {
 
 /// MikkTSpace tangents. Tangents are stored per vertex: where MikkTSpace would split a vertex
 /// (a UV seam shared by an index), the last face written wins, as most glTF viewers do.
+///
+/// glTF's texture coordinates run down the image (v = 0 at the top), MikkTSpace's up, so the
+/// sign of each bitangent is flipped (as three.js's `computeMikkTSpaceTangents` and
+/// glTF-Transform do for glTF): a normal map then bends normals the way the TANGENT attribute
+/// an exporter writes would.
+///
+/// Only triangles whose corners lie at three different positions go to MikkTSpace: the
+/// `mikktspace` crate reads out of bounds (and can crash the process) when every triangle it
+/// is given is degenerate. The others keep the default tangent; they have no area to shade.
 fn generate_tangents(mesh: &MeshDesc, set: usize) -> Vec<[f32; 4]> {
     struct Geo<'a> {
         mesh: &'a MeshDesc,
+        faces: Vec<[u32; 3]>,
         set: usize,
         out: Vec<[f32; 4]>,
     }
     impl Geo<'_> {
         fn vertex(&self, face: usize, vert: usize) -> usize {
-            self.mesh
-                .indices
+            self.faces
                 .get(face)
                 .and_then(|t| t.get(vert))
                 .copied()
@@ -260,7 +269,7 @@ fn generate_tangents(mesh: &MeshDesc, set: usize) -> Vec<[f32; 4]> {
     }
     impl mikktspace::Geometry for Geo<'_> {
         fn num_faces(&self) -> usize {
-            self.mesh.indices.len()
+            self.faces.len()
         }
         fn num_vertices_of_face(&self, _face: usize) -> usize {
             3
@@ -286,16 +295,30 @@ fn generate_tangents(mesh: &MeshDesc, set: usize) -> Vec<[f32; 4]> {
         fn set_tangent_encoded(&mut self, tangent: [f32; 4], face: usize, vert: usize) {
             let v = self.vertex(face, vert);
             if let Some(slot) = self.out.get_mut(v) {
-                *slot = tangent;
+                let [x, y, z, w] = tangent;
+                *slot = [x, y, z, -w];
             }
         }
     }
+    let at = |i: u32| mesh.positions.get(i as usize).copied();
+    let faces: Vec<[u32; 3]> = mesh
+        .indices
+        .iter()
+        .copied()
+        .filter(|&[a, b, c]| {
+            let (pa, pb, pc) = (at(a), at(b), at(c));
+            pa.is_some() && pb.is_some() && pc.is_some() && pa != pb && pb != pc && pa != pc
+        })
+        .collect();
     let mut geo = Geo {
         mesh,
+        faces,
         set,
         out: vec![[1.0, 0.0, 0.0, 1.0]; mesh.positions.len()],
     };
-    mikktspace::generate_tangents(&mut geo);
+    if !geo.faces.is_empty() {
+        mikktspace::generate_tangents(&mut geo);
+    }
     geo.out
 }
 

@@ -245,6 +245,40 @@ impl Loader<'_> {
     }
 }
 
+/// Refuses an asset that a glTF 2.0 loader may not read (glTF 2.0, 3.1): a `version` of
+/// another major version, or a `minVersion` above 2.0. A later 2.x is read, as the
+/// specification asks.
+fn check_version(raw: &Value) -> Result<(), String> {
+    let parse = |key: &str| -> Result<Option<(u64, u64)>, String> {
+        let Some(v) = raw.get("asset").and_then(|a| a.get(key)) else {
+            return Ok(None);
+        };
+        v.as_str()
+            .and_then(|t| t.split_once('.'))
+            .and_then(|(major, minor)| Some((major.parse().ok()?, minor.parse().ok()?)))
+            .map(Some)
+            .ok_or_else(|| {
+                format!("invalid glTF at asset.{key}: expected \"major.minor\", got {v}")
+            })
+    };
+    if let Some((major, minor)) = parse("version")? {
+        if major != 2 {
+            return Err(format!(
+                "glTF version {major}.{minor}: raytile reads glTF 2.x"
+            ));
+        }
+    }
+    if let Some(min) = parse("minVersion")? {
+        if min > (2, 0) {
+            return Err(format!(
+                "the asset needs glTF {}.{} or newer (asset.minVersion): raytile reads glTF 2.0",
+                min.0, min.1
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Refuses unsupported required extensions; warns about unsupported optional ones.
 fn check_extensions(raw: &Value, warnings: &mut Vec<String>) -> Result<(), String> {
     // Each list is an array of names; anything else is refused here, before it could be taken
@@ -439,6 +473,7 @@ fn load_inner(
         return Err("invalid glTF: the JSON is not an object".into());
     }
     let mut warnings = Vec::new();
+    check_version(&raw)?;
     check_extensions(&raw, &mut warnings)?;
     // Errors name the JSON path of the value they are about, as well as serde's message.
     // Every struct from a JSON object only (serde would also take an array of its fields).

@@ -474,6 +474,38 @@ fn colour_textures_are_srgb_and_data_textures_linear() {
         (Vec3::new(t[0], t[1], t[2]) - Vec3::X).length() < 1e-4,
         "{t:?}"
     );
+    // v grows along +Y here, so up the image (where a normal map's green points) is −Y:
+    // the bitangent cross(N, T) · w = +Z × +X · w = +Y · w must be −Y.
+    assert_eq!(t[3], -1.0, "{t:?}");
+}
+
+#[test]
+fn tangents_of_a_mesh_of_degenerate_triangles_are_not_generated_and_do_not_crash() {
+    // MikkTSpace (the `mikktspace` crate) reads out of bounds when every triangle it is
+    // given has two corners at one position: a panic for one such triangle, a crash for two.
+    for (positions, indices) in [
+        (&TRI[..], &[0u16, 0, 0][..]),
+        (
+            &[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]][..],
+            &[0u16, 1, 2, 2, 1, 0][..],
+        ),
+    ] {
+        let mut d = Doc::default();
+        d.positions(positions);
+        d.floats(&[0.0, 0.0, 1.0, 0.0, 0.0, 1.0], "VEC2", 2);
+        d.indices_u16(indices);
+        let bytes = one_prim(
+            d,
+            json!({"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2, "material": 0}),
+            json!({
+                "images": [{"uri": png_data_uri()}],
+                "textures": [{"source": 0}],
+                "materials": [{"normalTexture": {"index": 0}}],
+            }),
+        );
+        // Loaded (its triangles dropped as degenerate), not crashed.
+        let _ = load(&bytes);
+    }
 }
 
 use crate::scene::desc::WrapMode;
@@ -881,6 +913,31 @@ fn points_and_lines_are_skipped_with_a_warning() {
         .warnings
         .iter()
         .any(|w| w.contains("mesh 0 primitive 0") && w.contains("Points")));
+}
+
+#[test]
+fn versions_a_2_0_loader_may_not_read_are_refused() {
+    let with = |asset: Value| load(&tri_scene(json!({}), json!({ "asset": asset })));
+    for (asset, says) in [
+        (json!({"version": "3.0"}), "glTF version 3.0"),
+        (json!({"version": "1.0"}), "glTF version 1.0"),
+        (
+            json!({"version": "2.1", "minVersion": "2.1"}),
+            "asset.minVersion",
+        ),
+        (json!({"version": "two"}), "asset.version"),
+    ] {
+        let e = with(asset.clone()).unwrap_err();
+        assert!(e.contains(says), "{asset}: {e}");
+    }
+    // A later minor version is read, as the specification asks of a 2.0 loader.
+    for asset in [
+        json!({"version": "2.0"}),
+        json!({"version": "2.1"}),
+        json!({"version": "2.0", "minVersion": "2.0"}),
+    ] {
+        with(asset.clone()).unwrap_or_else(|e| panic!("{asset}: {e}"));
+    }
 }
 
 #[test]
