@@ -65,6 +65,26 @@ pub const SMALL_BUILD: usize = 1 << 16;
 /// Most primitives in one leaf.
 const MAX_LEAF: u32 = 4;
 
+/// Whether more than a quarter of `bounds` (of over a thousand) repeat another's exactly: many
+/// copies of one primitive in one place (an exporter's duplicates, instances stacked on one
+/// spot). obvhs's thorough build takes time growing with the square of their number there
+/// (minutes for 40,000 copies of one quad, from a 120-KB file), so such scenes are built by
+/// the binned-SAH builder, which splits them in linear time. Other scenes keep the thorough
+/// build, and their images their bits.
+fn many_coincident(bounds: &[Aabb]) -> bool {
+    if bounds.len() <= 1000 {
+        return false;
+    }
+    let key = |b: &Aabb| {
+        let (lo, hi) = (b.min.to_array(), b.max.to_array());
+        [lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]].map(f32::to_bits)
+    };
+    let mut keys: Vec<[u32; 6]> = bounds.iter().map(key).collect();
+    keys.sort_unstable();
+    let repeats = keys.windows(2).filter(|w| w[0] == w[1]).count();
+    repeats * 4 > bounds.len()
+}
+
 /// `child` of an empty lane.
 const EMPTY: u32 = u32::MAX;
 
@@ -873,7 +893,7 @@ impl Bvh {
     /// decides, not the tree's, so that many instanced meshes do not each pay for the thorough
     /// build.
     pub fn build_in_scene(bounds: Vec<Aabb>, scene_prims: usize) -> (Self, Vec<u32>) {
-        if scene_prims <= SMALL_BUILD {
+        if scene_prims <= SMALL_BUILD && !many_coincident(&bounds) {
             Self::build_with(&bounds, BvhBuildParams::very_slow_build())
         } else {
             Self::build_sah(bounds, Width::native())
@@ -1608,6 +1628,32 @@ mod tests {
             "too few hits, ties or leaf pairs to mean anything: {hits}, {ties}, {pairs}, \
              {closest_pairs}"
         );
+    }
+
+    /// Many copies of one primitive in one place go to the binned-SAH builder (obvhs's
+    /// thorough build takes minutes on them); scenes without such copies do not.
+    #[test]
+    fn coincident_primitives_are_built_by_the_binned_builder() {
+        let boxes = |n: u32, distinct: u32| -> Vec<Aabb> {
+            (0..n)
+                .map(|i| {
+                    let c = Vec3A::splat((i % distinct) as f32);
+                    Aabb::new(c, c + Vec3A::ONE)
+                })
+                .collect()
+        };
+        assert!(many_coincident(&boxes(20_000, 1)));
+        assert!(many_coincident(&boxes(2000, 1000)));
+        assert!(!many_coincident(&boxes(2000, 2000)));
+        assert!(!many_coincident(&boxes(2000, 1700)));
+        assert!(!many_coincident(&boxes(900, 1)));
+        // Built, every primitive in one leaf.
+        let (bvh, order) = Bvh::build_in_scene(boxes(20_000, 1), 20_000);
+        let mut sorted = order.clone();
+        sorted.sort_unstable();
+        assert!(sorted.iter().copied().eq(0..20_000));
+        let leaf_prims: u32 = bvh.leaves().iter().map(|&(_, c)| c).sum();
+        assert_eq!(leaf_prims, 20_000);
     }
 
     /// The binned-SAH builder: every slot in exactly one leaf of at most [`MAX_LEAF`], leaves
