@@ -6,6 +6,12 @@ use crate::geometry::Ray;
 use crate::sampling::warp::concentric_disk;
 use glam::{Affine3A, Mat4, Vec2, Vec3A};
 
+/// The narrowest vertical field of view a perspective camera may have, degrees.
+pub const MIN_FOV_DEGREES: f32 = 1e-3;
+
+/// The smallest lens radius of a thin-lens camera (0, a pinhole, is allowed).
+pub const MIN_APERTURE: f32 = 1e-9;
+
 /// How the camera projects.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Projection {
@@ -26,8 +32,8 @@ pub enum Projection {
 }
 
 impl Projection {
-    /// Checks the parameters: a field of view in (0°, 180°), a finite non-negative aperture
-    /// (0 is a pinhole), a finite non-negative focus distance, positive when the aperture is,
+    /// Checks the parameters: a field of view in [[`MIN_FOV_DEGREES`], 180°), a finite aperture
+    /// of 0 (a pinhole) or at least [`MIN_APERTURE`], a finite non-negative focus distance, positive when the aperture is,
     /// and a positive finite orthographic half height. The error is the field's name (as the
     /// JSON format spells it) and a message that names it too.
     pub fn check(&self) -> Result<(), (&'static str, String)> {
@@ -43,6 +49,26 @@ impl Projection {
                         format!(
                             "fov must be between 0 and 180 degrees, got {}",
                             yfov.to_degrees()
+                        ),
+                    ));
+                }
+                // A narrower view's film area (or a smaller lens's area) is so small that the
+                // importance `bdpt` joins light paths with, its reciprocal, overflows.
+                if yfov < MIN_FOV_DEGREES.to_radians() {
+                    return Err((
+                        "fov",
+                        format!(
+                            "fov must be at least {MIN_FOV_DEGREES} degrees, got {}",
+                            yfov.to_degrees()
+                        ),
+                    ));
+                }
+                if aperture_radius > 0.0 && aperture_radius < MIN_APERTURE {
+                    return Err((
+                        "aperture",
+                        format!(
+                            "aperture must be 0 (a pinhole) or at least {MIN_APERTURE:e}, got \
+                             {aperture_radius:e}"
                         ),
                     ));
                 }
@@ -136,7 +162,14 @@ impl Camera {
                     let focus = d * focus_distance;
                     let l = concentric_disk(lens) * aperture_radius;
                     let o = Vec3A::new(l.x, l.y, 0.0);
-                    (o, (focus - o).normalize())
+                    // The same bits as `normalize` wherever the length is finite; a focus so
+                    // far that it is not (about 1e19) is aimed at from the unit distance.
+                    let dir = (focus - o).normalize_or_zero();
+                    if dir != Vec3A::ZERO {
+                        (o, dir)
+                    } else {
+                        (o, (d - o / focus_distance).normalize())
+                    }
                 } else {
                     (Vec3A::ZERO, d.normalize())
                 }
@@ -312,6 +345,29 @@ mod tests {
             assert!(r.o != pin.o);
             let p = r.at((r.o.z - target.z) / -r.d.z);
             assert!((p - target).length() < 1e-4, "{p} vs {target}");
+        }
+    }
+
+    #[test]
+    fn a_focus_too_far_to_square_still_aims_every_ray() {
+        let lens = |focus_distance: f32| {
+            cam(Projection::Perspective {
+                yfov: 1.0,
+                aperture_radius: 0.01,
+                focus_distance,
+            })
+        };
+        let film = Vec2::new(130.0, 20.0);
+        for u in [Vec2::new(0.1, 0.9), Vec2::new(0.8, 0.3)] {
+            let far = lens(1e20).generate_ray(film, u);
+            assert!(
+                far.d.is_finite() && (far.d.length() - 1.0).abs() < 1e-6,
+                "{}",
+                far.d
+            );
+            // Aimed as a focus of 1e18 aims it, to within rounding.
+            let near = lens(1e18).generate_ray(film, u);
+            assert!((far.d - near.d).length() < 1e-6, "{} vs {}", far.d, near.d);
         }
     }
 

@@ -319,9 +319,12 @@ impl Texture {
         }
         let (x0, y0) = (x.floor(), y.floor());
         let (fx, fy) = (x - x0, y - y0);
+        // A huge coordinate saturates to i64::MAX: its neighbour wraps (as release builds
+        // always did) rather than overflowing.
         let (x0, y0) = (x0 as i64, y0 as i64);
-        let a = self.texel(x0, y0).lerp(self.texel(x0 + 1, y0), fx);
-        let b = self.texel(x0, y0 + 1).lerp(self.texel(x0 + 1, y0 + 1), fx);
+        let (x1, y1) = (x0.wrapping_add(1), y0.wrapping_add(1));
+        let a = self.texel(x0, y0).lerp(self.texel(x1, y0), fx);
+        let b = self.texel(x0, y1).lerp(self.texel(x1, y1), fx);
         a.lerp(b, fy)
     }
 }

@@ -9,6 +9,9 @@ use glam::{Vec2, Vec3A};
 /// centroid) a vertex may lie off the polygon's plane.
 pub const COPLANAR_TOLERANCE: f32 = 1e-4;
 
+/// The most vertices a polygon may have ([`Polygon::new`]).
+pub const MAX_VERTICES: usize = 1024;
+
 /// A simple planar polygon (convex or concave, edges must not cross), vertices in order.
 ///
 /// The front normal comes from Newell's method, so the front is the side from which the
@@ -70,9 +73,12 @@ impl Polygon {
         if count < 3 {
             return Err(format!("a polygon needs at least 3 vertices, got {count}"));
         }
-        if count > u32::MAX as usize {
+        // Ear clipping takes time quadratic (cubic for some concave shapes) in the vertex
+        // count, and a ray's inside test is linear in it: many vertices belong in a `mesh`.
+        if count > MAX_VERTICES {
             return Err(format!(
-                "a polygon may have at most 2^32 - 1 vertices, got {count}"
+                "a polygon may have at most {MAX_VERTICES} vertices, got {count} (make a \
+                 larger outline a `mesh` of triangles)"
             ));
         }
         if let Some(i) = vertices.iter().position(|v| !v.is_finite()) {
@@ -645,6 +651,23 @@ mod tests {
             v(0.0, 1.0, 0.0),
         ];
         assert!(Polygon::new(ok).is_ok());
+        // A circle of the most vertices a polygon takes, and one vertex more.
+        let circle = |n: usize| -> Vec<Vec3A> {
+            (0..n)
+                .map(|i| {
+                    let a = i as f32 * std::f32::consts::TAU / n as f32;
+                    v(a.cos(), a.sin(), 0.0)
+                })
+                .collect()
+        };
+        let p = Polygon::new(circle(MAX_VERTICES)).unwrap();
+        assert!(
+            p.triangles.len() > MAX_VERTICES / 2,
+            "{}",
+            p.triangles.len()
+        );
+        let err = Polygon::new(circle(MAX_VERTICES + 1)).unwrap_err();
+        assert!(err.contains("at most 1024 vertices"), "{err}");
     }
 
     #[test]

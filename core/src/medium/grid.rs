@@ -52,7 +52,14 @@ impl DensityGrid {
                 res[2]
             )));
         }
-        if !(bounds.min.is_finite() && bounds.max.is_finite() && bounds.min.cmplt(bounds.max).all())
+        // Lookups divide by the extent: it must be finite, and so must its reciprocal (an
+        // extent of a denormal would make every unit coordinate infinite).
+        let extent = bounds.max - bounds.min;
+        if !(bounds.min.is_finite()
+            && bounds.max.is_finite()
+            && extent.is_finite()
+            && extent.recip().is_finite()
+            && bounds.min.cmplt(bounds.max).all())
         {
             return Err(MediumError::Grid(format!(
                 "bounding box {} .. {} is not a finite, non-empty box",

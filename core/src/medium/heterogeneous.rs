@@ -3,7 +3,7 @@
 use super::grid::DensityGrid;
 use super::majorant::{clip_unit_cube, DdaIter, MajorantGrid, MajorantIter, DEFAULT_MAJORANT_RES};
 use super::phase::HenyeyGreenstein;
-use super::{check_coefficient, MediumError, MediumProperties};
+use super::{check_coefficient, check_extinction, MediumError, MediumProperties};
 use crate::geometry::transform::Degenerate;
 use crate::geometry::Aabb;
 use glam::{Affine3A, Vec3A};
@@ -40,6 +40,7 @@ impl GridMedium {
     ) -> Result<Self, MediumError> {
         check_coefficient("sigma_a", sigma_a)?;
         check_coefficient("sigma_s", sigma_s)?;
+        check_extinction(sigma_a, sigma_s, 1.0, density.max_value(), true)?;
         let phase = HenyeyGreenstein::new(g).ok_or(MediumError::G(g))?;
         let majorant = MajorantGrid::new(&density, [DEFAULT_MAJORANT_RES; 3]);
         let unit_from_medium = unit_from_box(density.bounds());

@@ -2,7 +2,7 @@
 
 use super::majorant::{MajorantIter, MajorantSegment};
 use super::phase::HenyeyGreenstein;
-use super::{check_coefficient, MediumError, MediumProperties};
+use super::{check_coefficient, check_extinction, MediumError, MediumProperties};
 use glam::Vec3A;
 
 /// Fog, murky water, a glass of milk: σa and σs per colour channel (per metre, any `scale`
@@ -20,6 +20,7 @@ impl HomogeneousMedium {
     pub fn new(sigma_a: Vec3A, sigma_s: Vec3A, g: f32) -> Result<Self, MediumError> {
         check_coefficient("sigma_a", sigma_a)?;
         check_coefficient("sigma_s", sigma_s)?;
+        check_extinction(sigma_a, sigma_s, 1.0, 1.0, false)?;
         let phase = HenyeyGreenstein::new(g).ok_or(MediumError::G(g))?;
         Ok(Self {
             sigma_a,

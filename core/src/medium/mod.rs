@@ -154,9 +154,52 @@ pub enum MediumError {
     /// The density grid was malformed (shape, values or box).
     #[error("density grid: {0}")]
     Grid(String),
+    /// The extinction σt = σa + σs (times the largest density of a grid) exceeded
+    /// [`MAX_EXTINCTION`], past which transmittances and majorants overflow.
+    #[error(
+        "the extinction, {what}, reaches {value:e} per unit of length: at most {MAX_EXTINCTION:e}"
+    )]
+    Extinction {
+        /// The extinction reached.
+        value: f64,
+        /// What was multiplied.
+        what: &'static str,
+    },
     /// The grid's placement was not an invertible affine map.
     #[error("medium transform: {0}")]
     Transform(String),
+}
+
+/// The largest extinction (per unit of length) a medium may reach: far above any physical
+/// medium, and far enough below f32's range that a majorant times a distance stays finite.
+pub const MAX_EXTINCTION: f64 = 1e30;
+
+/// Checks that the extinction of `sigma_a` and `sigma_s` times `scale`, at a density of
+/// `max_density` (1 for a homogeneous medium; `grid` says which), stays within
+/// [`MAX_EXTINCTION`] in every channel. Computed in f64, so the check itself never overflows.
+pub fn check_extinction(
+    sigma_a: Vec3A,
+    sigma_s: Vec3A,
+    scale: f32,
+    max_density: f32,
+    grid: bool,
+) -> Result<(), MediumError> {
+    let t = (0..3)
+        .map(|c| (f64::from(sigma_a[c]) + f64::from(sigma_s[c])) * f64::from(scale))
+        .fold(0.0f64, f64::max)
+        * f64::from(max_density);
+    if t <= MAX_EXTINCTION {
+        Ok(())
+    } else {
+        Err(MediumError::Extinction {
+            value: t,
+            what: if grid {
+                "(sigma_a + sigma_s) × scale × the grid's largest density"
+            } else {
+                "(sigma_a + sigma_s) × scale"
+            },
+        })
+    }
 }
 
 /// Checks that every channel of `value` is finite and non-negative.

@@ -373,6 +373,13 @@ impl SceneFiles {
         Ok(())
     }
 
+    /// Gives back `bytes` taken by [`SceneFiles::charge_memory`] for memory that is freed
+    /// (the tree of a parsed JSON text).
+    pub(crate) fn release_memory(&self, bytes: u64) {
+        let left = self.memory_left.get().saturating_add(bytes);
+        self.memory_left.set(left.min(self.memory_limit));
+    }
+
     /// Checks that `len` bytes held in the scene itself (a `data:` URI) are within the
     /// per-file cap, before they are decoded.
     pub(crate) fn check_inline(&self, field: &str, shown: &str, len: u64) -> Result<(), FileError> {

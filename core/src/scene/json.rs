@@ -669,6 +669,40 @@ fn parse_json_files(
     };
     // Some editors start a UTF-8 file with a byte order mark, which JSON parsers refuse.
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let tree = parse_tree_bytes(text.len());
+    files
+        .charge_memory(tree, "the scene's JSON text")
+        .map_err(err)?;
+    let parsed = parse_text(text, base, name, files);
+    files.release_memory(tree);
+    parsed
+}
+
+/// How many bytes of parsed JSON values a byte of scene text may become, at most.
+const JSON_TREE_BYTES_PER_BYTE: u64 = 32;
+
+/// Scene text not charged for its parse: a scene of materials, lights and analytic shapes.
+const UNCHARGED_TEXT: usize = 64 << 10;
+
+/// The memory charged for parsing `len` bytes of scene text: a shape is read into a tree of
+/// JSON values before it is converted, up to [`JSON_TREE_BYTES_PER_BYTE`] bytes of tree per
+/// byte of text (a mesh's list of numbers), held while the scene is parsed. The first
+/// [`UNCHARGED_TEXT`] bytes are free (at most 2 MiB of tree).
+fn parse_tree_bytes(len: usize) -> u64 {
+    (len.saturating_sub(UNCHARGED_TEXT) as u64).saturating_mul(JSON_TREE_BYTES_PER_BYTE)
+}
+
+/// [`parse_json_files`] once the parse's memory is charged.
+fn parse_text(
+    text: &str,
+    base: &Path,
+    name: &Path,
+    files: &SceneFiles,
+) -> Result<SceneDesc, SceneError> {
+    let err = |message: String| SceneError::Json {
+        path: name.to_path_buf(),
+        message,
+    };
     let mut de = serde_json::Deserializer::from_str(text);
     // Every struct from a JSON object only (serde would also take an array of its fields).
     let objects = raytile_proto::json::Objects(&mut de);
@@ -1108,6 +1142,11 @@ impl Converter<'_> {
                 JTexture::Checker { even, odd, scale } => {
                     if !(*scale > 0.0 && scale.is_finite()) {
                         return Err(self.err(&at, "checker scale must be positive", name));
+                    }
+                    // A texture gives a material's albedo or base colour: a reflectance.
+                    for (field, c) in [("even", even), ("odd", odd)] {
+                        check_reflectance(field, v3(*c))
+                            .map_err(|e| self.err(&format!("{at}.{field}"), e, name))?;
                     }
                     let (e, o) = (
                         [even[0], even[1], even[2], 1.0],
@@ -1730,6 +1769,16 @@ impl Converter<'_> {
                 })
             }
         };
+        // Checked here, where the coordinator parses the scene, as well as where it is built.
+        let max_density = density.as_ref().map_or(1.0, |d| d.density.max_value());
+        crate::medium::check_extinction(
+            Vec3A::from(sigma_a),
+            Vec3A::from(sigma_s),
+            scale,
+            max_density,
+            density.is_some(),
+        )
+        .map_err(|e| self.err(&at, e.to_string(), &needle))?;
         Ok(MediumDesc {
             name: name.to_string(),
             sigma_a,
@@ -1789,12 +1838,12 @@ impl Converter<'_> {
     /// may name a grid only when one object holds it (or it is the scene's medium, placed by
     /// the world): refused here, naming the JSON path, rather than when the scene is built.
     fn check_grid_exteriors(&self, objects: &[JObject]) -> Result<(), SceneError> {
-        let holders = |name: &str| {
-            objects
-                .iter()
-                .filter(|o| o.interior.as_deref() == Some(name))
-                .count()
-        };
+        // Counted once: a scene of many objects is checked in linear time.
+        let mut held = std::collections::HashMap::<&str, usize>::new();
+        for name in objects.iter().filter_map(|o| o.interior.as_deref()) {
+            *held.entry(name).or_default() += 1;
+        }
+        let holders = |name: &str| held.get(name).copied().unwrap_or(0);
         for (i, o) in objects.iter().enumerate() {
             let Some(ext) = o.exterior.as_deref() else {
                 continue;
@@ -1843,7 +1892,12 @@ impl Converter<'_> {
         }
         // Camera-to-world: the inverse of a right-handed view matrix (camera looks down −Z).
         let f = fwd.normalize();
-        let r = f.cross(up).normalize();
+        // With the unit `up` where the given one's cross product under- or overflows (an `up`
+        // of 1e-26 or 1e38); as given otherwise, which keeps the bits scenes have always had.
+        let r = match f.cross(up) {
+            r if r.is_finite() && r.length_squared() >= f32::MIN_POSITIVE => r.normalize(),
+            _ => f.cross(u).normalize(),
+        };
         let u = r.cross(f);
         let transform = Mat4::from_cols(
             r.extend(0.0),
@@ -2011,6 +2065,13 @@ impl Converter<'_> {
                 normals,
                 uvs,
             } => {
+                // The copy below, beside the parsed lists it is made from.
+                let bytes = 2
+                    * (12 * (positions.len() + normals.len() + indices.len()) as u64
+                        + 8 * uvs.len() as u64);
+                self.files
+                    .charge_memory(bytes, &format!("mesh '{name}'"))
+                    .map_err(|e| self.err(&format!("{at}.shape"), e, "\"positions\""))?;
                 let mesh = MeshDesc {
                     name: name.to_string(),
                     positions: positions.iter().map(|&p| v3(p)).collect(),
@@ -2992,6 +3053,159 @@ mod tests {
         // Zero emission is no emission.
         parse(r#"{"materials": {"boundary": {"type": "interface", "emission": [0, 0, 0]}}}"#)
             .unwrap();
+    }
+
+    #[test]
+    fn values_that_would_overflow_when_rendered_are_refused_when_parsed() {
+        let refused = |text: &str, at: &str, says: &str| {
+            let e = parse(text).unwrap_err();
+            assert!(e.contains(at) && e.contains(says), "{text}: {e}");
+        };
+        // Extinction past 1e30, alone or through `scale` or a grid's density.
+        let medium = |m: &str| format!(r#"{{"media": {{"fog": {m}}}}}"#);
+        refused(
+            &medium(r#"{"type": "homogeneous", "sigma_a": [2e38, 0, 0], "sigma_s": [2e38, 0, 0]}"#),
+            "at media.fog",
+            "extinction",
+        );
+        refused(
+            &medium(
+                r#"{"type": "homogeneous", "sigma_a": [0, 0, 0], "sigma_s": [1e20, 1, 1], "scale": 1e20}"#,
+            ),
+            "at media.fog",
+            "at most 1e30",
+        );
+        refused(
+            &medium(
+                r#"{"type": "noise", "resolution": [2, 2, 2], "gain": 1e20, "threshold": 0,
+                    "sigma_a": [0, 0, 0], "sigma_s": [1e20, 1e20, 1e20]}"#,
+            ),
+            "at media.fog",
+            "largest density",
+        );
+        parse(&medium(
+            r#"{"type": "homogeneous", "sigma_a": [1e29, 0, 0], "sigma_s": [1e29, 0, 0]}"#,
+        ))
+        .unwrap();
+        // A noise box too thin (or too wide) to divide by.
+        refused(
+            &medium(
+                r#"{"type": "noise", "resolution": [2, 2, 2], "min": [0, 0, 0],
+                    "max": [1e-40, 1, 1], "sigma_a": [0, 0, 0], "sigma_s": [1, 1, 1]}"#,
+            ),
+            "at media.fog",
+            "not a finite, non-empty box",
+        );
+        refused(
+            &medium(
+                r#"{"type": "noise", "resolution": [2, 2, 2], "min": [-3e38, 0, 0],
+                    "max": [3e38, 1, 1], "sigma_a": [0, 0, 0], "sigma_s": [1, 1, 1]}"#,
+            ),
+            "at media.fog",
+            "not a finite, non-empty box",
+        );
+        // Checker colours are reflectances, as a material's albedo.
+        refused(
+            r#"{"textures": {"c": {"type": "checker", "even": [5, 5, 5]}}}"#,
+            "at textures.c.even",
+            "between 0 and 1",
+        );
+        refused(
+            r#"{"textures": {"c": {"type": "checker", "odd": [-1, 0, 0]}}}"#,
+            "at textures.c.odd",
+            "between 0 and 1",
+        );
+        // A field of view or a lens so small that bdpt's importance would overflow.
+        refused(
+            r#"{"camera": {"position": [0, 0, 5], "look_at": [0, 0, 0], "fov": 1e-17}}"#,
+            "fov",
+            "at least 0.001 degrees",
+        );
+        refused(
+            r#"{"camera": {"position": [0, 0, 5], "look_at": [0, 0, 0], "aperture": 1e-20}}"#,
+            "aperture",
+            "at least 1e-9",
+        );
+    }
+
+    #[test]
+    fn an_up_vector_too_small_to_cross_still_makes_a_camera() {
+        // Looking down −Z with an `up` so small that its cross product with the view
+        // underflows to zero (its own length does not).
+        let d = parse(
+            r#"{"camera": {"position": [0, 0, 0], "look_at": [0, 0, -1], "up": [0, 1e-25, 1e-20]}}"#,
+        )
+        .unwrap();
+        let m = d.cameras[0].transform;
+        assert!(m.is_finite(), "{m}");
+        // Orthonormal: the basis of a camera.
+        let (r, u) = (m.x_axis.truncate(), m.y_axis.truncate());
+        assert!(
+            (r.length() - 1.0).abs() < 1e-6 && r.dot(u).abs() < 1e-6,
+            "{m}"
+        );
+        // A unit `up` gives the basis it always gave.
+        let d = parse(r#"{"camera": {"position": [0, 1, 5], "look_at": [0, 0, 0]}}"#).unwrap();
+        assert_eq!(d.cameras[0].transform.x_axis.truncate(), Vec3::X);
+    }
+
+    #[test]
+    fn a_scene_of_many_objects_with_media_parses_in_linear_time() {
+        // Every object names a grid medium as its exterior: checking that each grid has one
+        // holder used to scan every object for each, 10^10 steps here.
+        let objects =
+            vec![r#"{"shape": {"type": "sphere"}, "material": "m", "exterior": "g"}"#; 100_000]
+                .join(",");
+        let text = format!(
+            r#"{{"media": {{"g": {{"type": "noise", "resolution": [1, 1, 1],
+                 "majorant_resolution": [1, 1, 1], "sigma_a": [0, 0, 0], "sigma_s": [1, 1, 1]}}}},
+                "materials": {{"m": {{"type": "diffuse"}}}}, "objects": [{objects}]}}"#
+        );
+        let start = std::time::Instant::now();
+        parse(&text).unwrap();
+        assert!(start.elapsed().as_secs() < 60, "{:?}", start.elapsed());
+    }
+
+    #[test]
+    fn a_json_scene_is_charged_for_its_parse_and_its_meshes() {
+        // A 10,000-triangle mesh, some 0.5 MB of text, in a scene allowed 4 MB.
+        let n = 10_000;
+        let positions = vec!["[0, 0, 0], [1, 0, 0], [0, 1, 0]"; n].join(",");
+        let indices = (0..n)
+            .map(|i| format!("[{}, {}, {}]", 3 * i, 3 * i + 1, 3 * i + 2))
+            .collect::<Vec<_>>()
+            .join(",");
+        let text = format!(
+            r#"{{"materials": {{"m": {{"type": "diffuse"}}}}, "objects": [{{"material": "m",
+                 "shape": {{"type": "mesh", "positions": [{positions}], "indices": [{indices}]}}}}]}}"#
+        );
+        let files = |limit: u64| SceneFiles::trusted().with_memory_limit(limit);
+        let e = parse_json_files(&text, Path::new("."), Path::new("t.json"), &files(4 << 20))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("the scene's JSON text") && e.contains("more memory"),
+            "{e}"
+        );
+        // Room for the parse but not for the mesh's copies (the parse's share is given back).
+        let tree = parse_tree_bytes(text.len());
+        assert!(tree > 4 << 20);
+        let e = parse_json_files(
+            &text,
+            Path::new("."),
+            Path::new("t.json"),
+            &files(tree + 1000),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("mesh") && e.contains("more memory"), "{e}");
+        parse_json_files(
+            &text,
+            Path::new("."),
+            Path::new("t.json"),
+            &files(tree + (4 << 20)),
+        )
+        .unwrap();
     }
 
     #[test]
