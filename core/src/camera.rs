@@ -162,11 +162,12 @@ impl Camera {
                     let focus = d * focus_distance;
                     let l = concentric_disk(lens) * aperture_radius;
                     let o = Vec3A::new(l.x, l.y, 0.0);
-                    // The same bits as `normalize` wherever the length is finite; a focus so
-                    // far that it is not (about 1e19) is aimed at from the unit distance.
-                    let dir = (focus - o).normalize_or_zero();
-                    if dir != Vec3A::ZERO {
-                        (o, dir)
+                    // A focus so far that the length overflows (about 1e19) is aimed at from
+                    // the unit distance (`normalize` divides: keep it where it works, for the
+                    // bits every image has had).
+                    let to = focus - o;
+                    if to.length_squared().is_finite() {
+                        (o, to.normalize())
                     } else {
                         (o, (d - o / focus_distance).normalize())
                     }
