@@ -65,14 +65,17 @@ pub const SMALL_BUILD: usize = 1 << 16;
 /// Most primitives in one leaf.
 const MAX_LEAF: u32 = 4;
 
-/// Whether more than a quarter of `bounds` (of over a thousand) repeat another's exactly: many
-/// copies of one primitive in one place (an exporter's duplicates, instances stacked on one
-/// spot). obvhs's thorough build takes time growing with the square of their number there
-/// (minutes for 40,000 copies of one quad, from a 120-KB file), so such scenes are built by
-/// the binned-SAH builder, which splits them in linear time. Other scenes keep the thorough
-/// build, and their images their bits.
+/// Whether `bounds` hold many copies of one primitive in one place (an exporter's duplicates,
+/// instances stacked on one spot): the squares of the numbers of primitives sharing one box,
+/// summed, pass 2^22 (some 2,000 copies of one). obvhs's thorough build takes time growing
+/// with the square of such a count (minutes for 40,000 copies of one quad, from a 120-KB
+/// file), so such scenes are built by the binned-SAH builder, which splits them in linear
+/// time. Boxes shared by a few primitives (the two triangles of an axis-aligned quad, the two
+/// faces of a double-sided one) add little: other scenes keep the thorough build, and their
+/// images their bits.
 fn many_coincident(bounds: &[Aabb]) -> bool {
-    if bounds.len() <= 1000 {
+    const LIMIT: u64 = 1 << 22;
+    if (bounds.len() as u64).pow(2) <= LIMIT {
         return false;
     }
     let key = |b: &Aabb| {
@@ -81,8 +84,10 @@ fn many_coincident(bounds: &[Aabb]) -> bool {
     };
     let mut keys: Vec<[u32; 6]> = bounds.iter().map(key).collect();
     keys.sort_unstable();
-    let repeats = keys.windows(2).filter(|w| w[0] == w[1]).count();
-    repeats * 4 > bounds.len()
+    keys.chunk_by(|a, b| a == b)
+        .map(|run| (run.len() as u64).pow(2))
+        .sum::<u64>()
+        > LIMIT
 }
 
 /// `child` of an empty lane.
@@ -1643,10 +1648,12 @@ mod tests {
                 .collect()
         };
         assert!(many_coincident(&boxes(20_000, 1)));
-        assert!(many_coincident(&boxes(2000, 1000)));
-        assert!(!many_coincident(&boxes(2000, 2000)));
-        assert!(!many_coincident(&boxes(2000, 1700)));
-        assert!(!many_coincident(&boxes(900, 1)));
+        assert!(many_coincident(&boxes(30_000, 10)));
+        assert!(!many_coincident(&boxes(2000, 1)));
+        // Pairs and fours sharing a box (quads, double-sided faces): the thorough build.
+        assert!(!many_coincident(&boxes(65_536, 32_768)));
+        assert!(!many_coincident(&boxes(65_536, 16_384)));
+        assert!(!many_coincident(&boxes(60_000, 60_000)));
         // Built, every primitive in one leaf.
         let (bvh, order) = Bvh::build_in_scene(boxes(20_000, 1), 20_000);
         let mut sorted = order.clone();
