@@ -1771,10 +1771,11 @@ impl Converter<'_> {
         };
         // Checked here, where the coordinator parses the scene, as well as where it is built.
         let max_density = density.as_ref().map_or(1.0, |d| d.density.max_value());
+        // The coefficients as the scene's build scales them (in f32).
         crate::medium::check_extinction(
-            Vec3A::from(sigma_a),
-            Vec3A::from(sigma_s),
-            scale,
+            Vec3A::from(sigma_a) * scale,
+            Vec3A::from(sigma_s) * scale,
+            1.0,
             max_density,
             density.is_some(),
         )
@@ -1895,7 +1896,7 @@ impl Converter<'_> {
         // With the unit `up` where the given one's cross product under- or overflows (an `up`
         // of 1e-26 or 1e38); as given otherwise, which keeps the bits scenes have always had.
         let r = match f.cross(up) {
-            r if r.is_finite() && r.length_squared() >= f32::MIN_POSITIVE => r.normalize(),
+            r if (f32::MIN_POSITIVE..f32::INFINITY).contains(&r.length_squared()) => r.normalize(),
             _ => f.cross(u).normalize(),
         };
         let u = r.cross(f);

@@ -815,6 +815,11 @@ impl<'a> Loader<'a> {
                 )
             }
         };
+        // The renderer's own limits (a field of view of at least 0.001°), here where the
+        // coordinator reads the file, not first where a worker builds the scene.
+        projection
+            .check()
+            .map_err(|(_, e)| format!("{what}: {e}"))?;
         self.desc.cameras.push(CameraDesc {
             name,
             transform: world,
