@@ -6,6 +6,7 @@ use crate::scene::desc::{
 };
 use glam::{Mat3, Vec3};
 use serde_json::Value;
+use sha2::Digest as _;
 use std::rc::Rc;
 
 use crate::scene::image::{self as img, DecodedImage};
@@ -449,12 +450,18 @@ impl Loader<'_> {
                 container::load_uri(uri, self.base_dir, self.files, &field, img::MAX_IMAGE_FILE)?
             }
         };
+        let content: [u8; 32] = sha2::Sha256::digest(&bytes).into();
+        if let Some(d) = self.image_content.get(&content).cloned() {
+            self.image_cache.insert(image.index(), d.clone());
+            return Ok(d);
+        }
         // The size first: the memory budget is charged before anything is decoded.
         let size = img::image_bytes(&bytes).map_err(|e| format!("{what}: {e}"))?;
         self.charge(usize::try_from(size).unwrap_or(usize::MAX), &what)?;
         // Values stay as stored (sRGB-encoded for colour); only scaled to [0, 1].
         let decoded = Rc::new(img::decode_image(&bytes).map_err(|e| format!("{what}: {e}"))?);
         self.image_cache.insert(image.index(), decoded.clone());
+        self.image_content.insert(content, decoded.clone());
         Ok(decoded)
     }
 }

@@ -196,6 +196,9 @@ pub(super) struct Loader<'a> {
         usize,
     >,
     image_cache: HashMap<usize, Rc<crate::scene::image::DecodedImage>>,
+    /// By the SHA-256 of the encoded bytes: images of one file (several `images` naming it,
+    /// or the same bytes twice) are decoded and held once.
+    image_content: HashMap<[u8; 32], Rc<crate::scene::image::DecodedImage>>,
 }
 
 impl Loader<'_> {
@@ -510,6 +513,7 @@ fn load_inner(
         material_cache: HashMap::new(),
         texture_cache: HashMap::new(),
         image_cache: HashMap::new(),
+        image_content: HashMap::new(),
     };
     loader.load_buffers(container.bin)?;
     loader.load_scene()?;

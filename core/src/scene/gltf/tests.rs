@@ -428,6 +428,22 @@ fn textures_of_one_image_share_its_texels() {
 }
 
 #[test]
+fn images_of_the_same_bytes_are_decoded_once() {
+    // Two `images` of one PNG (an exporter's habit, or a hostile file repeating a large one).
+    let bytes = textured_tri(json!({
+        "images": [{"uri": png_data_uri()}, {"uri": png_data_uri()}],
+        "textures": [{"source": 0}, {"source": 1}],
+        "materials": [{
+            "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}},
+            "emissiveTexture": {"index": 1},
+        }],
+    }));
+    let s = load(&bytes).unwrap();
+    assert_eq!(s.textures.len(), 2);
+    assert!(s.textures[0].texels.shares(&s.textures[1].texels));
+}
+
+#[test]
 fn colour_textures_are_srgb_and_data_textures_linear() {
     let bytes = textured_tri(json!({
         "images": [{"uri": png_data_uri()}],
