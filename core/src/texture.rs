@@ -155,7 +155,14 @@ pub fn srgb_to_linear(c: f32) -> f32 {
     if c <= 0.04045 {
         c / 12.92
     } else {
-        ((c + 0.055) / 1.055).powf(2.4)
+        // Above about 1.2e16 (a hot texel of an HDR image marked as colour) the power
+        // overflows: the largest float instead, not an infinity that becomes a black texel.
+        let v = ((c + 0.055) / 1.055).powf(2.4);
+        if v == f32::INFINITY && c.is_finite() {
+            f32::MAX
+        } else {
+            v
+        }
     }
 }
 
@@ -405,6 +412,10 @@ mod tests {
         assert!((s.x - 0.214_041).abs() < 1e-4, "{s}");
         assert_eq!(l.x, 0.5);
         assert!((linear_to_srgb(srgb_to_linear(0.3)) - 0.3).abs() < 1e-5);
+        // A hot HDR value decoded as colour saturates rather than overflowing to infinity
+        // (which the texture would read as black).
+        assert_eq!(srgb_to_linear(1.7e38), f32::MAX);
+        assert!(srgb_to_linear(f32::NAN).is_nan());
     }
 
     /// NaN, infinite and negative texels (a few are common in real EXR files) are read as 0.
