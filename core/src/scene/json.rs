@@ -663,16 +663,12 @@ fn parse_json_files(
     name: &Path,
     files: &SceneFiles,
 ) -> Result<SceneDesc, SceneError> {
-    let err = |message: String| SceneError::Json {
-        path: name.to_path_buf(),
-        message,
-    };
     // Some editors start a UTF-8 file with a byte order mark, which JSON parsers refuse.
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let tree = parse_tree_bytes(text.len());
     files
         .charge_memory(tree, "the scene's JSON text")
-        .map_err(err)?;
+        .map_err(json_error(name))?;
     let parsed = parse_text(text, base, name, files);
     files.release_memory(tree);
     parsed
@@ -692,6 +688,14 @@ fn parse_tree_bytes(len: usize) -> u64 {
     (len.saturating_sub(UNCHARGED_TEXT) as u64).saturating_mul(JSON_TREE_BYTES_PER_BYTE)
 }
 
+/// An error in the JSON scene `name`, from its message.
+fn json_error(name: &Path) -> impl Fn(String) -> SceneError + '_ {
+    move |message| SceneError::Json {
+        path: name.to_path_buf(),
+        message,
+    }
+}
+
 /// [`parse_json_files`] once the parse's memory is charged.
 fn parse_text(
     text: &str,
@@ -699,10 +703,7 @@ fn parse_text(
     name: &Path,
     files: &SceneFiles,
 ) -> Result<SceneDesc, SceneError> {
-    let err = |message: String| SceneError::Json {
-        path: name.to_path_buf(),
-        message,
-    };
+    let err = json_error(name);
     let mut de = serde_json::Deserializer::from_str(text);
     // Every struct from a JSON object only (serde would also take an array of its fields).
     let objects = raytile_proto::json::Objects(&mut de);
