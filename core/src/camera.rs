@@ -4,7 +4,7 @@
 
 use crate::geometry::Ray;
 use crate::sampling::warp::concentric_disk;
-use glam::{Affine3A, Mat3, Mat4, Quat, Vec2, Vec3, Vec3A};
+use glam::{Affine3A, Mat4, Vec2, Vec3, Vec3A};
 
 /// The narrowest vertical field of view a perspective camera may have, degrees.
 pub const MIN_FOV_DEGREES: f32 = 1e-3;
@@ -122,22 +122,30 @@ pub struct Camera {
     height: f32,
 }
 
-/// The rotation of a camera placed by `transform`, given the one `to_scale_rotation_translation`
-/// found. That assumes no shear, but a parent's non-uniform scale over a rotated camera node
-/// shears its frame, and the rotation found then looks elsewhere (29° off in one glTF file).
-/// A camera looks along its frame's −Z as transformed (glTF's rule, and what a rasterizer's
-/// view matrix does): where the rotation found differs from that by more than about a
-/// degree's fifth, the camera looks along it, its up as near the frame's +Y as that allows.
-/// Frames without shear keep the rotation found, and their images their bits.
-fn unsheared(transform: &Mat4, rot: Quat) -> Quat {
-    let rot = rot.normalize();
+/// A camera frame without shear. A parent's non-uniform scale over a rotated camera node
+/// (in a glTF file) shears the node's frame, and [`Camera::new`], which keeps the rotation
+/// `to_scale_rotation_translation` finds (it assumes no shear), would look elsewhere (29° off
+/// in one file). A camera looks along its frame's −Z as transformed (glTF's rule, and what a
+/// rasterizer's view matrix does): where the rotation found differs from that by more than
+/// about a fifth of a degree, this gives the frame that looks along it, its up as near the
+/// frame's +Y as that allows, at the same place; other frames are returned as they are.
+pub fn unsheared(transform: Mat4) -> Mat4 {
+    let (_, rot, trans) = transform.to_scale_rotation_translation();
     let fwd = (-transform.z_axis.truncate()).normalize_or_zero();
     let right = fwd.cross(transform.y_axis.truncate()).normalize_or_zero();
-    if fwd == Vec3::ZERO || right == Vec3::ZERO || (rot * -Vec3::Z).dot(fwd) > 1.0 - 1e-5 {
-        return rot;
+    if fwd == Vec3::ZERO
+        || right == Vec3::ZERO
+        || (rot.normalize() * -Vec3::Z).dot(fwd) > 1.0 - 1e-5
+    {
+        return transform;
     }
     let up = right.cross(fwd);
-    Quat::from_mat3(&Mat3::from_cols(right, up, -fwd)).normalize()
+    Mat4::from_cols(
+        right.extend(0.0),
+        up.extend(0.0),
+        (-fwd).extend(0.0),
+        trans.extend(1.0),
+    )
 }
 
 impl Camera {
@@ -148,7 +156,7 @@ impl Camera {
         let aspect = width as f32 / height as f32;
         // Keep only rotation and translation: scale on a camera node would distort rays.
         let (_, rot, trans) = transform.to_scale_rotation_translation();
-        let to_world = Affine3A::from_rotation_translation(unsheared(&transform, rot), trans);
+        let to_world = Affine3A::from_rotation_translation(rot.normalize(), trans);
         let half_h = match projection {
             Projection::Perspective { yfov, .. } => (yfov * 0.5).tan(),
             Projection::Orthographic { half_height } => half_height,
@@ -339,7 +347,7 @@ mod tests {
         let m =
             Mat4::from_scale(Vec3::new(1.0, 3.0, 1.0)) * Mat4::from_rotation_x(30f32.to_radians());
         let c = Camera::new(
-            m,
+            unsheared(m),
             Projection::Perspective {
                 yfov: 1.0,
                 aperture_radius: 0.0,
@@ -354,15 +362,15 @@ mod tests {
         // Up stays up: the top of the image is above the centre.
         let top = c.generate_ray(Vec2::new(100.0, 0.0), Vec2::ZERO);
         assert!(top.d.y > centre.d.y);
-        // A frame without shear (rotation, uniform scale, translation) keeps the rotation
-        // `to_scale_rotation_translation` finds, to the bit.
-        let m = Mat4::from_scale_rotation_translation(
-            Vec3::splat(2.0),
-            Quat::from_euler(glam::EulerRot::YXZ, 0.7, -0.3, 0.2),
-            Vec3::new(1.0, 2.0, 3.0),
-        );
-        let (_, rot, _) = m.to_scale_rotation_translation();
-        assert_eq!(unsheared(&m, rot), rot.normalize());
+        // A frame without shear (rotation, uniform or mirrored scale, translation) is kept.
+        for scale in [Vec3::splat(2.0), Vec3::new(-1.0, 2.0, 0.5)] {
+            let m = Mat4::from_scale_rotation_translation(
+                scale,
+                glam::Quat::from_euler(glam::EulerRot::YXZ, 0.7, -0.3, 0.2),
+                Vec3::new(1.0, 2.0, 3.0),
+            );
+            assert_eq!(unsheared(m), m);
+        }
     }
 
     #[test]

@@ -199,6 +199,9 @@ pub(super) struct Loader<'a> {
     /// By the SHA-256 of the encoded bytes: images of one file (several `images` naming it,
     /// or the same bytes twice) are decoded and held once.
     image_content: HashMap<[u8; 32], Rc<crate::scene::image::DecodedImage>>,
+    /// (decoded image, sRGB) pairs whose f32 texels the scene's build converts (a copy each),
+    /// charged once.
+    converted: std::collections::HashSet<(usize, bool)>,
 }
 
 impl Loader<'_> {
@@ -514,6 +517,7 @@ fn load_inner(
         texture_cache: HashMap::new(),
         image_cache: HashMap::new(),
         image_content: HashMap::new(),
+        converted: Default::default(),
     };
     loader.load_buffers(container.bin)?;
     loader.load_scene()?;
@@ -826,7 +830,8 @@ impl<'a> Loader<'a> {
             .map_err(|(_, e)| format!("{what}: {e}"))?;
         self.desc.cameras.push(CameraDesc {
             name,
-            transform: world,
+            // A parent's non-uniform scale may shear the frame: look along its −Z.
+            transform: crate::camera::unsheared(world),
             projection,
             aspect,
         });
