@@ -94,5 +94,10 @@ pub use settings::{
 /// `sppm` images of such scenes change; `bdpt` and scenes with lights of one kind do not.
 /// 14 (2026-12-07): tangents that raytile generates for a glTF normal map (a primitive without
 /// TANGENT) have the bitangent sign glTF's downward texture coordinates need: images of such
-/// models change (their normal maps' green channel bent normals the wrong way).
+/// models change (their normal maps' green channel bent normals the wrong way). Also changed:
+/// glTF cameras in frames a parent's non-uniform scale shears look along their frame's −Z
+/// ([`camera::unsheared`]); an sRGB-encoded HDR texel above about 1.2e16 saturates instead of
+/// reading black; scenes of under 65,537 primitives with some 2,000 or more copies of one
+/// bounding box are built by the binned builder (its tree may break ties between coincident
+/// primitives differently). Other images unchanged.
 pub const RENDER_VERSION: u32 = 14;

@@ -410,11 +410,9 @@ impl Loader<'_> {
         let decoded = self.image(&image)?;
         // The texture shares the image's texels (charged when decoded). f32 texels are
         // converted once for colour and once for data when the scene is built: a copy each.
+        // Once per decoded image (images of the same bytes share one) and colour space.
         let converts = matches!(decoded.texels, Texels::F32(_))
-            && !self
-                .texture_cache
-                .keys()
-                .any(|&(i, s, ..)| i == image.index() && s == srgb);
+            && self.converted.insert((Rc::as_ptr(&decoded) as usize, srgb));
         if converts {
             self.charge(decoded.texels.bytes(), &format!("texture {}", tex.index()))?;
         }
