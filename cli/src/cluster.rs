@@ -91,10 +91,12 @@ async fn cluster(a: ClusterArgs, output: PathBuf) -> anyhow::Result<()> {
     cfg.token = a.token.clone().filter(|t| !t.is_empty());
     cfg.insecure = a.insecure;
     cfg.startup_grace = std::time::Duration::from_secs(5);
-    // Any tile size `raytile render` takes: on one machine, the tile size is the user's to
-    // choose (a farm's coordinator keeps a floor of 16 against floods of tiny tasks). The
-    // limit on tasks per job still holds.
-    cfg.limits.min_tile_size = 1;
+    // The job of --render may have any tile size `raytile render` takes (within the limit on
+    // tasks per job): it is the user's own. Serving clients, the cluster keeps a farm
+    // coordinator's floor of 16 against floods of tiny tasks.
+    if a.render.is_some() {
+        cfg.limits.min_tile_size = 1;
+    }
     let listen = a.listen.clone().unwrap_or_else(|| {
         if a.render.is_some() {
             "127.0.0.1:0".into()
