@@ -32,9 +32,10 @@ pub enum Projection {
 }
 
 impl Projection {
-    /// Checks the parameters: a field of view in [[`MIN_FOV_DEGREES`], 180°), a finite aperture
-    /// of 0 (a pinhole) or at least [`MIN_APERTURE`], a finite non-negative focus distance, positive when the aperture is,
-    /// and a positive finite orthographic half height. The error is the field's name (as the
+    /// Checks the parameters: a field of view of at least [`MIN_FOV_DEGREES`] and below 180°,
+    /// a finite aperture of 0 (a pinhole) or at least [`MIN_APERTURE`], a finite non-negative
+    /// focus distance, positive when the aperture is, and a positive finite orthographic half
+    /// height. The error is the field's name (as the
     /// JSON format spells it) and a message that names it too.
     pub fn check(&self) -> Result<(), (&'static str, String)> {
         match *self {
