@@ -100,4 +100,9 @@ pub use settings::{
 /// reading black; scenes of under 65,537 primitives with some 2,000 or more copies of one
 /// bounding box are built by the binned builder (its tree may break ties between coincident
 /// primitives differently). Other images unchanged.
-pub const RENDER_VERSION: u32 = 14;
+/// 15 (2026-12-07): an `sppm` iteration whose photons leave more than
+/// [`integrator::sppm::MAP_DEPOSITS`] deposits is gathered from several photon maps, one after
+/// another, instead of one map as large as it takes: such iterations (images of a million
+/// pixels or more, or long photon paths in bright closed rooms) sum their flux in another
+/// order. Other images unchanged.
+pub const RENDER_VERSION: u32 = 15;

@@ -121,8 +121,8 @@ fn a_job_traces_each_photon_map_once_and_keeps_it_for_its_other_tiles() {
     let mut s = settings(32, 32, 4, IntegratorKind::Sppm);
     s.tile_size = 16;
     let job = RenderJob::new(&scene, &s).unwrap();
-    let first = sppm::photon_map(&scene, &job, 0);
-    let again = sppm::photon_map(&scene, &job, 0);
+    let first = sppm::photon_map(&scene, &job, 0, 0, sppm::MAP_DEPOSITS);
+    let again = sppm::photon_map(&scene, &job, 0, 0, sppm::MAP_DEPOSITS);
     assert!(std::sync::Arc::ptr_eq(&first, &again));
     assert_eq!(first.traced, 32 * 32);
     assert!(job.cache_bytes() > 0);

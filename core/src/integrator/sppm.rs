@@ -42,8 +42,17 @@ pub const INITIAL_RADIUS_PIXELS: f32 = 2.0;
 /// own, not those of pixel (k, 0)'s sample i.
 const PHOTON_SEED: u32 = 0x9e37_79b9;
 
-/// Photons traced per parallel work item (collected in photon order whatever the threads).
+/// Photons traced per parallel work item at a `max_depth` of 16 or less (collected in photon
+/// order whatever the threads); deeper paths take proportionally fewer, down to 64
+/// ([`chunk_photons`]), so a work item holds at most about 2¹⁶ deposits.
 const PHOTON_CHUNK: u32 = 4096;
+
+/// Deposits one photon map holds (about 36 bytes each): an iteration whose photons leave more
+/// is gathered from several maps, one after the other, each of whole chunks of photons in
+/// photon order (a chunk that alone leaves more is a map of its own). So an iteration's memory
+/// is bounded whatever the image size and path depth (a closed room of white walls at a depth
+/// of 1024 leaves about a thousand deposits per photon).
+pub const MAP_DEPOSITS: usize = 1 << 22;
 
 /// The initial search radius of every pixel of `job`: tile-independent, and the largest radius
 /// any lookup uses (radii only shrink), hence the photon grid's cell size.
@@ -118,6 +127,9 @@ pub struct PhotonMap {
     inv_cell: f32,
     /// Photon paths traced (for the measurement of repeated work).
     pub traced: u32,
+    /// The chunks of the iteration's photons whose deposits this map holds
+    /// ([`chunk_photons`] photons each): the next map of the iteration starts at `chunks.end`.
+    pub chunks: Range<u32>,
 }
 
 impl PhotonMap {
@@ -136,20 +148,21 @@ impl PhotonMap {
     }
 
     /// Builds the grid over `photons` (in photon order), for lookups of radius ≤ `cell`.
-    fn build(photons: Vec<Photon>, cell: f32, traced: u32) -> PhotonMap {
+    fn build(photons: Vec<Photon>, cell: f32, traced: u32, chunks: Range<u32>) -> PhotonMap {
         let buckets = photons.len().next_power_of_two().max(1);
         let mut map = PhotonMap {
             photons: Vec::new(),
             start: vec![0; buckets + 1],
             inv_cell: 1.0 / cell,
             traced,
+            chunks,
         };
-        let keys: Vec<usize> = photons
+        let keys: Vec<u32> = photons
             .iter()
-            .map(|ph| map.bucket(map.cell(Vec3A::from(ph.p))))
+            .map(|ph| map.bucket(map.cell(Vec3A::from(ph.p))) as u32)
             .collect();
         for &k in &keys {
-            map.start[k + 1] += 1;
+            map.start[k as usize + 1] += 1;
         }
         for b in 0..buckets {
             map.start[b + 1] += map.start[b];
@@ -158,8 +171,8 @@ impl PhotonMap {
         let mut next: Vec<u32> = map.start[..buckets].to_vec();
         let mut sorted = photons.clone();
         for (ph, &k) in photons.iter().zip(&keys) {
-            sorted[next[k] as usize] = *ph;
-            next[k] += 1;
+            sorted[next[k as usize] as usize] = *ph;
+            next[k as usize] += 1;
         }
         map.photons = sorted;
         map
@@ -207,38 +220,91 @@ impl PhotonMap {
     }
 }
 
-/// The photon map of iteration `it` of `job`: from the job's cache, or traced (and kept if the
-/// cache has room).
-pub fn photon_map(scene: &Scene, job: &RenderJob, it: u32) -> Arc<PhotonMap> {
+/// Photons per parallel work item of `job`'s photon passes: [`PHOTON_CHUNK`] up to a
+/// `max_depth` of 16, fewer for deeper paths, at least 64.
+pub fn chunk_photons(job: &RenderJob) -> u32 {
+    (PHOTON_CHUNK * 16 / job.settings.max_depth.max(16)).max(64)
+}
+
+/// The photon maps of iteration `it` of `job`, one after another, each handed to `f`: together
+/// they hold the deposits of the iteration's photons, in photon order, each at most `cap` of
+/// them (renders use [`MAP_DEPOSITS`]); usually one map. Stops at the first error `f` returns.
+pub fn for_each_photon_map<E>(
+    scene: &Scene,
+    job: &RenderJob,
+    it: u32,
+    cap: usize,
+    mut f: impl FnMut(&PhotonMap) -> Result<(), E>,
+) -> Result<(), E> {
+    let chunks = photons_per_iteration(job).div_ceil(chunk_photons(job));
+    let mut start = 0;
+    while start < chunks {
+        let map = photon_map(scene, job, it, start, cap);
+        f(&map)?;
+        start = map.chunks.end;
+    }
+    Ok(())
+}
+
+/// The photon map of iteration `it` of `job` that starts at chunk `start` and holds at most
+/// `cap` deposits (but for a chunk that alone leaves more): from the job's cache, or traced
+/// (and kept if the cache has room).
+pub fn photon_map(
+    scene: &Scene,
+    job: &RenderJob,
+    it: u32,
+    start: u32,
+    cap: usize,
+) -> Arc<PhotonMap> {
     // The key names the integrator and the settings the map depends on besides the job.
     let s = &job.settings;
     let key = (0x5350_504d_u64 << 32 | it as u64)
         ^ ((hash_u32(s.seed ^ hash_u32(s.max_depth ^ hash_u32(s.width ^ s.height << 16))) as u64)
-            << 20);
+            << 20)
+        ^ ((hash_u32(start ^ hash_u32(cap as u32 ^ 0x6368_756e)) as u64) << 32);
     if let Some(m) = job.cache.get::<PhotonMap>(key) {
         return m;
     }
-    let m = Arc::new(trace_photons(scene, job, it));
+    let m = Arc::new(trace_photons(scene, job, it, start, cap));
     job.cache.insert(key, m.clone(), m.memory_bytes());
     m
 }
 
-/// Traces the photons of iteration `it` in parallel and gathers their deposits in photon order.
-fn trace_photons(scene: &Scene, job: &RenderJob, it: u32) -> PhotonMap {
+/// Traces the photons of iteration `it` from chunk `start` on, in parallel batches, and gathers
+/// their deposits in photon order, up to the last whole chunk that keeps them within `cap`
+/// (at least one chunk). A batch's chunks past that are dropped: the next map traces them
+/// again.
+fn trace_photons(scene: &Scene, job: &RenderJob, it: u32, start: u32, cap: usize) -> PhotonMap {
     let n = photons_per_iteration(job);
+    let per = chunk_photons(job);
+    let chunks = n.div_ceil(per);
+    let batch = (rayon::current_num_threads() as u32)
+        .saturating_mul(8)
+        .max(8);
     let sphere = scene_sphere(scene);
-    let chunks: Vec<Vec<Photon>> = (0..n.div_ceil(PHOTON_CHUNK))
-        .into_par_iter()
-        .map(|c| {
-            let mut out = Vec::new();
-            for k in c * PHOTON_CHUNK..((c + 1) * PHOTON_CHUNK).min(n) {
-                trace_photon(scene, job, sphere, k, it, &mut out);
+    let mut photons: Vec<Photon> = Vec::new();
+    let mut end = start;
+    'batches: while end < chunks {
+        let traced: Vec<Vec<Photon>> = (end..end.saturating_add(batch).min(chunks))
+            .into_par_iter()
+            .map(|c| {
+                let mut out = Vec::new();
+                for k in c * per..((c + 1) * per).min(n) {
+                    trace_photon(scene, job, sphere, k, it, &mut out);
+                }
+                out
+            })
+            .collect();
+        for chunk in traced {
+            if end > start && photons.len() + chunk.len() > cap {
+                break 'batches;
             }
-            out
-        })
-        .collect();
-    let photons: Vec<Photon> = chunks.into_iter().flatten().collect();
-    PhotonMap::build(photons, initial_radius(scene, job), n)
+            photons.extend(chunk);
+            end += 1;
+        }
+    }
+    let traced = (end * per).min(n) - start * per;
+    PhotonMap::build(photons, initial_radius(scene, job), traced, start..end)
 }
 
 /// Photon `k` of iteration `it`: from a light chosen by power, scattered with the adjoint BSDF,
@@ -429,6 +495,18 @@ pub fn render_tile(
     iterations: Range<u32>,
     cancel: &super::Cancel,
 ) -> Result<TileAccum, Cancelled> {
+    render_tile_with(scene, job, tile, iterations, cancel, MAP_DEPOSITS)
+}
+
+/// [`render_tile`] with photon maps of at most `cap` deposits.
+fn render_tile_with(
+    scene: &Scene,
+    job: &RenderJob,
+    tile: Tile,
+    iterations: Range<u32>,
+    cancel: &super::Cancel,
+    cap: usize,
+) -> Result<TileAccum, Cancelled> {
     let w = tile.width() as usize;
     let r0 = initial_radius(scene, job);
     let mut state = vec![
@@ -441,23 +519,36 @@ pub fn render_tile(
         };
         tile.pixel_count()
     ];
+    let mut gathered = vec![Gathered::default(); tile.pixel_count()];
     let mut photons_total = 0.0f64;
     for it in iterations.clone() {
         if cancel.is_cancelled() {
             return Err(Cancelled);
         }
-        let map = photon_map(scene, job, it);
-        photons_total += map.traced as f64;
-        state
-            .par_chunks_mut(w.max(1))
-            .enumerate()
-            .for_each(|(row, px)| {
-                let y = tile.y0 + row as u32;
-                for (col, st) in px.iter_mut().enumerate() {
-                    let x = tile.x0 + col as u32;
-                    update_pixel(scene, job, &map, x, y, it, st);
-                }
-            });
+        let mut first = true;
+        for_each_photon_map(scene, job, it, cap, |map| {
+            if !first && cancel.is_cancelled() {
+                return Err(Cancelled);
+            }
+            photons_total += map.traced as f64;
+            state
+                .par_chunks_mut(w.max(1))
+                .zip(gathered.par_chunks_mut(w.max(1)))
+                .enumerate()
+                .for_each(|(row, (px, g))| {
+                    let y = tile.y0 + row as u32;
+                    for (col, (st, g)) in px.iter_mut().zip(g).enumerate() {
+                        let x = tile.x0 + col as u32;
+                        gather(scene, job, map, x, y, it, first, st, g);
+                    }
+                });
+            first = false;
+            Ok(())
+        })?;
+        state.par_iter_mut().zip(&mut gathered).for_each(|(st, g)| {
+            update_pixel(st, g);
+            *g = Gathered::default();
+        });
     }
     let mut bad = 0u64;
     let pixels = state
@@ -492,40 +583,69 @@ pub fn render_tile(
     })
 }
 
-/// One iteration of one pixel: its camera pass, then the radius and flux update from the
-/// photons near its visible point.
-fn update_pixel(
+/// What one iteration of one pixel gathered from the photon maps so far.
+#[derive(Clone, Copy, Default)]
+struct Gathered {
+    /// Photons found (M).
+    m: u32,
+    /// Their flux at the visible point (Φ, before the path throughput).
+    phi: Vec3A,
+    /// The path throughput to the visible point.
+    beta: Vec3A,
+    /// Whether the camera pass found a visible point and a finite direct-light estimate.
+    gathers: bool,
+}
+
+/// One iteration of one pixel, with one of its photon maps: its camera pass (its direct light
+/// counted with the `first` map), then the photons of `map` near its visible point. A camera
+/// pass depends only on (pixel, iteration, seed), so an iteration of several maps runs it again
+/// for each, to the same point, rather than keeping every pixel's visible point.
+#[allow(clippy::too_many_arguments)]
+fn gather(
     scene: &Scene,
     job: &RenderJob,
     map: &PhotonMap,
     x: u32,
     y: u32,
     it: u32,
+    first: bool,
     st: &mut PixelState,
+    g: &mut Gathered,
 ) {
-    let (ld, vp) = camera_pass(scene, job, x, y, it);
-    if !crate::film::sample_ok(ld) {
-        st.bad += 1;
+    if !first && !g.gathers {
         return;
     }
-    st.ld += ld;
+    let (ld, vp) = camera_pass(scene, job, x, y, it);
+    if first {
+        if !crate::film::sample_ok(ld) {
+            st.bad += 1;
+            return;
+        }
+        st.ld += ld;
+    }
     let Some(vp) = vp else {
         return;
     };
-    let mut phi = Vec3A::ZERO;
-    let mut m = 0u32;
+    g.gathers = true;
     map.for_each_near(vp.p, st.r, |ph| {
         let wi = vp.frame.to_local(Vec3A::from(ph.wi));
         let f = vp.bsdf.eval(vp.wo, wi);
-        phi += Vec3A::from(ph.beta) * f;
-        m += 1;
+        g.phi += Vec3A::from(ph.beta) * f;
+        g.m += 1;
     });
-    if m == 0 || !phi.is_finite() {
+    // The path throughput to the visible point, applied once all maps are gathered.
+    g.beta = vp.beta;
+}
+
+/// The end of one iteration of one pixel: the radius and flux update from what it gathered.
+fn update_pixel(st: &mut PixelState, g: &Gathered) {
+    let (phi, m) = (g.phi, g.m);
+    if !g.gathers || m == 0 || !phi.is_finite() {
         return;
     }
     let n_new = st.n + ALPHA * m as f32;
     let r_new = st.r * (n_new / (st.n + m as f32)).sqrt();
-    st.tau = (st.tau + vp.beta * phi) * ((r_new * r_new) / (st.r * st.r));
+    st.tau = (st.tau + g.beta * phi) * ((r_new * r_new) / (st.r * st.r));
     st.n = n_new;
     st.r = r_new;
 }
@@ -550,7 +670,7 @@ mod tests {
                 beta: Vec3::ONE,
             });
         }
-        let map = PhotonMap::build(photons.clone(), 0.3, 2000);
+        let map = PhotonMap::build(photons.clone(), 0.3, 2000, 0..1);
         for q in [Vec3A::ZERO, Vec3A::new(1.0, -0.5, 0.7), Vec3A::splat(1.9)] {
             for r in [0.05, 0.2, 0.3] {
                 let mut got = 0;
@@ -562,5 +682,103 @@ mod tests {
                 assert_eq!(got, want, "{q} {r}");
             }
         }
+    }
+
+    /// The Cornell box at `size`², with 64-photon chunks (a depth of 1024; Russian roulette
+    /// ends its photons after a few bounces).
+    fn cornell(size: u32, spp: u32) -> (Scene, RenderJob) {
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-box.json");
+        let scene = Scene::build(&crate::load_scene(&path).unwrap()).unwrap();
+        let settings = crate::RenderSettings {
+            width: size,
+            height: size,
+            spp,
+            max_depth: 1024,
+            integrator: crate::IntegratorKind::Sppm,
+            ..Default::default()
+        };
+        let job = RenderJob::new(&scene, &settings).unwrap();
+        (scene, job)
+    }
+
+    /// Every photon of the maps (position, direction, power bits), sorted.
+    fn photon_bits(maps: &[Arc<PhotonMap>]) -> Vec<[u32; 9]> {
+        let mut all: Vec<[u32; 9]> = maps
+            .iter()
+            .flat_map(|m| m.photons.iter())
+            .map(|ph| {
+                let v = [ph.p, ph.wi, ph.beta];
+                std::array::from_fn(|i| v[i / 3][i % 3].to_bits())
+            })
+            .collect();
+        all.sort_unstable();
+        all
+    }
+
+    #[test]
+    fn an_iteration_past_the_cap_is_cut_into_maps_of_whole_chunks_holding_the_same_photons() {
+        let (scene, job) = cornell(32, 1);
+        assert_eq!(chunk_photons(&job), 64);
+        let maps_of = |cap: usize| {
+            let mut maps = Vec::new();
+            for_each_photon_map::<()>(&scene, &job, 3, cap, |m| {
+                maps.push(photon_map(&scene, &job, 3, m.chunks.start, cap));
+                Ok(())
+            })
+            .unwrap();
+            maps
+        };
+        let one = maps_of(MAP_DEPOSITS);
+        assert_eq!(one.len(), 1);
+        assert_eq!(one[0].chunks, 0..16);
+        assert_eq!(one[0].traced, 32 * 32);
+        let deposits = one[0].photons.len();
+        assert!(deposits > 1000, "{deposits} deposits");
+        let cap = deposits / 8;
+        let many = maps_of(cap);
+        assert!(many.len() >= 8, "{} maps", many.len());
+        let mut next = 0;
+        for m in &many {
+            assert_eq!(m.chunks.start, next);
+            assert!(m.chunks.end > m.chunks.start);
+            assert!(
+                m.photons.len() <= cap || m.chunks.len() == 1,
+                "{:?}",
+                m.chunks
+            );
+            next = m.chunks.end;
+        }
+        assert_eq!(next, 16);
+        assert_eq!(many.iter().map(|m| m.traced).sum::<u32>(), 32 * 32);
+        assert_eq!(photon_bits(&one), photon_bits(&many));
+    }
+
+    #[test]
+    fn a_tile_gathered_from_many_maps_matches_one_map_but_for_rounding() {
+        let (scene, job) = cornell(16, 3);
+        let tile = Tile {
+            x0: 0,
+            y0: 0,
+            x1: 16,
+            y1: 16,
+        };
+        let render = |cap| {
+            let job = RenderJob::new(&scene, &job.settings).unwrap();
+            render_tile_with(&scene, &job, tile, 0..3, &super::super::Cancel::new(), cap).unwrap()
+        };
+        let one = render(MAP_DEPOSITS);
+        let many = render(64);
+        assert_eq!(one.pixels.len(), many.pixels.len());
+        let mut lit = 0;
+        for (a, b) in one.pixels.iter().zip(&many.pixels) {
+            assert_eq!(a[3], b[3], "the same good iterations");
+            for k in 0..3 {
+                let tol = 1e-5 * a[k].abs().max(1e-3);
+                assert!((a[k] - b[k]).abs() <= tol, "{a:?} {b:?}");
+            }
+            lit += (a[0] > 0.0) as u32;
+        }
+        assert!(lit > 200, "{lit} lit pixels");
     }
 }
