@@ -781,3 +781,75 @@ fn errors_inside_a_typed_value_name_its_field_and_line() {
         }
     }
 }
+
+#[test]
+fn objects_and_cameras_past_2_to_the_40_units_are_refused_by_name() {
+    let scene = |objects: &str, camera: &str| {
+        format!(
+            r#"{{"materials": {{"w": {{"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}}}},
+                "objects": [{objects}],
+                "camera": {{"position": {camera}, "look_at": [0, 0, 0], "fov": 40}}}}"#
+        )
+    };
+    let build = |text: &str| {
+        let desc = parse_json(text, Path::new("."), Path::new("scene.json")).unwrap();
+        Scene::build(&desc).map(|_| ())
+    };
+    let near = "[0, 0, 4e11]";
+    for (objects, name) in [
+        // A triangle of 10^13 units: its hit distance overflowed and it was never seen.
+        (
+            r#"{"name": "big", "shape": {"type": "mesh",
+                "positions": [[-1e13, -1e13, 0], [1e13, -1e13, 0], [0, 1e13, 0]],
+                "indices": [[0, 1, 2]]}, "material": "w"}"#,
+            "'big'",
+        ),
+        // A small ball placed past the limit.
+        (
+            r#"{"name": "far", "shape": {"type": "sphere", "radius": 1e11}, "material": "w",
+                "transform": {"translate": [0, 1.05e12, 0]}}"#,
+            "'far'",
+        ),
+        // A unit mesh scaled past it, used twice (instanced).
+        (
+            r#"{"name": "a", "shape": {"type": "mesh", "positions": [[0, 0, 0], [1, 0, 0], [0, 1, 0]],
+                "indices": [[0, 1, 2]]}, "material": "w", "transform": {"scale": 2e12}}"#,
+            "'a'",
+        ),
+    ] {
+        let e = build(&scene(objects, near)).unwrap_err().to_string();
+        assert!(e.contains(name) && e.contains("2^40"), "{e}");
+    }
+    // A camera past it.
+    let ball = r#"{"shape": {"type": "sphere"}, "material": "w"}"#;
+    let e = build(&scene(ball, "[0, 0, 2e12]")).unwrap_err().to_string();
+    assert!(e.contains("camera") && e.contains("2^40"), "{e}");
+    // Within it: accepted, and a triangle of 10^11 units at the limit's edge is seen. A plane
+    // (unbounded) and a position no triangle uses do not count.
+    let ok = scene(
+        r#"{"shape": {"type": "mesh",
+            "positions": [[-1e11, -1e11, 0], [1e11, -1e11, 0], [0, 1e11, 0], [1e30, 0, 0]],
+            "indices": [[0, 1, 2]]}, "material": "w"},
+           {"shape": {"type": "plane", "point": [0, 0, -1e12], "normal": [0, 0, 1]}, "material": "w"},
+           {"shape": {"type": "sphere", "radius": 1e11}, "material": "w",
+            "transform": {"translate": [0, 9e11, 0]}}"#,
+        near,
+    );
+    let desc = parse_json(&ok, Path::new("."), Path::new("scene.json")).unwrap();
+    let scene = Scene::build(&desc).unwrap();
+    let s = RenderSettings {
+        width: 8,
+        height: 8,
+        spp: 1,
+        integrator: IntegratorKind::Albedo,
+        ..Default::default()
+    };
+    let film = render(&scene, &RenderJob::new(&scene, &s).unwrap(), &());
+    let px = film.resolve();
+    // The centre pixels see the triangle (albedo 0.5 where it is hit).
+    assert!(
+        px[4 * 8 + 4].iter().all(|&v| (v - 0.5).abs() < 1e-3),
+        "{:?}",
+        px[4 * 8 + 4]
+    );
+}

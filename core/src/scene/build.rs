@@ -55,6 +55,7 @@ impl Scene {
     /// each mesh's arrays are freed as soon as its runtime mesh is made, before the BVHs are
     /// built (on rayon's pool, in parallel where it pays: bounds, corners, validation).
     pub fn build_owned(mut desc: SceneDesc) -> Result<Scene, SceneError> {
+        check_extent(&desc)?;
         // Each texture's description is freed once its texture is made, so a scene's texels
         // are held about once, not twice, while it builds. Textures of one image share its
         // texels: 8-bit ones its bytes, f32 ones its values converted once for each of colour
@@ -507,6 +508,73 @@ fn tri_shading(o: &Object, m: &Mesh, tri: u32) -> Vec4 {
         dots.iter().all(|&d| d >= 1.0 - 1e-6) || dots.iter().all(|&d| d <= -(1.0 - 1e-6))
     };
     ng.extend(if flat { 1.0 } else { 0.0 })
+}
+
+/// How far from the origin along any axis a finite object may reach, in scene units: 2⁴⁰,
+/// about 1.1·10¹². A ray–triangle test multiplies an edge by an edge by the distance from the
+/// ray's origin, which overflows 32-bit floats past about 7·10¹² units, and the triangle is
+/// never hit; spheres, rectangles and the quadrics fail the same way further out. Planes are
+/// unbounded and exempt.
+pub const MAX_COORDINATE: f32 = (1u64 << 40) as f32;
+
+/// Refuses a scene with a finite object that reaches past [`MAX_COORDINATE`], or a camera
+/// placed past it, naming it: such an object would not be seen (or only in part) rather than
+/// fail. A mesh's reach is that of
+/// the finite positions its triangles use; a shape or transform that is not valid passes,
+/// for the build to refuse with its own message.
+pub fn check_extent(desc: &SceneDesc) -> Result<(), SceneError> {
+    let mut mesh_bounds: Vec<Option<Aabb>> = vec![None; desc.meshes.len()];
+    for (oi, o) in desc.objects.iter().enumerate() {
+        let b = match &o.shape {
+            ShapeDesc::Mesh { mesh } => {
+                let (Some(m), Some(cached)) = (desc.meshes.get(*mesh), mesh_bounds.get_mut(*mesh))
+                else {
+                    continue;
+                };
+                *cached.get_or_insert_with(|| {
+                    m.indices
+                        .par_iter()
+                        .flatten()
+                        .filter_map(|&i| m.positions.get(i as usize).filter(|p| p.is_finite()))
+                        .fold(Aabb::empty, |mut b, &p| {
+                            b.extend(p.into());
+                            b
+                        })
+                        .reduce(Aabb::empty, |a, b| a.union(&b))
+                })
+            }
+            shape => match build_analytic(shape).ok().and_then(|a| a.bounds()) {
+                Some(b) => b,
+                None => continue,
+            },
+        };
+        if !b.valid() {
+            continue; // a mesh without triangles
+        }
+        let w = transform_aabb(&Affine3A::from_mat4(o.transform), &b);
+        let reach = w.min.abs().max(w.max.abs()).max_element();
+        if reach > MAX_COORDINATE {
+            return Err(invalid(format!(
+                "object {oi} ('{}') reaches {reach:.3e} units from the origin: raytile renders \
+                 objects within {MAX_COORDINATE:.3e} (2^40) units of it, beyond which its \
+                 32-bit ray tests overflow and the object would not be seen; scale the scene \
+                 down or move it nearer the origin",
+                o.name
+            )));
+        }
+    }
+    for c in &desc.cameras {
+        let reach = c.transform.w_axis.truncate().abs().max_element();
+        if reach > MAX_COORDINATE {
+            return Err(invalid(format!(
+                "camera '{}' is {reach:.3e} units from the origin: raytile renders from within \
+                 {MAX_COORDINATE:.3e} (2^40) units of it, beyond which its 32-bit ray tests \
+                 overflow; scale the scene down or move it nearer the origin",
+                c.name
+            )));
+        }
+    }
+    Ok(())
 }
 
 fn transform_aabb(m: &Affine3A, b: &Aabb) -> Aabb {

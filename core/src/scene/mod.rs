@@ -262,13 +262,17 @@ pub fn load_scene_with(path: &Path, files: &files::SceneFiles) -> Result<SceneDe
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
-    match ext.as_deref() {
+    let desc = match ext.as_deref() {
         Some("json") => json::load_json_files(path, files),
         Some("gltf") | Some("glb") => {
             gltf::load_gltf_files(path, &gltf::GltfOptions::default(), files)
         }
         _ => Err(SceneError::UnknownFormat(path.to_path_buf())),
-    }
+    }?;
+    // Here as well as in the build, so that a coordinator refuses such a scene when it is
+    // submitted.
+    build::check_extent(&desc)?;
+    Ok(desc)
 }
 
 impl std::fmt::Debug for Scene {
