@@ -100,7 +100,10 @@ pub use settings::{
 /// reading black; scenes of under 65,537 primitives with some 2,000 or more copies of one
 /// bounding box are built by the binned builder (its tree may break ties between coincident
 /// primitives differently). Other images unchanged.
-/// 15 (2026-12-07): an `sppm` iteration whose photons leave more than
+/// 15 (2026-12-07): `sppm` bounds the whole path by `max_depth`: a visible point reached
+/// through k mirror or glass bounces gathers only photons of fewer than `max_depth` − k
+/// bounces (it had taken every photon, so images of scenes with mirrors or glass were too
+/// bright at low depths). And an `sppm` iteration whose photons leave more than
 /// [`integrator::sppm::MAP_DEPOSITS`] deposits is gathered from several photon maps, one after
 /// another, instead of one map as large as it takes: such iterations (images of a million
 /// pixels or more, or long photon paths in bright closed rooms) sum their flux in another

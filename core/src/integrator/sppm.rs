@@ -5,7 +5,10 @@
 //! flux τ from the photons within r of its visible point (α = 2/3):
 //! N' = N + αM, r' = r √(N'/(N + M)), τ' = (τ + β Φ) r'²/r². After n iterations of P photons
 //! the pixel is L = τ / (n P π r²) + (direct light and emission seen on the way) / n.
-//! Consistent (the radius shrinks to zero), not unbiased.
+//! Consistent (the radius shrinks to zero), not unbiased. `max_depth` bounds the whole path
+//! as for every other integrator: a visible point reached through k mirror or glass bounces
+//! gathers only photons of fewer than `max_depth` − k bounces (pbrt-v4 bounds the camera and
+//! the photon paths each on its own, so its low-depth images are brighter behind glass).
 //!
 //! Deterministic and cut into tiles freely: a tile task runs every iteration for its pixels,
 //! keeping their (N, r, τ) in memory, so a pixel depends only on itself and on the photon maps.
@@ -47,7 +50,7 @@ const PHOTON_SEED: u32 = 0x9e37_79b9;
 /// ([`chunk_photons`]), so a work item holds at most about 2¹⁶ deposits.
 const PHOTON_CHUNK: u32 = 4096;
 
-/// Deposits one photon map holds (about 36 bytes each): an iteration whose photons leave more
+/// Deposits one photon map holds (40 bytes each): an iteration whose photons leave more
 /// is gathered from several maps, one after the other, each of whole chunks of photons in
 /// photon order (a chunk that alone leaves more is a map of its own). So an iteration's memory
 /// is bounded whatever the image size and path depth (a closed room of white walls at a depth
@@ -108,12 +111,14 @@ pub fn photons_per_iteration(job: &RenderJob) -> u32 {
         .max(1)
 }
 
-/// One photon's deposit: where it landed, the direction it came from, its power.
+/// One photon's deposit: where it landed, the direction it came from, its power, and the
+/// bounces its path took before it (at least 1: direct light is the camera pass's).
 #[derive(Clone, Copy, Debug)]
 struct Photon {
     p: Vec3,
     wi: Vec3,
     beta: Vec3,
+    depth: u32,
 }
 
 /// The photons of one iteration in a hashed uniform grid whose cells are as large as the
@@ -353,6 +358,7 @@ fn trace_photon(
                 p: si.p.into(),
                 wi: wo_w.into(),
                 beta: beta.into(),
+                depth,
             });
         }
         depth += 1;
@@ -390,6 +396,8 @@ struct VisiblePoint {
     frame: Frame,
     bsdf: Bsdf,
     beta: Vec3A,
+    /// The delta bounces (mirrors, glass) the camera ray took to reach it.
+    depth: u32,
 }
 
 /// The camera path of one pixel's iteration: emission seen directly or through delta BSDFs,
@@ -452,6 +460,7 @@ fn camera_pass(
                 frame,
                 bsdf,
                 beta,
+                depth,
             };
             return (l, Some(vp));
         }
@@ -627,7 +636,13 @@ fn gather(
         return;
     };
     g.gathers = true;
+    // A photon of d bounces gathered after the camera's k delta bounces makes a path of
+    // d + 1 + k bounces, which `max_depth` bounds as it bounds every integrator's paths.
+    let max_photon_depth = job.settings.max_depth - vp.depth;
     map.for_each_near(vp.p, st.r, |ph| {
+        if ph.depth >= max_photon_depth {
+            return;
+        }
         let wi = vp.frame.to_local(Vec3A::from(ph.wi));
         let f = vp.bsdf.eval(vp.wo, wi);
         g.phi += Vec3A::from(ph.beta) * f;
@@ -668,6 +683,7 @@ mod tests {
                 p: Vec3::from(c),
                 wi: Vec3::Z,
                 beta: Vec3::ONE,
+                depth: 1,
             });
         }
         let map = PhotonMap::build(photons.clone(), 0.3, 2000, 0..1);
