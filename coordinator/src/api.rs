@@ -905,7 +905,7 @@ fn check_splats(splats: &[(u32, [i64; 3])], splat_pixels: Option<u64>) -> Result
 
 /// Every pixel sum of a result must be one a renderer can have made from a pass of
 /// `samples` samples: finite (a NaN or an infinity would turn the tile black, or spread into
-/// the frame, when it is composed), a weight (the samples kept) from 0 to `samples`, and
+/// the frame, when it is composed), a weight (the samples kept, a whole number) from 0 to `samples`, and
 /// colour sums at most the weight times the largest sample value the film takes (so that
 /// adding passes never overflows). (Splats are integers, always finite.) The error names the
 /// first pixel, in frame coordinates, and the value. The samples dropped as NaN or infinite
@@ -938,6 +938,13 @@ pub(crate) fn check_sums(acc: &proto::tile::TileAccum, samples: u32) -> Result<(
             let (x, y) = at();
             return Err(format!(
                 "pixel ({x}, {y}) has a weight of {weight}: the pass has {samples} samples"
+            ));
+        }
+        // Every sample kept weighs 1 (the filter is importance-sampled).
+        if weight.fract() != 0.0 {
+            let (x, y) = at();
+            return Err(format!(
+                "pixel ({x}, {y}) has a weight of {weight}: a weight counts samples, a whole number"
             ));
         }
         if let Some(k) = (0..3).find(|&k| f64::from(p[k].abs()) > f64::from(weight) * limit) {
@@ -975,6 +982,7 @@ async fn upload_result(
     headers: HeaderMap,
     body: Body,
 ) -> Result<Json<proto::ResultReply>, AppError> {
+    let lease = q.lease.as_deref().unwrap_or("");
     let found = {
         let s = state.sched();
         s.task_for_upload(&job, task).map(|(tile, pass)| {
@@ -985,10 +993,11 @@ async fn upload_result(
                 s.pass_samples(&job, pass),
                 s.splat_pixels(&job),
                 settled,
+                s.lease_is_for(lease, &job, task),
             )
         })
     };
-    let (tile, task_pass, pass_samples, splat_pixels, settled) = match found {
+    let (tile, task_pass, pass_samples, splat_pixels, settled, leased) = match found {
         Ok(found) => found,
         Err(e) => {
             // No such job (purged) or task: the body is read and dropped first, so that the
@@ -998,6 +1007,24 @@ async fn upload_result(
             return Err(e.into());
         }
     };
+    // Only a worker that was given a lease of this task may send its result (a late one
+    // too: results are deterministic). Lease ids cannot be guessed, so a token holder cannot
+    // slip a tile of its own into someone's frame, nor fill a task nobody leased.
+    if !leased {
+        let _ = drain(body, state.cfg.limits.max_result_bytes).await;
+        return Err(AppError::invalid(
+            "lease",
+            format!(
+                "{}: send the lease_id of the lease task {task} of job {job} was rendered \
+                 under",
+                if lease.is_empty() {
+                    "no lease named"
+                } else {
+                    "not a lease this coordinator gave for this task"
+                }
+            ),
+        ));
+    }
     let expected = proto::tile::encoded_len(&tile);
     // A bdpt result carries at most one splat per pixel of the frame after its pixels.
     let room = splat_pixels.map_or(0, |n| n * proto::tile::SPLAT_LEN as u64);

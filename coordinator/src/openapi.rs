@@ -270,11 +270,11 @@ pub fn document() -> Value {
             "/v1/jobs/{id}/tasks/{task}/result": {"put": with_body(binary_body(), op("Upload a tile result (workers): binary, see docs/farm.md",
                 json!([job_id, {"name": "task", "in": "path", "required": true, "description": "Task index", "schema": {"type": "integer", "minimum": 0, "maximum": u32::MAX}},
                     {"name": "worker", "in": "query", "schema": {"type": "string"}},
-                    {"name": "lease", "in": "query", "description": "The lease the result was rendered under", "schema": {"type": "string"}}]),
+                    {"name": "lease", "in": "query", "description": "The lease the result was rendered under (required: a result naming no lease of this task is refused)", "schema": {"type": "string"}}]),
                 Inputs { params: true, writes: true, ..none },
                 json!({"200": ok_json("Accepted, or ignored as duplicate/late (duplicate: true) or for a finished job (job_finished: true)", "ResultReply"),
                     "404": err("Unknown job or task"), "413": err("Larger than the tile with its splats, or than --max-result-bytes"),
-                    "503": err("The coordinator could not write its database, or every slot for large results (1 MiB or more) stayed busy (code busy): nothing changed, retry after Retry-After seconds"), "422": err("Malformed result, wrong tile/pass, or a pixel sum that is NaN, infinite or out of what the pass can make, or more dropped samples than the tile's pixels times the pass's samples (then the task is queued again, counting a failure of the worker holding its lease when the upload names that lease)")})))},
+                    "503": err("The coordinator could not write its database, or every slot for large results (1 MiB or more) stayed busy (code busy): nothing changed, retry after Retry-After seconds"), "422": err("No lease, or one this coordinator did not give for this task (field lease), a malformed result, wrong tile/pass, or a pixel sum that is NaN, infinite or out of what the pass can make, or more dropped samples than the tile's pixels times the pass's samples (then the task is queued again, counting a failure of the worker holding its lease when the upload names that lease)")})))},
             "/v1/workers": {
                 "post": with_body(json_body("RegisterRequest"), op("Register a worker", json!([]), Inputs { json: true, writes: true, ..none },
                     json!({"200": ok_json("Registered", "Registered"), "409": err("Another renderer version: run one release on the whole farm")}))),

@@ -543,6 +543,31 @@ impl Store {
         Ok(epoch)
     }
 
+    /// The secret key of lease tags (`sched::ids`): made from the operating system's random
+    /// numbers at the first start, kept in the database so that leases stay valid across
+    /// restarts.
+    pub fn lease_key(&mut self) -> rusqlite::Result<[u8; 32]> {
+        let tx = self.conn.transaction()?;
+        let kept: Option<String> = tx
+            .query_row("SELECT value FROM meta WHERE key = 'lease_key'", [], |r| {
+                r.get(0)
+            })
+            .optional()?;
+        let parse = |text: &str| -> Option<[u8; 32]> { hex::decode(text).ok()?.try_into().ok() };
+        if let Some(key) = kept.as_deref().and_then(parse) {
+            return Ok(key);
+        }
+        let mut key = [0u8; 32];
+        getrandom::fill(&mut key)
+            .map_err(|e| rusqlite::Error::ToSqlConversionFailure(Box::new(e)))?;
+        tx.execute(
+            "INSERT OR REPLACE INTO meta (key, value) VALUES ('lease_key', ?1)",
+            params![hex::encode(key)],
+        )?;
+        tx.commit()?;
+        Ok(key)
+    }
+
     /// A second connection for long reads (image composition) that must not hold the
     /// scheduler's lock.
     pub fn reader(&self) -> rusqlite::Result<Connection> {

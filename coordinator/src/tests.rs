@@ -1264,6 +1264,61 @@ async fn results_with_non_finite_sums_are_refused_and_the_task_is_queued_again()
     assert_eq!(status["state"], "done", "{status}");
 }
 
+/// A result must name a lease the coordinator gave for its task: a token holder cannot fill a
+/// task nobody leased, nor one leased to another worker, nor pass a lease of another task;
+/// the holder of a lease that expired still can (results are deterministic).
+#[tokio::test]
+async fn results_are_taken_only_under_a_lease_of_their_task() {
+    let dir = tempfile::tempdir().unwrap();
+    let st = test_state(dir.path(), None);
+    let (_, job) = empty_scene_job(
+        &st,
+        r#""width": 4, "height": 2, "spp": 2, "passes": 2, "tile_size": 16"#,
+    )
+    .await;
+    let job = job["id"].as_str().unwrap().to_string();
+    let (_, w) = register_worker(&st).await;
+    let worker = w["worker_id"].as_str().unwrap().to_string();
+    let upload = |task: u64, lease: &str| {
+        Request::put(format!(
+            "/v1/jobs/{job}/tasks/{task}/result?worker=w-spoofed&lease={lease}"
+        ))
+        .body(Body::from(result_4x2(vec![[0.5, 0.5, 0.5, 1.0]; 8], 0)))
+        .unwrap()
+    };
+    let (code, lease) = call(&st, post(&format!("/v1/workers/{worker}/lease"), "")).await;
+    assert_eq!(code, StatusCode::OK, "{lease}");
+    let (task, lease_id) = (
+        lease["task"].as_u64().unwrap(),
+        lease["lease_id"].as_str().unwrap().to_string(),
+    );
+    let other = 1 - task;
+    // The other task (never leased): no lease, the lease of this task, a made-up one.
+    let forged = lease_id.replace(&lease_id[lease_id.len() - 4..], "0000");
+    for (t, l) in [
+        (other, ""),
+        (other, lease_id.as_str()),
+        (task, forged.as_str()),
+    ] {
+        let (code, body) = call(&st, upload(t, l)).await;
+        assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{t} {l}: {body}");
+        assert_eq!(body["error"]["field"], "lease", "{body}");
+        let (_, status) = call(&st, get(&format!("/v1/jobs/{job}"))).await;
+        assert_eq!(status["tasks_done"], 0, "{status}");
+    }
+    // Lease ids cannot be guessed from the ids a worker sees.
+    assert!(lease_id.len() > 32, "{lease_id}");
+    // Released, the lease still names its task: a late result under it is taken.
+    let (code, _) = call(&st, post(&format!("/v1/leases/{lease_id}/release"), "")).await;
+    assert!(code.is_success(), "{code}");
+    let (code, body) = call(&st, upload(task, &lease_id)).await;
+    assert_eq!(
+        (code, &body["accepted"]),
+        (StatusCode::OK, &true.into()),
+        "{body}"
+    );
+}
+
 /// A result's count of samples dropped as NaN or infinite counts into the frame's samples per
 /// pixel (a `bdpt` frame's splats are divided by it): a count above the tile's pixels times the
 /// pass's samples is refused like a bad pixel sum, counting a failure of the lease holder, so a
@@ -1382,6 +1437,10 @@ fn result_sums_are_held_to_what_a_pass_can_make() {
         ([0.0, 0.0, 0.0, f32::INFINITY], "weight of inf"),
         ([0.0, 0.0, 0.0, 5.0], "weight of 5: the pass has 4 samples"),
         ([0.0, 0.0, 0.0, -1.0], "weight of -1"),
+        (
+            [100.0, 0.0, 0.0, 0.25],
+            "weight of 0.25: a weight counts samples",
+        ),
         ([0.0, max * 3.0, 0.0, 2.0], "colour sum"),
         ([1.0, 0.0, 0.0, 0.0], "colour sum of 1 over 0 samples"),
     ];

@@ -269,6 +269,7 @@ impl Sched {
         grace: Duration,
     ) -> Result<Sched, SchedError> {
         let epoch = store.next_epoch(now.wall_ms)?;
+        let lease_key = store.lease_key()?;
         let mut s = Sched {
             workers: Workers::new(now.wall_ms, cfg.lease_timeout),
             cfg,
@@ -276,7 +277,7 @@ impl Sched {
             jobs: HashMap::new(),
             leases: HashMap::new(),
             next_seq: 1,
-            ids: Ids::new(epoch),
+            ids: Ids::new(epoch, lease_key),
             counters: Counters::default(),
             throughput: Throughput::default(),
             rates: HashMap::new(),
@@ -461,7 +462,7 @@ impl Sched {
             else {
                 continue;
             };
-            let lease = self.ids.next("l-");
+            let lease = self.ids.lease(&id, idx as u32);
             let ev = TaskEvent::Lease {
                 worker: worker.into(),
                 lease: lease.clone(),
@@ -578,6 +579,12 @@ impl Sched {
     /// Counts a result that came for a task already settled ([`Sched::settled`]).
     pub fn count_duplicate(&mut self) {
         self.counters.duplicates += 1;
+    }
+
+    /// Whether `lease` is an id this coordinator gave, at this start or an earlier one, for
+    /// task `idx` of `job` (out now, or expired, released or finished since).
+    pub fn lease_is_for(&self, lease: &str, job: &str, idx: u32) -> bool {
+        self.ids.lease_is_for(lease, job, idx)
     }
 
     /// The id of the lease out on task `idx` of `job`, if one is.
