@@ -161,7 +161,7 @@ async fn cluster(a: ClusterArgs, output: PathBuf) -> anyhow::Result<()> {
                 r = submit::submit_and_follow(&api, scene, &a.job, true, Some(output.as_path())) => {
                     r.map(|_| ())
                 }
-                _ = shutdown_signal() => {
+                _ = raytile_proto::shutdown_signal() => {
                     Err(anyhow::anyhow!("stopped by a signal before the render was done"))
                 }
             },
@@ -169,7 +169,7 @@ async fn cluster(a: ClusterArgs, output: PathBuf) -> anyhow::Result<()> {
                 eprintln!(
                     "raytile cluster: coordinator on {base} with {n} workers; Ctrl-C to stop"
                 );
-                shutdown_signal().await;
+                raytile_proto::shutdown_signal().await;
                 Ok(())
             }
         }
@@ -189,23 +189,6 @@ async fn cluster(a: ClusterArgs, output: PathBuf) -> anyhow::Result<()> {
         let _ = coord.await;
     }
     result
-}
-
-/// Waits for Ctrl-C or SIGTERM (what `docker stop` and service managers send), so that the
-/// cluster stops its workers and removes its temporary folder either way.
-async fn shutdown_signal() {
-    #[cfg(unix)]
-    {
-        use tokio::signal::unix::{signal, SignalKind};
-        if let Ok(mut term) = signal(SignalKind::terminate()) {
-            tokio::select! {
-                _ = tokio::signal::ctrl_c() => {}
-                _ = term.recv() => {}
-            }
-            return;
-        }
-    }
-    tokio::signal::ctrl_c().await.ok();
 }
 
 /// The error of a coordinator task that ended before it was asked to stop.

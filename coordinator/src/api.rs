@@ -563,7 +563,7 @@ async fn job_image(
             format!("unknown image format '{name}' (expected png, exr or hdr)"),
         )
     })?;
-    let ext = compose::extension(format);
+    let ext = format.name();
     let version = state.sched().results_version(&id);
     let etag = images::entity_tag(&version.ok_or_else(|| no_job(&id))?, ext);
     if images::not_modified(&headers, &etag) {

@@ -18,15 +18,6 @@ pub fn content_type(format: ImageFormat) -> &'static str {
     }
 }
 
-/// The file extension of `format`, as the image route's `format` names it.
-pub fn extension(format: ImageFormat) -> &'static str {
-    match format {
-        ImageFormat::Png => "png",
-        ImageFormat::Exr => "exr",
-        ImageFormat::Hdr => "hdr",
-    }
-}
-
 /// Builds the frame from `(task index, decoded result)` pairs given in any order.
 pub fn compose(layout: &TaskLayout, results: Vec<(u32, TileAccum)>) -> Film {
     let mut by_task: Vec<Option<TileAccum>> = (0..layout.task_count()).map(|_| None).collect();
