@@ -32,7 +32,7 @@ have_qemu() {
   if command -v qemu-x86_64 > /dev/null; then
     return 0
   fi
-  if [ "${CI:-}" = true ]; then
+  if [ "${CI:-}" = true ] || [ "${CI:-}" = 1 ]; then
     echo "check-cpu-builds: qemu-x86_64 is missing (apt-get install qemu-user)" >&2
     exit 1
   fi

@@ -35,11 +35,25 @@ def summary(path: Path) -> str:
     return first or "(no module documentation)"
 
 
+def rust_files() -> list:
+    """The Rust files git tracks; without git (or where git refuses the checkout), every .rs
+    file outside build output and virtual environments."""
+    try:
+        out = subprocess.run(
+            ["git", "ls-files", "-z", "*.rs"], cwd=ROOT, capture_output=True, check=True
+        ).stdout
+        return sorted(f for f in out.decode("utf-8").split("\0") if f)
+    except (OSError, subprocess.CalledProcessError):
+        skip = {"target", ".git", ".venv", "node_modules"}
+        return sorted(
+            str(p.relative_to(ROOT))
+            for p in ROOT.rglob("*.rs")
+            if not skip.intersection(p.relative_to(ROOT).parts)
+        )
+
+
 def index() -> str:
-    files = subprocess.run(
-        ["git", "ls-files", "*.rs"], cwd=ROOT, capture_output=True, text=True, check=True
-    ).stdout.split()
-    return "\n".join(f"- `{f}`: {summary(ROOT / f)}" for f in files)
+    return "\n".join(f"- `{f}`: {summary(ROOT / f)}" for f in rust_files())
 
 
 def main() -> int:

@@ -203,7 +203,7 @@ fn names_this_machine(host: &str) -> bool {
         || name.ends_with(".localhost")
 }
 
-fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
+pub(crate) fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 
@@ -1007,11 +1007,22 @@ async fn upload_result(
             return Err(e.into());
         }
     };
+    let expected = proto::tile::encoded_len(&tile);
+    // A bdpt result carries at most one splat per pixel of the frame after its pixels.
+    let room = splat_pixels.map_or(0, |n| n * proto::tile::SPLAT_LEN as u64);
+    let limit = (expected as u64 + room).min(state.cfg.limits.max_result_bytes);
+    let declared: Option<u64> = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse().ok());
+    if declared.is_some_and(|n| n > limit) {
+        return Err(AppError::TooLarge(limit));
+    }
     // Only a worker that was given a lease of this task may send its result (a late one
     // too: results are deterministic). Lease ids cannot be guessed, so a token holder cannot
     // slip a tile of its own into someone's frame, nor fill a task nobody leased.
     if !leased {
-        let _ = drain(body, state.cfg.limits.max_result_bytes).await;
+        let _ = drain(body, limit).await;
         return Err(AppError::invalid(
             "lease",
             format!(
@@ -1024,17 +1035,6 @@ async fn upload_result(
                 }
             ),
         ));
-    }
-    let expected = proto::tile::encoded_len(&tile);
-    // A bdpt result carries at most one splat per pixel of the frame after its pixels.
-    let room = splat_pixels.map_or(0, |n| n * proto::tile::SPLAT_LEN as u64);
-    let limit = (expected as u64 + room).min(state.cfg.limits.max_result_bytes);
-    let declared: Option<u64> = headers
-        .get(header::CONTENT_LENGTH)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.parse().ok());
-    if declared.is_some_and(|n| n > limit) {
-        return Err(AppError::TooLarge(limit));
     }
     // A large result is held whole and decoded before it is stored: a bounded number at once,
     // the others wait here holding nothing.

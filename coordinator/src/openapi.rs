@@ -270,7 +270,7 @@ pub fn document() -> Value {
             "/v1/jobs/{id}/tasks/{task}/result": {"put": with_body(binary_body(), op("Upload a tile result (workers): binary, see docs/farm.md",
                 json!([job_id, {"name": "task", "in": "path", "required": true, "description": "Task index", "schema": {"type": "integer", "minimum": 0, "maximum": u32::MAX}},
                     {"name": "worker", "in": "query", "schema": {"type": "string"}},
-                    {"name": "lease", "in": "query", "description": "The lease the result was rendered under (required: a result naming no lease of this task is refused)", "schema": {"type": "string"}}]),
+                    {"name": "lease", "in": "query", "required": true, "description": "The lease the result was rendered under: a result naming no lease of this task is refused (422, field lease)", "schema": {"type": "string"}}]),
                 Inputs { params: true, writes: true, ..none },
                 json!({"200": ok_json("Accepted, or ignored as duplicate/late (duplicate: true) or for a finished job (job_finished: true)", "ResultReply"),
                     "404": err("Unknown job or task"), "413": err("Larger than the tile with its splats, or than --max-result-bytes"),

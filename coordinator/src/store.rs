@@ -548,14 +548,22 @@ impl Store {
     /// restarts.
     pub fn lease_key(&mut self) -> rusqlite::Result<[u8; 32]> {
         let tx = self.conn.transaction()?;
-        let kept: Option<String> = tx
+        // Read as whatever SQLite holds (the column is not typed): a key that is not 64 hex
+        // digits is replaced, with a warning, rather than keep the coordinator from starting.
+        let kept: Option<Option<String>> = tx
             .query_row("SELECT value FROM meta WHERE key = 'lease_key'", [], |r| {
-                r.get(0)
+                Ok(r.get_ref(0)?.as_str().ok().map(str::to_owned))
             })
             .optional()?;
         let parse = |text: &str| -> Option<[u8; 32]> { hex::decode(text).ok()?.try_into().ok() };
-        if let Some(key) = kept.as_deref().and_then(parse) {
+        if let Some(key) = kept.as_ref().and_then(|k| k.as_deref()).and_then(parse) {
             return Ok(key);
+        }
+        if kept.is_some() {
+            tracing::warn!(
+                "the database's lease key is not 64 hex digits: a new one replaces it, and leases \
+                 out now are refused when their results come (their tasks are rendered again)"
+            );
         }
         let mut key = [0u8; 32];
         getrandom::fill(&mut key)
@@ -1241,6 +1249,34 @@ mod tests {
         let mut store = Store::open(dir.path()).unwrap();
         assert_eq!(store.next_epoch(5).unwrap(), 1002);
         assert_eq!(store.next_epoch(9000).unwrap(), 9000);
+    }
+
+    #[test]
+    fn the_lease_key_is_made_once_and_kept_and_a_broken_one_is_replaced() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut store = Store::open(dir.path()).unwrap();
+        let key = store.lease_key().unwrap();
+        assert_ne!(key, [0; 32]);
+        assert_eq!(store.lease_key().unwrap(), key);
+        drop(store);
+        let mut store = Store::open(dir.path()).unwrap();
+        assert_eq!(store.lease_key().unwrap(), key, "kept across a restart");
+        // Not 64 hex digits, or not text at all: replaced, the coordinator still starts.
+        for broken in [
+            rusqlite::types::Value::Text("zz".into()),
+            rusqlite::types::Value::Blob(vec![1, 2, 3]),
+        ] {
+            store
+                .conn
+                .execute(
+                    "UPDATE meta SET value = ?1 WHERE key = 'lease_key'",
+                    params![broken],
+                )
+                .unwrap();
+            let new = store.lease_key().unwrap();
+            assert_ne!(new, key);
+            assert_eq!(store.lease_key().unwrap(), new);
+        }
     }
 
     fn job_row(id: &str, seq: u64, state: JobState) -> JobRow {

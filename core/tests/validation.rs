@@ -783,7 +783,7 @@ fn errors_inside_a_typed_value_name_its_field_and_line() {
 }
 
 #[test]
-fn objects_and_cameras_past_2_to_the_40_units_are_refused_by_name() {
+fn objects_past_2_to_the_40_units_are_refused_by_name() {
     let scene = |objects: &str, camera: &str| {
         format!(
             r#"{{"materials": {{"w": {{"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}}}},
@@ -810,7 +810,7 @@ fn objects_and_cameras_past_2_to_the_40_units_are_refused_by_name() {
                 "transform": {"translate": [0, 1.05e12, 0]}}"#,
             "'far'",
         ),
-        // A unit mesh scaled past it, used twice (instanced).
+        // A unit mesh scaled past it.
         (
             r#"{"name": "a", "shape": {"type": "mesh", "positions": [[0, 0, 0], [1, 0, 0], [0, 1, 0]],
                 "indices": [[0, 1, 2]]}, "material": "w", "transform": {"scale": 2e12}}"#,
@@ -820,10 +820,20 @@ fn objects_and_cameras_past_2_to_the_40_units_are_refused_by_name() {
         let e = build(&scene(objects, near)).unwrap_err().to_string();
         assert!(e.contains(name) && e.contains("2^40"), "{e}");
     }
-    // A camera past it.
-    let ball = r#"{"shape": {"type": "sphere"}, "material": "w"}"#;
-    let e = build(&scene(ball, "[0, 0, 2e12]")).unwrap_err().to_string();
-    assert!(e.contains("camera") && e.contains("2^40"), "{e}");
+    // Refused when the file is loaded too, before any build (as a coordinator loads it).
+    let path = std::env::temp_dir().join(format!("raytile-far-{}.json", std::process::id()));
+    std::fs::write(
+        &path,
+        scene(
+            r#"{"name": "far", "shape": {"type": "sphere", "radius": 1e11}, "material": "w",
+                "transform": {"translate": [0, 1.05e12, 0]}}"#,
+            near,
+        ),
+    )
+    .unwrap();
+    let e = raytile_core::load_scene(&path).unwrap_err().to_string();
+    let _ = std::fs::remove_file(&path);
+    assert!(e.contains("'far'") && e.contains("2^40"), "{e}");
     // Within it: accepted, and a triangle of 10^11 units at the limit's edge is seen. A plane
     // (unbounded) and a position no triangle uses do not count.
     let ok = scene(

@@ -47,9 +47,14 @@ impl Ids {
     /// Whether `lease` is an id [`Ids::lease`] made for task `task` of job `job` (under this
     /// key: at this start or an earlier one).
     pub fn lease_is_for(&self, lease: &str, job: &str, task: u32) -> bool {
-        lease
-            .rsplit_once('-')
-            .is_some_and(|(base, tag)| base.starts_with("l-") && self.tag(job, task, base) == tag)
+        // Compared in constant time: the sender chooses both the id and the tag.
+        lease.rsplit_once('-').is_some_and(|(base, tag)| {
+            base.starts_with("l-")
+                && crate::api::constant_time_eq(
+                    self.tag(job, task, base).as_bytes(),
+                    tag.as_bytes(),
+                )
+        })
     }
 
     /// 128 bits of SHA-256(key ‖ SHA-256(key ‖ job ‖ task ‖ base)), in hex: the nested hash

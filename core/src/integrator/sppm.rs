@@ -278,14 +278,16 @@ pub fn photon_map(
 /// Traces the photons of iteration `it` from chunk `start` on, in parallel batches, and gathers
 /// their deposits in photon order, up to the last whole chunk that keeps them within `cap`
 /// (at least one chunk). A batch's chunks past that are dropped: the next map traces them
-/// again.
+/// again. Which chunks a map takes depends on their deposits alone, never on the batch.
 fn trace_photons(scene: &Scene, job: &RenderJob, it: u32, start: u32, cap: usize) -> PhotonMap {
     let n = photons_per_iteration(job);
     let per = chunk_photons(job);
     let chunks = n.div_ceil(per);
+    // Two chunks per thread in flight: each leaves at most about 2¹⁶ deposits (2.6 MB), so a
+    // batch adds some 5 MB per thread to the map, and a map's end wastes less than a batch.
     let batch = (rayon::current_num_threads() as u32)
-        .saturating_mul(8)
-        .max(8);
+        .saturating_mul(2)
+        .max(2);
     let sphere = scene_sphere(scene);
     let mut photons: Vec<Photon> = Vec::new();
     let mut end = start;
@@ -718,14 +720,17 @@ mod tests {
         (scene, job)
     }
 
-    /// Every photon of the maps (position, direction, power bits), sorted.
-    fn photon_bits(maps: &[Arc<PhotonMap>]) -> Vec<[u32; 9]> {
-        let mut all: Vec<[u32; 9]> = maps
+    /// Every photon of the maps (position, direction, power bits, depth), sorted.
+    fn photon_bits(maps: &[Arc<PhotonMap>]) -> Vec<[u32; 10]> {
+        let mut all: Vec<[u32; 10]> = maps
             .iter()
             .flat_map(|m| m.photons.iter())
             .map(|ph| {
                 let v = [ph.p, ph.wi, ph.beta];
-                std::array::from_fn(|i| v[i / 3][i % 3].to_bits())
+                std::array::from_fn(|i| match i {
+                    0..9 => v[i / 3][i % 3].to_bits(),
+                    _ => ph.depth,
+                })
             })
             .collect();
         all.sort_unstable();

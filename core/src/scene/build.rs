@@ -517,9 +517,8 @@ fn tri_shading(o: &Object, m: &Mesh, tri: u32) -> Vec4 {
 /// unbounded and exempt.
 pub const MAX_COORDINATE: f32 = (1u64 << 40) as f32;
 
-/// Refuses a scene with a finite object that reaches past [`MAX_COORDINATE`], or a camera
-/// placed past it, naming it: such an object would not be seen (or only in part) rather than
-/// fail. A mesh's reach is that of
+/// Refuses a scene with a finite object that reaches past [`MAX_COORDINATE`], naming it:
+/// such an object would not be seen (or only in part) rather than fail. A mesh's reach is that of
 /// the finite positions its triangles use; a shape or transform that is not valid passes,
 /// for the build to refuse with its own message.
 pub fn check_extent(desc: &SceneDesc) -> Result<(), SceneError> {
@@ -548,8 +547,8 @@ pub fn check_extent(desc: &SceneDesc) -> Result<(), SceneError> {
                 None => continue,
             },
         };
-        if !b.valid() {
-            continue; // a mesh without triangles
+        if !b.valid() || !o.transform.is_finite() {
+            continue; // a mesh without triangles; a transform the build refuses
         }
         let w = transform_aabb(&Affine3A::from_mat4(o.transform), &b);
         let reach = w.min.abs().max(w.max.abs()).max_element();
@@ -560,17 +559,6 @@ pub fn check_extent(desc: &SceneDesc) -> Result<(), SceneError> {
                  32-bit ray tests overflow and the object would not be seen; scale the scene \
                  down or move it nearer the origin",
                 o.name
-            )));
-        }
-    }
-    for c in &desc.cameras {
-        let reach = c.transform.w_axis.truncate().abs().max_element();
-        if reach > MAX_COORDINATE {
-            return Err(invalid(format!(
-                "camera '{}' is {reach:.3e} units from the origin: raytile renders from within \
-                 {MAX_COORDINATE:.3e} (2^40) units of it, beyond which its 32-bit ray tests \
-                 overflow; scale the scene down or move it nearer the origin",
-                c.name
             )));
         }
     }
