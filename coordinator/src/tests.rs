@@ -95,6 +95,18 @@ async fn register_worker(st: &AppState) -> (StatusCode, serde_json::Value) {
     call(st, post("/v1/workers", reg)).await
 }
 
+/// A job of an empty scene with the JSON members `fields` and a newly registered worker:
+/// their ids.
+async fn job_and_worker(st: &AppState, fields: &str) -> (String, String) {
+    let (code, job) = empty_scene_job(st, fields).await;
+    assert_eq!(code, StatusCode::CREATED, "{job}");
+    let (_, w) = register_worker(st).await;
+    (
+        job["id"].as_str().unwrap().to_string(),
+        w["worker_id"].as_str().unwrap().to_string(),
+    )
+}
+
 #[tokio::test]
 async fn every_route_is_documented_and_routed() {
     let dir = tempfile::tempdir().unwrap();
@@ -1193,12 +1205,8 @@ async fn a_bad_entry_is_refused_naming_entry() {
 async fn results_with_non_finite_sums_are_refused_and_the_task_is_queued_again() {
     let dir = tempfile::tempdir().unwrap();
     let st = test_state(dir.path(), None);
-    let (code, job) =
-        empty_scene_job(&st, r#""width": 4, "height": 2, "spp": 1, "tile_size": 16"#).await;
-    assert_eq!(code, StatusCode::CREATED, "{job}");
-    let job = job["id"].as_str().unwrap().to_string();
-    let (_, w) = register_worker(&st).await;
-    let worker = w["worker_id"].as_str().unwrap().to_string();
+    let (job, worker) =
+        job_and_worker(&st, r#""width": 4, "height": 2, "spp": 1, "tile_size": 16"#).await;
     let lease_uri = format!("/v1/workers/{worker}/lease");
     let upload = |task: u64, worker: &str, lease: &str, pixels: Vec<[f32; 4]>| {
         Request::put(format!(
@@ -1271,14 +1279,11 @@ async fn results_with_non_finite_sums_are_refused_and_the_task_is_queued_again()
 async fn results_are_taken_only_under_a_lease_of_their_task() {
     let dir = tempfile::tempdir().unwrap();
     let st = test_state(dir.path(), None);
-    let (_, job) = empty_scene_job(
+    let (job, worker) = job_and_worker(
         &st,
         r#""width": 4, "height": 2, "spp": 2, "passes": 2, "tile_size": 16"#,
     )
     .await;
-    let job = job["id"].as_str().unwrap().to_string();
-    let (_, w) = register_worker(&st).await;
-    let worker = w["worker_id"].as_str().unwrap().to_string();
     let upload = |task: u64, lease: &str| {
         Request::put(format!(
             "/v1/jobs/{job}/tasks/{task}/result?worker=w-spoofed&lease={lease}"
@@ -1328,14 +1333,11 @@ async fn results_are_taken_only_under_a_lease_of_their_task() {
 async fn results_claiming_more_dropped_samples_than_the_pass_has_are_refused() {
     let dir = tempfile::tempdir().unwrap();
     let st = test_state(dir.path(), None);
-    let (_, job) = empty_scene_job(
+    let (job, worker) = job_and_worker(
         &st,
         r#""width": 4, "height": 2, "spp": 3, "passes": 1, "tile_size": 16"#,
     )
     .await;
-    let job = job["id"].as_str().unwrap().to_string();
-    let (_, w) = register_worker(&st).await;
-    let worker = w["worker_id"].as_str().unwrap().to_string();
     let lease_uri = format!("/v1/workers/{worker}/lease");
     let upload = |bad_samples: u64, lease: &str| {
         Request::put(format!(
@@ -1724,11 +1726,8 @@ fn a_restart_clears_unfinished_uploads() {
 async fn a_result_for_a_settled_task_is_dropped_unread() {
     let dir = tempfile::tempdir().unwrap();
     let st = test_state(dir.path(), None);
-    let (_, job) =
-        empty_scene_job(&st, r#""width": 4, "height": 2, "spp": 1, "tile_size": 16"#).await;
-    let job = job["id"].as_str().unwrap().to_string();
-    let (_, w) = register_worker(&st).await;
-    let worker = w["worker_id"].as_str().unwrap().to_string();
+    let (job, worker) =
+        job_and_worker(&st, r#""width": 4, "height": 2, "spp": 1, "tile_size": 16"#).await;
     let (code, lease) = call(&st, post(&format!("/v1/workers/{worker}/lease"), "")).await;
     assert_eq!(code, StatusCode::OK, "{lease}");
     let lease = lease["lease_id"].as_str().unwrap().to_string();
@@ -2204,10 +2203,7 @@ async fn large_results_wait_for_a_slot_and_are_answered_busy_after_the_wait() {
     // A 4×2 result is 160-odd bytes: "large" here.
     c.result_file_bytes = 100;
     let st = AppState::open(c).unwrap();
-    let (_, job) = empty_scene_job(&st, r#""width": 4, "height": 2, "spp": 1"#).await;
-    let job = job["id"].as_str().unwrap().to_string();
-    let (_, w) = register_worker(&st).await;
-    let worker = w["worker_id"].as_str().unwrap().to_string();
+    let (job, worker) = job_and_worker(&st, r#""width": 4, "height": 2, "spp": 1"#).await;
     let lease = || async {
         let (code, l) = call(&st, post(&format!("/v1/workers/{worker}/lease"), "")).await;
         assert_eq!(code, StatusCode::OK, "{l}");
