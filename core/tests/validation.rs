@@ -810,6 +810,12 @@ fn objects_past_2_to_the_40_units_are_refused_by_name() {
                 "transform": {"translate": [0, 1.05e12, 0]}}"#,
             "'far'",
         ),
+        // A polygon placed past it.
+        (
+            r#"{"name": "sign", "shape": {"type": "polygon",
+                "vertices": [[0, 2e12, 0], [1, 2e12, 0], [0, 2e12, 1]]}, "material": "w"}"#,
+            "'sign'",
+        ),
         // A unit mesh scaled past it.
         (
             r#"{"name": "a", "shape": {"type": "mesh", "positions": [[0, 0, 0], [1, 0, 0], [0, 1, 0]],

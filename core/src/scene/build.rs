@@ -542,6 +542,16 @@ pub fn check_extent(desc: &SceneDesc) -> Result<(), SceneError> {
                         .reduce(Aabb::empty, |a, b| a.union(&b))
                 })
             }
+            // A polygon's bounds are its vertices' (its build would ear-clip it once more).
+            ShapeDesc::Polygon { vertices } => {
+                vertices
+                    .iter()
+                    .filter(|p| p.is_finite())
+                    .fold(Aabb::empty(), |mut b, &p| {
+                        b.extend(p.into());
+                        b
+                    })
+            }
             shape => match build_analytic(shape).ok().and_then(|a| a.bounds()) {
                 Some(b) => b,
                 None => continue,
