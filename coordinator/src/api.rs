@@ -983,6 +983,7 @@ async fn upload_result(
     body: Body,
 ) -> Result<Json<proto::ResultReply>, AppError> {
     let lease = q.lease.as_deref().unwrap_or("");
+    let worker = q.worker.as_deref().unwrap_or("");
     let found = {
         let s = state.sched();
         s.task_for_upload(&job, task).map(|(tile, pass)| {
@@ -993,7 +994,7 @@ async fn upload_result(
                 s.pass_samples(&job, pass),
                 s.splat_pixels(&job),
                 settled,
-                s.lease_is_for(lease, &job, task),
+                s.lease_is_for(lease, &job, task, worker),
             )
         })
     };
@@ -1019,19 +1020,23 @@ async fn upload_result(
         return Err(AppError::TooLarge(limit));
     }
     // Only a worker that was given a lease of this task may send its result (a late one
-    // too: results are deterministic). Lease ids cannot be guessed, so a token holder cannot
-    // slip a tile of its own into someone's frame, nor fill a task nobody leased.
+    // too: results are deterministic), naming itself: the lease's tag covers the worker's id.
+    // Lease ids cannot be guessed, so a token holder cannot slip a tile of its own into
+    // someone's frame, nor fill a task nobody leased, nor credit a lease's tile to another
+    // worker than the one that leased it.
     if !leased {
         let _ = drain(body, limit).await;
         return Err(AppError::invalid(
             "lease",
             format!(
                 "{}: send the lease_id of the lease task {task} of job {job} was rendered \
-                 under",
+                 under, and the id of the worker it was given to",
                 if lease.is_empty() {
                     "no lease named"
+                } else if worker.is_empty() {
+                    "no worker named"
                 } else {
-                    "not a lease this coordinator gave for this task"
+                    "not a lease this coordinator gave for this task to this worker"
                 }
             ),
         ));
@@ -1070,7 +1075,6 @@ async fn upload_result(
     let (acc, pass) =
         proto::tile::decode(&buf).map_err(|e| AppError::invalid("body", e.to_string()))?;
     check_splats(&acc.splats, splat_pixels)?;
-    let worker = q.worker.unwrap_or_else(|| "unknown".into());
     if let Err(why) = check_sums(&acc, pass_samples) {
         // Refused, so that no frame shows a corrupted tile. When the sender holds the task's
         // lease, the refusal counts as a failure of the task on that worker: the task is
@@ -1125,7 +1129,7 @@ async fn upload_result(
         None
     };
     let delivery = Delivery {
-        worker: &worker,
+        worker,
         tile: result_tile,
         pass,
         bytes: &buf,

@@ -1284,9 +1284,9 @@ async fn results_are_taken_only_under_a_lease_of_their_task() {
         r#""width": 4, "height": 2, "spp": 2, "passes": 2, "tile_size": 16"#,
     )
     .await;
-    let upload = |task: u64, lease: &str| {
+    let upload_as = |task: u64, lease: &str, worker: &str| {
         Request::put(format!(
-            "/v1/jobs/{job}/tasks/{task}/result?worker=w-spoofed&lease={lease}"
+            "/v1/jobs/{job}/tasks/{task}/result?worker={worker}&lease={lease}"
         ))
         .body(Body::from(result_4x2(vec![[0.5, 0.5, 0.5, 1.0]; 8], 0)))
         .unwrap()
@@ -1301,13 +1301,21 @@ async fn results_are_taken_only_under_a_lease_of_their_task() {
     // The other task (never leased): no lease, the lease of this task, a made-up one.
     let last = if lease_id.ends_with('0') { "1" } else { "0" };
     let forged = format!("{}{last}", &lease_id[..lease_id.len() - 1]);
-    for (t, l) in [
-        (other, ""),
-        (other, lease_id.as_str()),
-        (task, forged.as_str()),
+    let upload = |task: u64, lease: &str| upload_as(task, lease, &worker);
+    // And the right lease, under another worker's name or none.
+    for (t, l, w) in [
+        (other, "", worker.as_str()),
+        (other, lease_id.as_str(), worker.as_str()),
+        (task, forged.as_str(), worker.as_str()),
+        (task, lease_id.as_str(), "w-spoofed"),
+        (task, lease_id.as_str(), ""),
     ] {
-        let (code, body) = call(&st, upload(t, l)).await;
-        assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{t} {l}: {body}");
+        let (code, body) = call(&st, upload_as(t, l, w)).await;
+        assert_eq!(
+            code,
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "{t} {l} {w}: {body}"
+        );
         assert_eq!(body["error"]["field"], "lease", "{body}");
         let (_, status) = call(&st, get(&format!("/v1/jobs/{job}"))).await;
         assert_eq!(status["tasks_done"], 0, "{status}");
@@ -1322,6 +1330,14 @@ async fn results_are_taken_only_under_a_lease_of_their_task() {
         (code, &body["accepted"]),
         (StatusCode::OK, &true.into()),
         "{body}"
+    );
+    // The tile counts for the worker that was given the lease.
+    let (_, status) = call(&st, get(&format!("/v1/jobs/{job}"))).await;
+    assert_eq!(status["tasks_done"], 1, "{status}");
+    let shares = status["workers"].to_string();
+    assert!(
+        shares.contains(&worker) && !shares.contains("w-spoofed"),
+        "{status}"
     );
 }
 

@@ -3,10 +3,11 @@
 //! in, like every time the scheduler uses), raised above the previous start's epoch by the
 //! store so that neither a clock set back nor two starts in one millisecond repeat an id.
 //!
-//! A lease id also carries a tag, a keyed SHA-256 of the job, the task and the rest of the id
-//! under the data directory's secret key: nobody can guess a lease id from the ids they see
-//! (to fail or release a task someone else holds), and a result names a lease this
-//! coordinator gave for that very task, checked without remembering every lease ever given.
+//! A lease id also carries a tag, a keyed SHA-256 of the job, the task, the worker it was given
+//! to and the rest of the id under the data directory's secret key: nobody can guess a lease
+//! id from the ids they see (to fail or release a task someone else holds), and a result names
+//! a lease this coordinator gave for that very task and to the worker it says it comes from,
+//! checked without remembering every lease ever given.
 
 use sha2::{Digest, Sha256};
 
@@ -37,39 +38,57 @@ impl Ids {
         }
     }
 
-    /// A new lease id for task `task` of job `job`: `l-EPOCH-N-TAG`.
-    pub fn lease(&mut self, job: &str, task: u32) -> String {
+    /// A new lease id for task `task` of job `job`, given to `worker`: `l-EPOCH-N-TAG`.
+    pub fn lease(&mut self, job: &str, task: u32, worker: &str) -> String {
         let base = self.next("l-");
-        let tag = self.tag(job, task, &base);
+        let tag = self.tag(job, task, worker, &base);
         format!("{base}-{tag}")
     }
 
-    /// Whether `lease` is an id [`Ids::lease`] made for task `task` of job `job` (under this
-    /// key: at this start or an earlier one).
-    pub fn lease_is_for(&self, lease: &str, job: &str, task: u32) -> bool {
+    /// Whether `lease` is an id [`Ids::lease`] made for task `task` of job `job` and given to
+    /// `worker` (under this key: at this start or an earlier one).
+    pub fn lease_is_for(&self, lease: &str, job: &str, task: u32, worker: &str) -> bool {
         // Compared in constant time: the sender chooses both the id and the tag.
         lease.rsplit_once('-').is_some_and(|(base, tag)| {
             base.starts_with("l-")
                 && crate::api::constant_time_eq(
-                    self.tag(job, task, base).as_bytes(),
+                    self.tag(job, task, worker, base).as_bytes(),
                     tag.as_bytes(),
                 )
         })
     }
 
-    /// 128 bits of SHA-256(key ‖ SHA-256(key ‖ job ‖ task ‖ base)), in hex: the nested hash
-    /// leaves no room for a length extension.
-    fn tag(&self, job: &str, task: u32, base: &str) -> String {
+    /// 128 bits of SHA-256(key ‖ SHA-256(key ‖ job ‖ task ‖ worker ‖ base)), in hex (the
+    /// strings of variable length with their lengths): the nested hash leaves no room for a
+    /// length extension.
+    fn tag(&self, job: &str, task: u32, worker: &str, base: &str) -> String {
         let mut inner = Sha256::new();
         inner.update(self.key);
-        inner.update((job.len() as u64).to_le_bytes());
-        inner.update(job.as_bytes());
+        for text in [job, worker] {
+            inner.update((text.len() as u64).to_le_bytes());
+            inner.update(text.as_bytes());
+        }
         inner.update(task.to_le_bytes());
         inner.update(base.as_bytes());
         let mut outer = Sha256::new();
         outer.update(self.key);
         outer.update(inner.finalize());
         hex::encode(&outer.finalize()[..16])
+    }
+
+    /// A new worker id: `w-EPOCH-N-TAG`, TAG 64 bits of a keyed hash of the rest. A worker's id
+    /// is what it leases under and the name its results are credited to, so one worker must
+    /// not be able to work out another's from its own.
+    pub fn worker(&mut self) -> String {
+        let base = self.next("w-");
+        let mut h = Sha256::new();
+        h.update(self.key);
+        h.update(b"worker");
+        h.update(base.as_bytes());
+        let mut outer = Sha256::new();
+        outer.update(self.key);
+        outer.update(h.finalize());
+        format!("{base}-{}", hex::encode(&outer.finalize()[..8]))
     }
 
     /// The epoch: a different one at every start of the coordinator.
@@ -108,21 +127,42 @@ mod tests {
     }
 
     #[test]
-    fn a_lease_id_names_its_task_and_cannot_be_made_without_the_key() {
+    fn worker_ids_cannot_be_worked_out_from_one_another() {
         let mut a = Ids::new(1_000, [7; 32]);
-        let lease = a.lease("job-1-3e8", 5);
+        let (w1, w2) = (a.worker(), a.worker());
+        assert!(
+            w1.starts_with("w-3e8-1-") && w2.starts_with("w-3e8-2-"),
+            "{w1} {w2}"
+        );
+        let tag = |w: &str| w.rsplit('-').next().unwrap().to_string();
+        assert_eq!(tag(&w1).len(), 16);
+        assert_ne!(tag(&w1), tag(&w2));
+        // Another key, another tag for the same place in the sequence.
+        assert_ne!(Ids::new(1_000, [8; 32]).worker(), w1);
+    }
+
+    #[test]
+    fn a_lease_id_names_its_task_and_worker_and_cannot_be_made_without_the_key() {
+        let mut a = Ids::new(1_000, [7; 32]);
+        let (job, w) = ("job-1-3e8", "w-3e8-4");
+        let lease = a.lease(job, 5, w);
         assert!(lease.starts_with("l-3e8-1-"), "{lease}");
-        assert!(a.lease_is_for(&lease, "job-1-3e8", 5));
-        // Another task, another job, another key, an edited id: not a lease of the task.
-        assert!(!a.lease_is_for(&lease, "job-1-3e8", 6));
-        assert!(!a.lease_is_for(&lease, "job-2-3e8", 5));
-        assert!(!Ids::new(1_000, [8; 32]).lease_is_for(&lease, "job-1-3e8", 5));
+        assert!(a.lease_is_for(&lease, job, 5, w));
+        // Another task, job, worker or key, an edited id: not that worker's lease of the task.
+        assert!(!a.lease_is_for(&lease, job, 6, w));
+        assert!(!a.lease_is_for(&lease, "job-2-3e8", 5, w));
+        assert!(!a.lease_is_for(&lease, job, 5, "w-3e8-5"));
+        assert!(!a.lease_is_for(&lease, job, 5, ""));
+        assert!(!Ids::new(1_000, [8; 32]).lease_is_for(&lease, job, 5, w));
         let next = lease.replacen("l-3e8-1-", "l-3e8-2-", 1);
-        assert!(!a.lease_is_for(&next, "job-1-3e8", 5));
+        assert!(!a.lease_is_for(&next, job, 5, w));
         for forged in ["", "l-", "l-3e8-1", "-", "l-3e8-1-"] {
-            assert!(!a.lease_is_for(forged, "job-1-3e8", 5), "{forged}");
+            assert!(!a.lease_is_for(forged, job, 5, w), "{forged}");
         }
+        // The lengths keep the job and the worker apart: no other split of the same bytes.
+        let split = a.lease("job-1", 5, "3e8w");
+        assert!(!a.lease_is_for(&split, "job-13e8", 5, "w"));
         // The same key after a restart still knows it.
-        assert!(Ids::new(1_001, [7; 32]).lease_is_for(&lease, "job-1-3e8", 5));
+        assert!(Ids::new(1_001, [7; 32]).lease_is_for(&lease, job, 5, w));
     }
 }

@@ -399,7 +399,7 @@ impl Sched {
 
     /// Registers a worker at `now` and returns its id.
     pub fn register(&mut self, name: &str, threads: u32, now: Now) -> Result<String, SchedError> {
-        let id = self.ids.next("w-");
+        let id = self.ids.worker();
         // A worker that restarts registers again: its earlier registrations under the same
         // name that are no longer live (and hold no lease) are forgotten, rather than listed
         // for ever.
@@ -462,7 +462,7 @@ impl Sched {
             else {
                 continue;
             };
-            let lease = self.ids.lease(&id, idx as u32);
+            let lease = self.ids.lease(&id, idx as u32, worker);
             let ev = TaskEvent::Lease {
                 worker: worker.into(),
                 lease: lease.clone(),
@@ -582,9 +582,9 @@ impl Sched {
     }
 
     /// Whether `lease` is an id this coordinator gave, at this start or an earlier one, for
-    /// task `idx` of `job` (out now, or expired, released or finished since).
-    pub fn lease_is_for(&self, lease: &str, job: &str, idx: u32) -> bool {
-        self.ids.lease_is_for(lease, job, idx)
+    /// task `idx` of `job` to `worker` (out now, or expired, released or finished since).
+    pub fn lease_is_for(&self, lease: &str, job: &str, idx: u32, worker: &str) -> bool {
+        self.ids.lease_is_for(lease, job, idx, worker)
     }
 
     /// The id of the lease out on task `idx` of `job`, if one is.
