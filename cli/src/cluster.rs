@@ -28,6 +28,10 @@ pub struct ClusterArgs {
     /// Bearer token for the coordinator.
     #[arg(long, env = "RAYTILE_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
+    /// A token for workers apart from --token (the local workers use it; remote workers need
+    /// it, users --token): see `raytile-coordinator --help`.
+    #[arg(long, env = "RAYTILE_WORKER_TOKEN", hide_env_values = true)]
+    pub worker_token: Option<String>,
     /// Allow a non-loopback --listen address without a token (anyone who reaches it may
     /// submit jobs).
     #[arg(long)]
@@ -88,7 +92,8 @@ async fn cluster(a: ClusterArgs, output: PathBuf) -> anyhow::Result<()> {
         .clone()
         .unwrap_or_else(|| tmp.path().join("data"));
     let mut cfg = raytile_coordinator::Config::new(&data_dir);
-    cfg.token = a.token.clone().filter(|t| !t.is_empty());
+    cfg.token = raytile_coordinator::token_setting(a.token.clone());
+    cfg.worker_token = raytile_coordinator::token_setting(a.worker_token.clone());
     cfg.insecure = a.insecure;
     cfg.startup_grace = std::time::Duration::from_secs(5);
     // The job of --render may have any tile size `raytile render` takes (within the limit on
@@ -141,12 +146,14 @@ async fn cluster(a: ClusterArgs, output: PathBuf) -> anyhow::Result<()> {
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let n = a.workers.max(1);
     let mut workers = Vec::new();
+    let local_token = raytile_coordinator::token_setting(a.worker_token.clone())
+        .or_else(|| raytile_coordinator::token_setting(a.token.clone()));
     // One cache of built scenes for every local worker: a scene is built once per process.
     let scene_cache = std::sync::Arc::new(raytile_worker::SceneCache::default());
     for i in 0..n {
         let mut wc = raytile_worker::Config::new(base.clone());
         wc.scene_cache = scene_cache.clone();
-        wc.token = a.token.clone().filter(|t| !t.is_empty());
+        wc.token = local_token.clone();
         wc.threads = (total / n + usize::from(i < total % n)).max(1);
         wc.name = format!("local-{i}");
         wc.cache_dir = tmp.path().join(format!("cache-{i}"));

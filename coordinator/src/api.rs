@@ -9,7 +9,7 @@ use crate::sched::{Delivery, Heartbeat, ResultOutcome, Retried, Sched, TaskLayou
 use crate::store::Staged;
 use crate::AppState;
 use axum::body::{Body, Bytes};
-use axum::extract::{DefaultBodyLimit, Request, State};
+use axum::extract::{DefaultBodyLimit, MatchedPath, Request, State};
 use axum::http::{header, HeaderMap, HeaderValue, Method, StatusCode};
 use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
@@ -28,14 +28,30 @@ use tokio::time::Instant;
 /// and enforce their own limits.)
 pub const JSON_BODY_LIMIT: usize = 1 << 20;
 
-/// The router being built, and every (method, path) it routes.
+/// Who may call a route, when the coordinator has a worker token apart from its token
+/// ([`crate::Config::worker_token`]); with one token, its holder may call every route.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Role {
+    /// Users and their programs: scenes, jobs, images, the farm's state.
+    Client,
+    /// Workers: registering, leasing, heartbeats, failures, releases and results.
+    Worker,
+    /// Either: the API's description, and scene downloads (workers load the scenes they
+    /// lease, users fetch what they uploaded).
+    Either,
+}
+
+/// Every (method, path) the router serves, with who may call it.
+type RouteRoles = Arc<Vec<(Method, &'static str, Role)>>;
+
+/// The router being built, and every (method, path) it routes with who may call it.
 struct Routes {
     router: Router<AppState>,
-    list: Vec<(Method, &'static str)>,
+    list: Vec<(Method, &'static str, Role)>,
 }
 
 impl Routes {
-    fn add<H, T>(mut self, method: Method, path: &'static str, handler: H) -> Routes
+    fn add<H, T>(mut self, method: Method, path: &'static str, role: Role, handler: H) -> Routes
     where
         H: axum::handler::Handler<T, AppState>,
         T: 'static,
@@ -43,46 +59,58 @@ impl Routes {
         let filter = MethodFilter::try_from(method.clone()).expect("a method axum routes");
         let route: MethodRouter<AppState> = on(filter, handler);
         self.router = self.router.route(path, route);
-        self.list.push((method, path));
+        self.list.push((method, path, role));
         self
     }
 }
 
 /// Every route, built once for the router and once for [`routes`].
 fn build() -> Routes {
+    use Role::{Client, Either, Worker};
     let r = Routes {
         router: Router::new(),
         list: Vec::new(),
     };
-    r.add(Method::GET, "/healthz", healthz)
-        .add(Method::GET, "/metrics", metrics)
-        .add(Method::GET, "/v1/openapi.json", openapi)
-        .add(Method::POST, "/v1/scenes", upload_scene)
-        .add(Method::GET, "/v1/scenes/{id}", download_scene)
-        .add(Method::POST, "/v1/jobs", create_job)
-        .add(Method::GET, "/v1/jobs", list_jobs)
-        .add(Method::GET, "/v1/jobs/{id}", get_job)
-        .add(Method::DELETE, "/v1/jobs/{id}", cancel_job)
-        .add(Method::GET, "/v1/jobs/{id}/image", job_image)
-        .add(Method::GET, "/v1/jobs/{id}/tiles", job_tiles)
-        .add(Method::POST, "/v1/jobs/{id}/priority", set_priority)
-        .add(Method::POST, "/v1/jobs/{id}/retry", retry_job)
-        .add(Method::GET, "/v1/events", events)
+    r.add(Method::GET, "/healthz", Either, healthz)
+        .add(Method::GET, "/metrics", Client, metrics)
+        .add(Method::GET, "/v1/openapi.json", Either, openapi)
+        .add(Method::POST, "/v1/scenes", Client, upload_scene)
+        .add(Method::GET, "/v1/scenes/{id}", Either, download_scene)
+        .add(Method::POST, "/v1/jobs", Client, create_job)
+        .add(Method::GET, "/v1/jobs", Client, list_jobs)
+        .add(Method::GET, "/v1/jobs/{id}", Client, get_job)
+        .add(Method::DELETE, "/v1/jobs/{id}", Client, cancel_job)
+        .add(Method::GET, "/v1/jobs/{id}/image", Client, job_image)
+        .add(Method::GET, "/v1/jobs/{id}/tiles", Client, job_tiles)
+        .add(Method::POST, "/v1/jobs/{id}/priority", Client, set_priority)
+        .add(Method::POST, "/v1/jobs/{id}/retry", Client, retry_job)
+        .add(Method::GET, "/v1/events", Client, events)
         .add(
             Method::PUT,
             "/v1/jobs/{id}/tasks/{task}/result",
+            Worker,
             upload_result,
         )
-        .add(Method::POST, "/v1/workers", register)
-        .add(Method::GET, "/v1/workers", list_workers)
-        .add(Method::POST, "/v1/workers/{id}/lease", lease)
-        .add(Method::POST, "/v1/leases/{lease}/heartbeat", heartbeat)
-        .add(Method::POST, "/v1/leases/{lease}/failure", failure)
-        .add(Method::POST, "/v1/leases/{lease}/release", release)
+        .add(Method::POST, "/v1/workers", Worker, register)
+        .add(Method::GET, "/v1/workers", Client, list_workers)
+        .add(Method::POST, "/v1/workers/{id}/lease", Worker, lease)
+        .add(
+            Method::POST,
+            "/v1/leases/{lease}/heartbeat",
+            Worker,
+            heartbeat,
+        )
+        .add(Method::POST, "/v1/leases/{lease}/failure", Worker, failure)
+        .add(Method::POST, "/v1/leases/{lease}/release", Worker, release)
 }
 
 /// Every (method, path) the router serves, as the router was built.
 pub fn routes() -> Vec<(Method, &'static str)> {
+    build().list.into_iter().map(|(m, p, _)| (m, p)).collect()
+}
+
+/// Every (method, path) the router serves, with who may call it.
+pub fn roles() -> Vec<(Method, &'static str, Role)> {
     build().list
 }
 
@@ -90,12 +118,13 @@ pub fn routes() -> Vec<(Method, &'static str)> {
 /// known paths with another method (405) and every extractor's rejection answer the API's
 /// JSON error body.
 pub fn app(state: AppState) -> Router {
-    build()
-        .router
+    let Routes { router, list } = build();
+    let roles = Arc::new(list);
+    router
         .merge(crate::web::router())
         .fallback(|| async { AppError::NotFound("no such endpoint".into()) })
         .method_not_allowed_fallback(|| async { AppError::MethodNotAllowed })
-        .layer(middleware::from_fn_with_state(state.clone(), auth))
+        .layer(middleware::from_fn_with_state((state.clone(), roles), auth))
         .layer(DefaultBodyLimit::max(JSON_BODY_LIMIT))
         .with_state(state)
 }
@@ -105,6 +134,11 @@ pub fn app(state: AppState) -> Router {
 /// that header only: a browser sends cookies along with requests other sites' pages make, and
 /// to other services on the same host, so the pages send the header themselves.
 ///
+/// A coordinator with a worker token ([`crate::Config::worker_token`]) takes it, and only it,
+/// on the workers' routes ([`Role::Worker`]), and takes its token, and only it, on the others
+/// ([`Role::Client`]); either on [`Role::Either`]. A known token on a route of the other role
+/// is answered 403, an unknown one 401.
+///
 /// Two more rules keep other sites' pages out, with or without a token:
 /// - a request that would change something (any method but GET, HEAD and OPTIONS) made by a
 ///   browser for a page of another origin is refused (its `Sec-Fetch-Site` or `Origin`);
@@ -112,7 +146,11 @@ pub fn app(state: AppState) -> Router {
 /// - a coordinator without a token (on loopback, unless `--insecure`) answers only requests
 ///   that name it by an IP address or `localhost` in `Host`: a page on a domain whose DNS
 ///   answer turns to 127.0.0.1 (DNS rebinding) cannot read or change anything.
-async fn auth(State(state): State<AppState>, req: Request, next: Next) -> Response {
+async fn auth(
+    State((state, roles)): State<(AppState, RouteRoles)>,
+    req: Request,
+    next: Next,
+) -> Response {
     let path = req.uri().path();
     if path == "/healthz" || crate::web::is_public(path) {
         return next.run(req).await;
@@ -122,19 +160,60 @@ async fn auth(State(state): State<AppState>, req: Request, next: Next) -> Respon
     }
     match &state.cfg.token {
         Some(token) => {
-            let matches = |t: &str| constant_time_eq(t.trim().as_bytes(), token.as_bytes());
-            let header_ok = req
+            let given = req
                 .headers()
                 .get(header::AUTHORIZATION)
                 .and_then(|v| v.to_str().ok())
                 .and_then(|v| {
                     // The scheme is case-insensitive (RFC 7235): `bearer` is `Bearer`.
                     let (scheme, token) = v.split_once(' ')?;
-                    scheme.eq_ignore_ascii_case("bearer").then_some(token)
-                })
-                .is_some_and(matches);
-            if !header_ok {
-                return AppError::Unauthorized.into_response();
+                    scheme
+                        .eq_ignore_ascii_case("bearer")
+                        .then_some(token.trim())
+                });
+            let is = |t: &str| given.is_some_and(|g| constant_time_eq(g.as_bytes(), t.as_bytes()));
+            let client = is(token);
+            let Some(worker_token) = &state.cfg.worker_token else {
+                if !client {
+                    return AppError::Unauthorized.into_response();
+                }
+                return next.run(req).await;
+            };
+            let worker = is(worker_token);
+            // A route's role from the path it matched and the method (HEAD is served by the
+            // GET route). A path no route serves is answered 404, which tells nothing, to
+            // either token; a method a known path does not serve is the clients'.
+            let method = match req.method() {
+                &Method::HEAD => &Method::GET,
+                m => m,
+            };
+            let role = match req.extensions().get::<MatchedPath>() {
+                None => Role::Either,
+                Some(matched) => roles
+                    .iter()
+                    .find(|(m, p, _)| m == method && *p == matched.as_str())
+                    .map_or(Role::Client, |r| r.2),
+            };
+            let allowed = match role {
+                Role::Client => client,
+                Role::Worker => worker,
+                Role::Either => client || worker,
+            };
+            if !allowed {
+                if !(client || worker) {
+                    return AppError::Unauthorized.into_response();
+                }
+                return AppError::WrongToken(
+                    if worker {
+                        "this endpoint is the clients': it takes the coordinator's token, not \
+                         the worker token"
+                    } else {
+                        "this endpoint is the workers': it takes the worker token \
+                         (--worker-token), not the clients' token"
+                    }
+                    .into(),
+                )
+                .into_response();
             }
         }
         None if !state.cfg.insecure => {

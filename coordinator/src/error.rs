@@ -27,6 +27,10 @@ pub enum AppError {
     /// another site's page, or a name for the coordinator it cannot trust.
     #[error("{0}")]
     Forbidden(String),
+    /// 403: a token the coordinator knows, on an endpoint of the other kind (a worker's token
+    /// on a user's endpoint, or the other way round); names the field `Authorization`.
+    #[error("{0}")]
+    WrongToken(String),
     /// 404: no such object.
     #[error("{0}")]
     NotFound(String),
@@ -136,6 +140,11 @@ impl AppError {
             }
             AppError::Unauthorized => (StatusCode::UNAUTHORIZED, "unauthorized", None),
             AppError::Forbidden(_) => (StatusCode::FORBIDDEN, "forbidden", None),
+            AppError::WrongToken(_) => (
+                StatusCode::FORBIDDEN,
+                "forbidden",
+                Some("Authorization".into()),
+            ),
             AppError::NotFound(_) => (StatusCode::NOT_FOUND, "not_found", None),
             AppError::MethodNotAllowed => {
                 (StatusCode::METHOD_NOT_ALLOWED, "method_not_allowed", None)

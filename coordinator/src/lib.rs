@@ -196,6 +196,10 @@ pub struct Config {
     pub data_dir: PathBuf,
     /// Bearer token required on every endpoint but `/healthz`.
     pub token: Option<String>,
+    /// A second token, for workers: when set, the workers' endpoints take it and only it, and
+    /// the others take [`Config::token`] and only it (see [`api::Role`]), so a user cannot
+    /// act as a worker nor a worker as a user. Needs `token`, and must differ from it.
+    pub worker_token: Option<String>,
     /// Allow a non-loopback address without a token.
     pub insecure: bool,
     /// How long a lease lives without a heartbeat.
@@ -249,6 +253,7 @@ impl Config {
         Config {
             data_dir: data_dir.into(),
             token: None,
+            worker_token: None,
             insecure: false,
             lease_timeout: Duration::from_secs(30),
             heartbeat_interval: Duration::from_secs(5),
@@ -276,6 +281,7 @@ impl std::fmt::Debug for Config {
         f.debug_struct("Config")
             .field("data_dir", &self.data_dir)
             .field("token", &self.token.as_ref().map(|_| "***"))
+            .field("worker_token", &self.worker_token.as_ref().map(|_| "***"))
             .field("lease_timeout", &self.lease_timeout)
             .finish_non_exhaustive()
     }
@@ -506,8 +512,28 @@ fn try_lock(_file: &std::fs::File) -> std::io::Result<bool> {
     ))
 }
 
-/// Refuses a non-loopback address without a token unless `insecure`.
+/// A token as given on the command line or in the environment: without the white space
+/// around it (as the token a request sends is read), none when that leaves nothing.
+pub fn token_setting(given: Option<String>) -> Option<String> {
+    given
+        .map(|t| t.trim().to_string())
+        .filter(|t| !t.is_empty())
+}
+
+/// Refuses a non-loopback address without a token unless `insecure`, and a worker token
+/// without a token or equal to it.
 pub fn check_exposure(ip: IpAddr, cfg: &Config) -> anyhow::Result<()> {
+    if let Some(worker_token) = &cfg.worker_token {
+        match &cfg.token {
+            None => anyhow::bail!(
+                "a worker token needs a token for the clients: set --token (or RAYTILE_TOKEN) too"
+            ),
+            Some(token) if token == worker_token => anyhow::bail!(
+                "the worker token is the clients' token: give the workers a token of their own"
+            ),
+            Some(_) => {}
+        }
+    }
     if !ip.is_loopback() && cfg.token.is_none() && !cfg.insecure {
         anyhow::bail!(
             "refusing to listen on {ip} without a token: set --token (or RAYTILE_TOKEN), or pass --insecure"

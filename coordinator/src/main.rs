@@ -22,6 +22,11 @@ struct Args {
     /// Bearer token required on every endpoint but /healthz.
     #[arg(long, env = "RAYTILE_TOKEN", hide_env_values = true)]
     token: Option<String>,
+    /// A token for workers, apart from --token: the workers' endpoints (register, lease,
+    /// heartbeat, failure, release, result) then take it and only it, the others take
+    /// --token and only it. Give workers this one and users --token.
+    #[arg(long, env = "RAYTILE_WORKER_TOKEN", hide_env_values = true)]
+    worker_token: Option<String>,
     /// Allow a non-loopback address without a token.
     #[arg(long)]
     insecure: bool,
@@ -154,7 +159,8 @@ async fn main() {
 
 async fn real_main(a: Args) -> anyhow::Result<()> {
     let mut cfg = Config::new(a.data_dir);
-    cfg.token = a.token.filter(|t| !t.is_empty());
+    cfg.token = raytile_coordinator::token_setting(a.token);
+    cfg.worker_token = raytile_coordinator::token_setting(a.worker_token);
     cfg.insecure = a.insecure;
     cfg.lease_timeout = secs(a.lease_timeout, "lease-timeout")?;
     cfg.startup_grace = secs(a.startup_grace, "startup-grace")?;

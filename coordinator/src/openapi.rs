@@ -61,7 +61,7 @@ fn op(summary: &str, parameters: Value, inputs: Inputs, responses: Value) -> Val
     add("401", err("Missing or wrong bearer token."));
     add(
         "403",
-        err("A browser's request from another site's page that would change something (its Origin or Sec-Fetch-Site names another origin), or, on a coordinator without a token, a Host header that is not an IP address or localhost."),
+        err("A browser's request from another site's page that would change something (its Origin or Sec-Fetch-Site names another origin); on a coordinator without a token, a Host header that is not an IP address or localhost; on one with a worker token, the other kind's token."),
     );
     if inputs.params || inputs.json {
         add(
@@ -207,7 +207,7 @@ pub fn document() -> Value {
         "info": {
             "title": "raytile coordinator",
             "version": env!("CARGO_PKG_VERSION"),
-            "description": "Distributed path tracing: upload scenes, submit jobs, fetch images; workers lease tile passes and upload binary results. Every endpoint but /healthz needs `Authorization: Bearer TOKEN` when the coordinator has a token. Every error answer is the Error schema; a 405 (known path, other method) and a 404 (unknown path) are too. Only a request that cannot be parsed as HTTP at all is answered without it, by the HTTP layer: 400 (malformed request line or header), 414 (path and query over 65,534 bytes), 431 (headers too large), with an empty body. The token is taken from that header only. A browser's request from another site's page that would change something, and, on a coordinator without a token, a request whose Host is not an IP address or localhost, are answered 403. The web pages (/, /jobs/{id}, /workers and their files under /ui/) are served without the token and are not part of this API."
+            "description": "Distributed path tracing: upload scenes, submit jobs, fetch images; workers lease tile passes and upload binary results. Every endpoint but /healthz needs `Authorization: Bearer TOKEN` when the coordinator has a token. A coordinator with a worker token as well (--worker-token) takes it, and only it, on the workers' endpoints (register, lease, heartbeat, failure, release, result upload), either token on scene downloads and this document, and the other token only on every other endpoint; a known token on an endpoint of the other kind is answered 403. Every error answer is the Error schema; a 405 (known path, other method) and a 404 (unknown path) are too. Only a request that cannot be parsed as HTTP at all is answered without it, by the HTTP layer: 400 (malformed request line or header), 414 (path and query over 65,534 bytes), 431 (headers too large), with an empty body. The token is taken from that header only. A browser's request from another site's page that would change something, and, on a coordinator without a token, a request whose Host is not an IP address or localhost, are answered 403. The web pages (/, /jobs/{id}, /workers and their files under /ui/) are served without the token and are not part of this API."
         },
         "components": {
             "securitySchemes": {"bearer": {"type": "http", "scheme": "bearer"}},

@@ -4,7 +4,7 @@
 use crate::clock::Now;
 use crate::{app, AppState, Config, LoadedScene};
 use axum::body::Body;
-use axum::http::{Request, StatusCode};
+use axum::http::{Method, Request, StatusCode};
 use std::sync::{Arc, Mutex};
 use tower::ServiceExt;
 
@@ -185,6 +185,126 @@ async fn token_is_required_except_for_healthz() {
             .unwrap();
         assert_eq!(call(&st, req).await.0, want, "{header}");
     }
+}
+
+/// With a worker token, the workers' routes take it and only it, the others the clients'
+/// token and only it; an unknown token is 401 everywhere, a known one on the wrong route 403.
+#[tokio::test]
+async fn a_worker_token_keeps_workers_and_clients_apart() {
+    use crate::api::Role::{self, Client, Either, Worker};
+    let dir = tempfile::tempdir().unwrap();
+    let mut c = fake_config(dir.path());
+    c.token = Some("users".into());
+    c.worker_token = Some("workers".into());
+    let st = AppState::open(c).unwrap();
+    // Written out here, not read from the router's list: a route given the wrong role fails.
+    let (get, post, put, delete) = (Method::GET, Method::POST, Method::PUT, Method::DELETE);
+    let mut expected = vec![
+        (get.clone(), "/healthz", Either),
+        (get.clone(), "/metrics", Client),
+        (get.clone(), "/v1/openapi.json", Either),
+        (post.clone(), "/v1/scenes", Client),
+        (get.clone(), "/v1/scenes/{id}", Either),
+        (post.clone(), "/v1/jobs", Client),
+        (get.clone(), "/v1/jobs", Client),
+        (get.clone(), "/v1/jobs/{id}", Client),
+        (delete, "/v1/jobs/{id}", Client),
+        (get.clone(), "/v1/jobs/{id}/image", Client),
+        (get.clone(), "/v1/jobs/{id}/tiles", Client),
+        (post.clone(), "/v1/jobs/{id}/priority", Client),
+        (post.clone(), "/v1/jobs/{id}/retry", Client),
+        (get.clone(), "/v1/events", Client),
+        (put, "/v1/jobs/{id}/tasks/{task}/result", Worker),
+        (post.clone(), "/v1/workers", Worker),
+        (get.clone(), "/v1/workers", Client),
+        (post.clone(), "/v1/workers/{id}/lease", Worker),
+        (post.clone(), "/v1/leases/{lease}/heartbeat", Worker),
+        (post.clone(), "/v1/leases/{lease}/failure", Worker),
+        (post, "/v1/leases/{lease}/release", Worker),
+    ];
+    let key = |r: &(Method, &str, Role)| (r.1.to_string(), r.0.to_string());
+    let mut roles = crate::api::roles();
+    roles.sort_by_key(key);
+    expected.sort_by_key(key);
+    assert_eq!(roles, expected);
+    // HEAD is served by the GET route, and takes the same token; a method no route of a known
+    // path serves (OPTIONS, or HEAD of a POST route) is the clients', answered 405 to them.
+    let mut cases: Vec<(Method, &str, Role)> = expected.clone();
+    for (m, p, r) in &expected {
+        let head = if *m == get { *r } else { Client };
+        cases.push((Method::HEAD, p, head));
+        cases.push((Method::OPTIONS, p, Client));
+    }
+    for (method, path, role) in &cases {
+        if *path == "/healthz" {
+            continue;
+        }
+        let uri = path
+            .replace("{id}", "x")
+            .replace("{task}", "0")
+            .replace("{lease}", "l-1-1-00");
+        for token in [None, Some("users"), Some("workers"), Some("nope")] {
+            let mut req = Request::builder().method(method.clone()).uri(&uri);
+            if let Some(t) = token {
+                req = req.header("authorization", format!("Bearer {t}"));
+            }
+            // Only the status: the event stream's body never ends.
+            let resp = app(st.clone())
+                .oneshot(req.body(Body::empty()).unwrap())
+                .await
+                .unwrap();
+            let allowed = matches!(
+                (role, token),
+                (Client, Some("users"))
+                    | (Worker, Some("workers"))
+                    | (Either, Some("users" | "workers"))
+            );
+            let code = resp.status();
+            if code == StatusCode::FORBIDDEN && *method != Method::HEAD {
+                // Named as the header's fault, so that the pages ask for another token.
+                let body = axum::body::to_bytes(resp.into_body(), usize::MAX)
+                    .await
+                    .unwrap();
+                let body: serde_json::Value = serde_json::from_slice(&body).unwrap();
+                assert_eq!(body["error"]["field"], "Authorization", "{body}");
+            }
+            let want = match token {
+                _ if allowed => None,
+                Some("users" | "workers") => Some(StatusCode::FORBIDDEN),
+                _ => Some(StatusCode::UNAUTHORIZED),
+            };
+            match want {
+                Some(want) => assert_eq!(code, want, "{method} {uri} {token:?}"),
+                None => assert!(
+                    code != StatusCode::UNAUTHORIZED && code != StatusCode::FORBIDDEN,
+                    "{method} {uri} {token:?}: {code}"
+                ),
+            }
+        }
+    }
+    // A path no route serves is 404 to either token, 401 to others.
+    for token in ["users", "workers", "nope"] {
+        let req = Request::get("/v1/nothing")
+            .header("authorization", format!("Bearer {token}"))
+            .body(Body::empty())
+            .unwrap();
+        let want = match token {
+            "nope" => StatusCode::UNAUTHORIZED,
+            _ => StatusCode::NOT_FOUND,
+        };
+        assert_eq!(call(&st, req).await.0, want, "{token}");
+    }
+    // A worker token needs a token, and another one.
+    let loopback = std::net::IpAddr::from([127, 0, 0, 1]);
+    let mut c = fake_config(dir.path());
+    c.worker_token = Some("workers".into());
+    let e = crate::check_exposure(loopback, &c).unwrap_err().to_string();
+    assert!(e.contains("needs a token"), "{e}");
+    c.token = Some("workers".into());
+    let e = crate::check_exposure(loopback, &c).unwrap_err().to_string();
+    assert!(e.contains("is the clients' token"), "{e}");
+    c.token = Some("users".into());
+    crate::check_exposure(loopback, &c).unwrap();
 }
 
 #[tokio::test]
@@ -1272,9 +1392,10 @@ async fn results_with_non_finite_sums_are_refused_and_the_task_is_queued_again()
     assert_eq!(status["state"], "done", "{status}");
 }
 
-/// A result must name a lease the coordinator gave for its task: a token holder cannot fill a
-/// task nobody leased, nor one leased to another worker, nor pass a lease of another task;
-/// the holder of a lease that expired still can (results are deterministic).
+/// A result must name a lease the coordinator gave for its task and the worker it gave it to:
+/// a token holder cannot fill a task nobody leased, nor one leased to another worker, nor pass
+/// a lease of another task, nor credit the tile to another worker; the holder of a lease that
+/// expired still can (results are deterministic).
 #[tokio::test]
 async fn results_are_taken_only_under_a_lease_of_their_task() {
     let dir = tempfile::tempdir().unwrap();

@@ -106,13 +106,29 @@ mod support {
             name: &str,
             scenes: Arc<raytile_worker::SceneCache>,
         ) -> Worker {
-            let mut c = raytile_worker::Config::new(base);
+            let mut c = Self::config(base, threads, cache, name);
             c.scene_cache = scenes;
+            Self::spawn(c)
+        }
+
+        /// The settings [`Worker::start`] runs a worker with.
+        pub fn config(
+            base: &str,
+            threads: usize,
+            cache: &std::path::Path,
+            name: &str,
+        ) -> raytile_worker::Config {
+            let mut c = raytile_worker::Config::new(base);
             c.threads = threads;
             c.name = name.into();
             c.cache_dir = cache.join(name);
             c.long_poll = Duration::from_secs(1);
             c.max_backoff = Duration::from_millis(300);
+            c
+        }
+
+        /// Runs a worker with `c`.
+        pub fn spawn(c: raytile_worker::Config) -> Worker {
             let stats = c.stats.clone();
             let (stop, rx) = watch::channel(false);
             let mut rx2 = rx.clone();
@@ -1046,6 +1062,45 @@ mod api {
                 .status(),
             200
         );
+        c.stop().await;
+    }
+
+    /// With a worker token, a worker holding only it renders a job a user submitted with the
+    /// other token; neither token works on the other's endpoints.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_worker_token_renders_and_keeps_users_and_workers_apart() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = test_config(&dir.path().join("data"));
+        cfg.token = Some("users".into());
+        cfg.worker_token = Some("workers".into());
+        let c = Coord::start(cfg, 0).await;
+        let mut wc = Worker::config(&c.base, 1, dir.path(), "w");
+        wc.token = Some("workers".into());
+        let w = Worker::spawn(wc);
+        let user = raytile_proto::client::Client::new(&c.base, Some("users".into())).unwrap();
+        let scene = std::fs::read(cornell()).unwrap();
+        let scene = user.upload_scene(scene, None, None).await.unwrap().id;
+        let mut req = job(&scene, 32);
+        req.overrides.spp = Some(2);
+        let id = user.create_job(&req).await.unwrap().id;
+        let end = tokio::time::Instant::now() + Duration::from_secs(120);
+        while user.job(&id).await.unwrap().state != JobState::Done {
+            assert!(tokio::time::Instant::now() < end, "timed out");
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        assert!(!user.job_image(&id, "png").await.unwrap().is_empty());
+        // The worker's token reads no job; the users' registers no worker.
+        let worker = raytile_proto::client::Client::new(&c.base, Some("workers".into())).unwrap();
+        let e = worker.job(&id).await.unwrap_err();
+        assert_eq!(e.status(), Some(reqwest::StatusCode::FORBIDDEN), "{e}");
+        let register = proto::RegisterRequest {
+            name: "user".into(),
+            threads: 1,
+            render_version: raytile_core::RENDER_VERSION,
+        };
+        let e = user.register(&register).await.unwrap_err();
+        assert_eq!(e.status(), Some(reqwest::StatusCode::FORBIDDEN), "{e}");
+        w.stop().await;
         c.stop().await;
     }
 

@@ -21,6 +21,8 @@ use std::time::{Duration, Instant};
 
 const ROOT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
 const TOKEN: &str = "docker-test-token";
+/// The workers' token: the compose file gives workers this one only.
+const WORKER_TOKEN: &str = "docker-test-worker-token";
 
 /// One test at a time: they load both cores and the Swarm test changes daemon state.
 /// (An async mutex: its guard is held across awaits; each test has its own runtime.)
@@ -95,6 +97,7 @@ impl Compose {
             .args(["-p", &self.project])
             .current_dir(ROOT)
             .env("RAYTILE_TOKEN", TOKEN)
+            .env("RAYTILE_WORKER_TOKEN", WORKER_TOKEN)
             .env("RAYTILE_PORT", self.port.to_string())
             .env("RAYTILE_LEASE_TIMEOUT", "3")
             .env("RAYTILE_STARTUP_GRACE", "0")
@@ -504,6 +507,7 @@ impl Stack {
             .args(["stack", "deploy", "-c", "docker-compose.yml", &s.name])
             .current_dir(ROOT)
             .env("RAYTILE_TOKEN", TOKEN)
+            .env("RAYTILE_WORKER_TOKEN", WORKER_TOKEN)
             .env("RAYTILE_PORT", s.port.to_string())
             .env("RAYTILE_LEASE_TIMEOUT", "3")
             .env("RAYTILE_STARTUP_GRACE", "0")
