@@ -5,7 +5,8 @@
 
 const TOKEN_KEY = "raytile-token";
 const STATES = ["queued", "running", "done", "failed", "cancelled"];
-const INTEGRATORS = ["path", "volpath", "bdpt", "whitted", "normals", "albedo", "depth", "ao"];
+const INTEGRATORS = ["path", "volpath", "bdpt", "sppm", "whitted", "normals", "albedo", "depth",
+  "ao"];
 
 // What the pages did, for people debugging them and for the end-to-end test.
 window.raytile = { previews: [], events: 0 };
@@ -106,15 +107,15 @@ function token() {
 // session, in this tab only. It is sent in the Authorization header of every request, the
 // event stream's and downloads' too (the coordinator takes it from nowhere else: a cookie
 // would go with other sites' requests and to other services on the host).
-function askToken(refused) {
+// `why` says what was wrong with the token the page had, if it had one.
+function askToken(why) {
   if (tokenAsked) return tokenAsked;
   tokenAsked = new Promise((resolve) => {
     const box = document.getElementById("token-box");
     const form = document.getElementById("token-form");
     const input = document.getElementById("token-input");
-    document.getElementById("token-error").textContent = refused
-      ? "The coordinator refused that token."
-      : "";
+    document.getElementById("token-error").textContent = why || "";
+    if (why) input.value = "";
     box.hidden = false;
     input.focus();
     form.onsubmit = (e) => {
@@ -143,28 +144,45 @@ class ApiError extends Error {
   }
 }
 
+// The error body of a refused answer, or null when it has none.
+async function errorBody(r) {
+  try {
+    return await r.json();
+  } catch (_) {
+    return null; // not JSON
+  }
+}
+
+// What is wrong with the token the page sent, when `r` (with its error body `body`) refuses
+// it: missing or unknown (401), or one the coordinator knows but takes only on other
+// endpoints (403 naming the Authorization header: a worker token, on a farm whose workers
+// have their own). Null when the token is not the trouble.
+function tokenRefusal(r, body, sent) {
+  if (r.status === 401) return sent ? "The coordinator refused that token." : "";
+  if (r.status === 403 && body && body.error && body.error.field === "Authorization") {
+    return "The coordinator refused that token here: " + body.error.message;
+  }
+  return null;
+}
+
 async function api(path, opts = {}) {
   for (;;) {
     const headers = Object.assign({}, opts.headers || {});
     const t = token();
     if (t) headers["Authorization"] = "Bearer " + t;
     const r = await fetch(path, Object.assign({}, opts, { headers }));
-    if (r.status === 401) {
-      await askToken(!!t);
+    if (r.ok) {
+      if (opts.raw) return r;
+      if (r.status === 204) return null;
+      return r.json();
+    }
+    const body = r.status === 401 ? null : await errorBody(r);
+    const refusal = tokenRefusal(r, body, !!t);
+    if (refusal !== null) {
+      await askToken(refusal);
       continue;
     }
-    if (!r.ok) {
-      let body = null;
-      try {
-        body = await r.json();
-      } catch (_) {
-        // not JSON
-      }
-      throw new ApiError(r.status, body);
-    }
-    if (opts.raw) return r;
-    if (r.status === 204) return null;
-    return r.json();
+    throw new ApiError(r.status, body);
   }
 }
 
@@ -207,17 +225,15 @@ async function readEvents(signal) {
   const t = token();
   if (t) headers["Authorization"] = "Bearer " + t;
   const r = await fetch("/v1/events", { headers, signal, cache: "no-store" });
-  if (r.status === 401) {
-    await askToken(!!t);
-    return "reconnecting…";
-  }
   if (!r.ok || !r.body) {
-    // A refusal says why (a coordinator without a token opened by a host name, say).
-    try {
-      return "refused: " + (await r.json()).error.message;
-    } catch (_) {
+    const body = r.status === 401 ? null : await errorBody(r);
+    const refusal = tokenRefusal(r, body, !!t);
+    if (refusal !== null) {
+      await askToken(refusal);
       return "reconnecting…";
     }
+    // A refusal says why (a coordinator without a token opened by a host name, say).
+    return body && body.error ? "refused: " + body.error.message : "reconnecting…";
   }
   setLive(true, "live");
   const reader = r.body.pipeThrough(new TextDecoderStream()).getReader();
@@ -284,12 +300,15 @@ function jobRequest(job) {
   return req;
 }
 
-async function act(button, what) {
+// Runs a button's action; when it fails, says why and runs `refresh` (the job may have
+// changed or gone meanwhile, in another tab or by another user).
+async function act(button, refresh, what) {
   button.disabled = true;
   try {
     await what();
   } catch (e) {
     alert(e.message);
+    refresh();
   } finally {
     button.disabled = false;
   }
@@ -301,7 +320,7 @@ function jobActions(job, onChange) {
   if (!isFinal(job.state)) {
     out.push(h("button", {
       type: "button", class: "cancel", "aria-label": "Cancel job " + id,
-      onclick: (e) => act(e.target, async () => {
+      onclick: (e) => act(e.target, onChange, async () => {
         await api("/v1/jobs/" + encodeURIComponent(id), { method: "DELETE" });
         onChange();
       }),
@@ -311,7 +330,7 @@ function jobActions(job, onChange) {
     out.push(h("button", {
       type: "button", "aria-label": "Retry job " + id + " with the tiles it has",
       title: "Go on with the tiles it has: its failed tiles are rendered again",
-      onclick: (e) => act(e.target, async () => {
+      onclick: (e) => act(e.target, onChange, async () => {
         await api("/v1/jobs/" + encodeURIComponent(id) + "/retry", { method: "POST" });
         onChange();
       }),
@@ -319,28 +338,28 @@ function jobActions(job, onChange) {
   }
   out.push(h("button", {
     type: "button", "aria-label": "Raise the priority of job " + id, title: "Raise priority",
-    onclick: (e) => act(e.target, async () => {
+    onclick: (e) => act(e.target, onChange, async () => {
       await postJson("/v1/jobs/" + encodeURIComponent(id) + "/priority", { priority: job.priority + 1 });
       onChange();
     }),
   }, "▲"));
   out.push(h("button", {
     type: "button", "aria-label": "Lower the priority of job " + id, title: "Lower priority",
-    onclick: (e) => act(e.target, async () => {
+    onclick: (e) => act(e.target, onChange, async () => {
       await postJson("/v1/jobs/" + encodeURIComponent(id) + "/priority", { priority: job.priority - 1 });
       onChange();
     }),
   }, "▼"));
   out.push(h("button", {
     type: "button", "aria-label": "Submit job " + id + " again with the same settings",
-    onclick: (e) => act(e.target, async () => {
+    onclick: (e) => act(e.target, onChange, async () => {
       const created = await postJson("/v1/jobs", jobRequest(job));
       location.assign("/jobs/" + encodeURIComponent(created.id));
     }),
   }, "Re-submit"));
   out.push(h("button", {
     type: "button", class: "danger", "aria-label": "Delete job " + id,
-    onclick: (e) => act(e.target, async () => {
+    onclick: (e) => act(e.target, onChange, async () => {
       if (!confirm("Delete job " + id + " and its rendered tiles? This cannot be undone.")) return;
       await api("/v1/jobs/" + encodeURIComponent(id) + "?purge=true", { method: "DELETE" });
       onChange(true);
@@ -493,6 +512,14 @@ function submitForm() {
       const el = form.querySelector("#err-" + fieldName) || form.querySelector("#err-form");
       el.textContent = message;
     };
+    // A number field with text the browser cannot read as a number reads as empty: say so,
+    // rather than submit the scene's own value in its place.
+    const unread = [...form.querySelectorAll("input[type=number]")].filter((el) => el.validity.badInput);
+    if (unread.length) {
+      for (const el of unread) show(el.name, "Not a number.");
+      unread[0].focus();
+      return;
+    }
     const file = form.elements.scene.files[0];
     const folder = [...form.elements.folder.files];
     if (!file && folder.length === 0) {
@@ -561,6 +588,9 @@ function jobsPage(main) {
   filter.value = params.get("state") || "";
   const body = h("tbody", { id: "jobs-body" });
   let jobs = [];
+  // Until the list first loads, its table says so (or why it did not), not "No jobs yet".
+  let loaded = false;
+  let loadError = null;
   // Each job's row is kept and its cells updated in place (the link and the buttons only when
   // they change), so that a focused button or link and a click in progress survive updates.
   const rows = new Map();
@@ -601,15 +631,27 @@ function jobsPage(main) {
       return r.tr;
     });
     if (!shown.length) {
-      body.replaceChildren(h("tr", {}, h("td", { colspan: 11, class: "muted" },
-        jobs.length ? "No job is " + filter.value + "." : "No jobs yet: submit one above.")));
+      const empty = !loaded
+        ? loadError ? "Could not load the jobs: " + loadError : "Loading the jobs…"
+        : jobs.length ? "No job is " + filter.value + "." : "No jobs yet: submit one above.";
+      body.replaceChildren(h("tr", {}, h("td", { colspan: 11, class: "muted" }, empty)));
     } else if (trs.length !== body.children.length || trs.some((tr, i) => body.children[i] !== tr)) {
       body.replaceChildren(...trs);
     }
   };
   const refresh = throttle(async () => {
-    jobs = (await api("/v1/jobs")).jobs;
-    render();
+    try {
+      jobs = (await api("/v1/jobs")).jobs;
+      loaded = true;
+      loadError = null;
+    } catch (e) {
+      // Tried again shortly: on an idle farm no event would ask for the list.
+      loadError = e.message;
+      setTimeout(refresh, 3000);
+      throw e;
+    } finally {
+      render();
+    }
   }, 500);
   filter.addEventListener("change", () => {
     const u = new URL(location.href);
@@ -809,6 +851,11 @@ function jobPage(main, id) {
     drawOverlay();
   };
 
+  // A job deleted meanwhile is shown as gone by refreshJob: its tile list's 404 is no error.
+  const unlessGone = (e) => {
+    if (e.status !== 404) console.error(e);
+  };
+
   // A task event on the overlay's tiles.
   const applyTask = (ev) => {
     const t = tiles.get(tileKey(ev.tile));
@@ -832,6 +879,7 @@ function jobPage(main, id) {
   };
 
   const refreshJob = throttle(async () => {
+    const first = job === null;
     try {
       job = await api("/v1/jobs/" + enc);
     } catch (e) {
@@ -841,18 +889,22 @@ function jobPage(main, id) {
           " (it may have been deleted). "), h("p", {}, h("a", { href: "/" }, "All jobs")));
         return;
       }
+      if (first) errorBox.textContent = "Could not load the job: " + e.message;
       throw e;
     }
     window.raytile.job = job;
     sizeCanvases();
     renderJob();
     drawOverlay();
+    // The first preview waits for the job (a finished job sends no event that would ask
+    // for one later).
+    if (first) refreshPreview();
   }, 300);
 
   listeners.add((ev, eventId) => {
     if (ev.type === "resync") {
       refreshJob();
-      refreshTiles().catch(console.error);
+      refreshTiles().catch(unlessGone);
       refreshPreview();
       return;
     }
@@ -881,7 +933,7 @@ function jobPage(main, id) {
       default:
         refreshJob();
         if (ev.type === "job_state" && isFinal(ev.state)) {
-          refreshTiles().catch(console.error);
+          refreshTiles().catch(unlessGone);
           refreshPreview();
         }
     }
@@ -890,7 +942,7 @@ function jobPage(main, id) {
   (async () => {
     await refreshWorkers().catch(console.error);
     refreshJob();
-    await refreshTiles().catch(console.error);
+    await refreshTiles().catch(unlessGone);
     refreshPreview();
   })();
 }
@@ -901,6 +953,8 @@ function workersPage(main) {
   document.title = "Workers · raytile";
   const body = h("tbody", { id: "workers-body" });
   let workers = [];
+  let loaded = false;
+  let loadError = null;
   // Rows are kept and their cells updated in place; the current-task links only when the
   // task changes (a focused link survives the refresh).
   const rows = new Map();
@@ -934,14 +988,27 @@ function workersPage(main) {
       return r.tr;
     });
     if (!workers.length) {
-      body.replaceChildren(h("tr", {}, h("td", { colspan: 9, class: "muted" }, "No worker has registered.")));
+      const empty = !loaded
+        ? loadError ? "Could not load the workers: " + loadError : "Loading the workers…"
+        : "No worker has registered.";
+      body.replaceChildren(h("tr", {}, h("td", { colspan: 9, class: "muted" }, empty)));
     } else if (trs.length !== body.children.length || trs.some((tr, i) => body.children[i] !== tr)) {
       body.replaceChildren(...trs);
     }
   };
   const refresh = throttle(async () => {
-    workers = (await api("/v1/workers")).workers;
-    render();
+    try {
+      workers = (await api("/v1/workers")).workers;
+      loaded = true;
+      loadError = null;
+    } catch (e) {
+      // Tried again shortly: on an idle farm no event would ask for the list.
+      loadError = e.message;
+      setTimeout(refresh, 3000);
+      throw e;
+    } finally {
+      render();
+    }
   }, 1000);
   main.append(h("h1", {}, "Workers"),
     h("div", { class: "table-wrap" }, h("table", { id: "workers" },
@@ -984,20 +1051,28 @@ function start() {
   else if (path === "/workers") workersPage(main);
   else if (m && jobId(m[1]) !== null) jobPage(main, jobId(m[1]));
   else main.append(h("h1", {}, "Not found"), h("p", {}, h("a", { href: "/" }, "All jobs")));
-  connectEvents();
+  if (document.visibilityState === "hidden") setLive(false, "paused while hidden");
+  else connectEvents();
 }
 
-// A page left for another may be kept (back-forward cache) with its stream open, and a
-// browser opens only a few connections to one host: close the stream when the page is
-// hidden, open it again (it starts with a resync) when the page comes back.
-window.addEventListener("pagehide", () => {
+// A browser opens only six connections to one host, and each page's event stream holds one
+// for as long as it is open: a page in a tab in the background, or left for another and
+// kept (back-forward cache), closes its stream, and opens it again (it starts with a
+// resync) when it is shown, so that any number of tabs leave room for the one in view.
+function closeEvents() {
   if (stream) {
     stream.abort();
     stream = null;
   }
-});
+  setLive(false, "paused while hidden");
+}
+window.addEventListener("pagehide", closeEvents);
 window.addEventListener("pageshow", (e) => {
-  if (e.persisted) connectEvents();
+  if (e.persisted && document.visibilityState === "visible" && !stream) connectEvents();
+});
+document.addEventListener("visibilitychange", () => {
+  if (document.visibilityState === "hidden") closeEvents();
+  else if (!stream) connectEvents();
 });
 
 start();

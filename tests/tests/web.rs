@@ -32,8 +32,13 @@ impl Coord {
     }
 
     async fn start_with_token(dir: &Path, token: Option<&str>) -> Coord {
+        Self::start_with_tokens(dir, token, None).await
+    }
+
+    async fn start_with_tokens(dir: &Path, token: Option<&str>, workers: Option<&str>) -> Coord {
         let mut c = Config::new(dir);
         c.token = token.map(String::from);
+        c.worker_token = workers.map(String::from);
         c.lease_timeout = Duration::from_secs(10);
         c.heartbeat_interval = Duration::from_millis(200);
         c.startup_grace = Duration::from_millis(0);
@@ -447,6 +452,22 @@ async fn the_web_page_submits_watches_and_cancels() {
     )
     .await;
     assert!(err.as_str().unwrap().contains("width"), "{err}");
+    // Text a number field cannot read is an error there, not the scene's value.
+    c.goto(&format!("{base}/")).await.unwrap();
+    submit_form(&c, &scene, &[("width", "64"), ("spp", "12-8")]).await;
+    let err = until(
+        &c,
+        30,
+        "the spp error",
+        "return document.getElementById('err-spp').textContent",
+    )
+    .await;
+    assert_eq!(err, "Not a number.");
+    assert_eq!(
+        js(&c, "return location.pathname").await,
+        "/",
+        "a job was submitted"
+    );
     c.goto(&format!("{base}/")).await.unwrap();
     c.wait()
         .for_element(Locator::Css("#submit-form"))
@@ -519,6 +540,19 @@ async fn the_web_page_submits_watches_and_cancels() {
         .unwrap();
     assert_eq!(status["state"], "done");
     screenshot(&c, "job-done").await;
+    // Opened afresh, a finished job's page (which no event will wake) shows its frame.
+    for _ in 0..3 {
+        c.goto(&format!("{base}/jobs/{job}")).await.unwrap();
+        until(
+            &c,
+            20,
+            "the finished job's frame, opened afresh",
+            "return window.raytile.previews.length > 0",
+        )
+        .await;
+        let px = js(&c, PIXELS).await;
+        assert!(px["lit"].as_f64().unwrap() > 0.5, "blank preview: {px}");
+    }
 
     // A second, long job, cancelled from the jobs table.
     c.goto(&format!("{base}/")).await.unwrap();
@@ -639,7 +673,14 @@ async fn the_web_page_submits_watches_and_cancels() {
     // sends it in a header on every request, the event stream's too (no cookie, which would
     // go to other services on the host). A token that is not printable ASCII cannot go in a
     // header: the form says so.
-    let locked = Coord::start_with_token(&dir.path().join("locked"), Some("open sesame")).await;
+    // With a worker token as well, the pages take the users' token only: given the workers',
+    // they say so and ask again.
+    let locked = Coord::start_with_tokens(
+        &dir.path().join("locked"),
+        Some("open sesame"),
+        Some("workers only"),
+    )
+    .await;
     c.goto(&format!("{}/", locked.base)).await.unwrap();
     until(
         &c,
@@ -665,6 +706,27 @@ async fn the_web_page_submits_watches_and_cancels() {
     .await;
     assert!(said.as_str().unwrap().contains("printable ASCII"), "{said}");
     input.clear().await.unwrap();
+    input.send_keys("workers only").await.unwrap();
+    c.find(Locator::Css("#token-form button"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+    let said = until(
+        &c,
+        20,
+        "the worker token refused, and the form again",
+        "const e = document.getElementById('token-error').textContent; \
+         return !document.getElementById('token-box').hidden && e.includes('here') && e",
+    )
+    .await;
+    assert!(said.as_str().unwrap().contains("worker token"), "{said}");
+    assert_eq!(
+        js(&c, "return document.getElementById('token-input').value").await,
+        "",
+        "the refused token is left in the box"
+    );
     input.send_keys("open sesame").await.unwrap();
     c.find(Locator::Css("#token-form button"))
         .await
