@@ -18,7 +18,8 @@ struct Args {
     /// Coordinator URL, e.g. http://127.0.0.1:8080.
     #[arg(long, env = "RAYTILE_COORDINATOR")]
     coordinator: String,
-    /// Bearer token.
+    /// Bearer token: the coordinator's worker token (its --worker-token) when it has one,
+    /// else its --token.
     #[arg(long, env = "RAYTILE_TOKEN", hide_env_values = true)]
     token: Option<String>,
     /// Render threads (default, or 0: every core; at most 1024).
