@@ -409,6 +409,30 @@ function timing(job) {
   return { elapsed, eta };
 }
 
+// A list read from the API (`GET path`, its field `key`), kept for a page's table:
+// `refresh()` (throttled to one read every `ms`) reads it again and calls `render`. Until it
+// first loads, `empty(what)` says it is loading, or why it failed (it is read again after
+// 3 s: on an idle farm no event would ask for it), rather than that there is nothing.
+function apiList(path, key, ms, render) {
+  const list = { items: [], loaded: false, error: null };
+  list.refresh = throttle(async () => {
+    try {
+      list.items = (await api(path))[key];
+      list.loaded = true;
+      list.error = null;
+    } catch (e) {
+      list.error = e.message;
+      setTimeout(list.refresh, 3000);
+      throw e;
+    } finally {
+      render();
+    }
+  }, ms);
+  list.empty = (what) => list.error ? "Could not load the " + what + ": " + list.error
+    : "Loading the " + what + "…";
+  return list;
+}
+
 // ---------------------------------------------------------------- jobs page
 
 function field(name, label, input) {
@@ -587,10 +611,7 @@ function jobsPage(main) {
     h("option", { value: "" }, "all"), STATES.map((s) => h("option", { value: s }, s)));
   filter.value = params.get("state") || "";
   const body = h("tbody", { id: "jobs-body" });
-  let jobs = [];
-  // Until the list first loads, its table says so (or why it did not), not "No jobs yet".
-  let loaded = false;
-  let loadError = null;
+  const list = apiList("/v1/jobs", "jobs", 500, () => render());
   // Each job's row is kept and its cells updated in place (the link and the buttons only when
   // they change), so that a focused button or link and a click in progress survive updates.
   const rows = new Map();
@@ -606,6 +627,7 @@ function jobsPage(main) {
     return r;
   };
   const render = () => {
+    const jobs = list.items;
     const shown = jobs.filter((j) => !filter.value || j.state === filter.value).reverse();
     const ids = new Set(jobs.map((j) => j.id));
     for (const id of rows.keys()) if (!ids.has(id)) rows.delete(id);
@@ -631,28 +653,14 @@ function jobsPage(main) {
       return r.tr;
     });
     if (!shown.length) {
-      const empty = !loaded
-        ? loadError ? "Could not load the jobs: " + loadError : "Loading the jobs…"
+      const empty = !list.loaded ? list.empty("jobs")
         : jobs.length ? "No job is " + filter.value + "." : "No jobs yet: submit one above.";
       body.replaceChildren(h("tr", {}, h("td", { colspan: 11, class: "muted" }, empty)));
     } else if (trs.length !== body.children.length || trs.some((tr, i) => body.children[i] !== tr)) {
       body.replaceChildren(...trs);
     }
   };
-  const refresh = throttle(async () => {
-    try {
-      jobs = (await api("/v1/jobs")).jobs;
-      loaded = true;
-      loadError = null;
-    } catch (e) {
-      // Tried again shortly: on an idle farm no event would ask for the list.
-      loadError = e.message;
-      setTimeout(refresh, 3000);
-      throw e;
-    } finally {
-      render();
-    }
-  }, 500);
+  const refresh = list.refresh;
   filter.addEventListener("change", () => {
     const u = new URL(location.href);
     if (filter.value) u.searchParams.set("state", filter.value);
@@ -952,14 +960,13 @@ function jobPage(main, id) {
 function workersPage(main) {
   document.title = "Workers · raytile";
   const body = h("tbody", { id: "workers-body" });
-  let workers = [];
-  let loaded = false;
-  let loadError = null;
+  const list = apiList("/v1/workers", "workers", 1000, () => render());
   // Rows are kept and their cells updated in place; the current-task links only when the
   // task changes (a focused link survives the refresh).
   const rows = new Map();
   const classes = ["", "", "", "num", "num", "num opt", "num opt", "num", ""];
   const render = () => {
+    const workers = list.items;
     const ids = new Set(workers.map((w) => w.id));
     for (const id of rows.keys()) if (!ids.has(id)) rows.delete(id);
     const trs = workers.map((w) => {
@@ -988,28 +995,13 @@ function workersPage(main) {
       return r.tr;
     });
     if (!workers.length) {
-      const empty = !loaded
-        ? loadError ? "Could not load the workers: " + loadError : "Loading the workers…"
-        : "No worker has registered.";
+      const empty = list.loaded ? "No worker has registered." : list.empty("workers");
       body.replaceChildren(h("tr", {}, h("td", { colspan: 9, class: "muted" }, empty)));
     } else if (trs.length !== body.children.length || trs.some((tr, i) => body.children[i] !== tr)) {
       body.replaceChildren(...trs);
     }
   };
-  const refresh = throttle(async () => {
-    try {
-      workers = (await api("/v1/workers")).workers;
-      loaded = true;
-      loadError = null;
-    } catch (e) {
-      // Tried again shortly: on an idle farm no event would ask for the list.
-      loadError = e.message;
-      setTimeout(refresh, 3000);
-      throw e;
-    } finally {
-      render();
-    }
-  }, 1000);
+  const refresh = list.refresh;
   main.append(h("h1", {}, "Workers"),
     h("div", { class: "table-wrap" }, h("table", { id: "workers" },
       h("thead", {}, h("tr", {}, ["Name", "State", "Current task", "Tasks done", "Samples/s",

@@ -395,6 +395,20 @@ async fn submit_form(c: &fantoccini::Client, scene: &Path, fields: &[(&str, &str
         .unwrap();
 }
 
+/// Types `token` into the page's token form, in place of what it holds, and sends it.
+async fn give_token(c: &fantoccini::Client, token: &str) {
+    use fantoccini::Locator;
+    let input = c.find(Locator::Css("#token-input")).await.unwrap();
+    input.clear().await.unwrap();
+    input.send_keys(token).await.unwrap();
+    c.find(Locator::Css("#token-form button"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+}
+
 const PIXELS: &str = r#"
 const c = document.getElementById("preview");
 const d = c.getContext("2d").getImageData(0, 0, c.width, c.height).data;
@@ -689,14 +703,7 @@ async fn the_web_page_submits_watches_and_cancels() {
         "return !document.getElementById('token-box').hidden",
     )
     .await;
-    let input = c.find(Locator::Css("#token-input")).await.unwrap();
-    input.send_keys("open s\u{2019}same").await.unwrap();
-    c.find(Locator::Css("#token-form button"))
-        .await
-        .unwrap()
-        .click()
-        .await
-        .unwrap();
+    give_token(&c, "open s\u{2019}same").await;
     let said = until(
         &c,
         20,
@@ -705,14 +712,7 @@ async fn the_web_page_submits_watches_and_cancels() {
     )
     .await;
     assert!(said.as_str().unwrap().contains("printable ASCII"), "{said}");
-    input.clear().await.unwrap();
-    input.send_keys("workers only").await.unwrap();
-    c.find(Locator::Css("#token-form button"))
-        .await
-        .unwrap()
-        .click()
-        .await
-        .unwrap();
+    give_token(&c, "workers only").await;
     let said = until(
         &c,
         20,
@@ -727,13 +727,7 @@ async fn the_web_page_submits_watches_and_cancels() {
         "",
         "the refused token is left in the box"
     );
-    input.send_keys("open sesame").await.unwrap();
-    c.find(Locator::Css("#token-form button"))
-        .await
-        .unwrap()
-        .click()
-        .await
-        .unwrap();
+    give_token(&c, "open sesame").await;
     until(&c, 20, "the jobs of the locked coordinator", "return document.getElementById('live').textContent === 'live' && document.querySelector('#jobs-body td')").await;
     c.goto(&format!("{}/workers", locked.base)).await.unwrap();
     until(&c, 20, "the workers page with the kept token", "return document.getElementById('live').textContent === 'live' && document.querySelector('#workers-body td')").await;
