@@ -58,22 +58,22 @@ impl Ids {
         })
     }
 
-    /// 128 bits of SHA-256(key ‖ SHA-256(key ‖ job ‖ task ‖ worker ‖ base)), in hex (the
-    /// strings of variable length with their lengths): the nested hash leaves no room for a
-    /// length extension.
+    /// 128 bits of a keyed hash ([`Ids::keyed`]) of job, worker, task and base, in hex (the
+    /// strings of variable length with their lengths).
     fn tag(&self, job: &str, task: u32, worker: &str, base: &str) -> String {
-        let mut inner = Sha256::new();
-        inner.update(self.key);
-        for text in [job, worker] {
-            inner.update((text.len() as u64).to_le_bytes());
-            inner.update(text.as_bytes());
-        }
-        inner.update(task.to_le_bytes());
-        inner.update(base.as_bytes());
-        let mut outer = Sha256::new();
-        outer.update(self.key);
-        outer.update(inner.finalize());
-        hex::encode(&outer.finalize()[..16])
+        let (job_len, worker_len) = (
+            (job.len() as u64).to_le_bytes(),
+            (worker.len() as u64).to_le_bytes(),
+        );
+        let hash = self.keyed(&[
+            &job_len,
+            job.as_bytes(),
+            &worker_len,
+            worker.as_bytes(),
+            &task.to_le_bytes(),
+            base.as_bytes(),
+        ]);
+        hex::encode(&hash[..16])
     }
 
     /// A new worker id: `w-EPOCH-N-TAG`, TAG 64 bits of a keyed hash of the rest. A worker's id
@@ -81,14 +81,22 @@ impl Ids {
     /// not be able to work out another's from its own.
     pub fn worker(&mut self) -> String {
         let base = self.next("w-");
-        let mut h = Sha256::new();
-        h.update(self.key);
-        h.update(b"worker");
-        h.update(base.as_bytes());
+        let hash = self.keyed(&[b"worker", base.as_bytes()]);
+        format!("{base}-{}", hex::encode(&hash[..8]))
+    }
+
+    /// SHA-256(key ‖ SHA-256(key ‖ parts)): the nested hash leaves no room for a length
+    /// extension.
+    fn keyed(&self, parts: &[&[u8]]) -> [u8; 32] {
+        let mut inner = Sha256::new();
+        inner.update(self.key);
+        for part in parts {
+            inner.update(part);
+        }
         let mut outer = Sha256::new();
         outer.update(self.key);
-        outer.update(h.finalize());
-        format!("{base}-{}", hex::encode(&outer.finalize()[..8]))
+        outer.update(inner.finalize());
+        outer.finalize().into()
     }
 
     /// The epoch: a different one at every start of the coordinator.
