@@ -680,8 +680,22 @@ function jobsPage(main) {
           "Elapsed", "ETA", "Actions"].map((c, i) =>
           h("th", { scope: "col", class: [4, 5, 7, 8, 9].includes(i) ? "opt" : null }, c)))),
       body)));
+  // A task's result moves its job's counts, which the event carries: they are shown at once,
+  // and the whole list (samples for the ETAs) read again at most every 5 s for them, so that
+  // a busy farm with many jobs does not have every page read the list twice a second.
+  const slowRefresh = throttle(refresh, 5000);
   listeners.add((ev) => {
-    if (ev.type === "resync" || ev.type.startsWith("job_")) refresh();
+    const job = ev.type === "job_progress" && list.items.find((j) => j.id === ev.job);
+    if (job) {
+      for (const k of ["tiles_done", "tiles_total", "passes_done", "passes", "tasks_done",
+                       "tasks_total"]) {
+        if (ev[k] !== undefined) job[k] = ev[k];
+      }
+      render();
+      slowRefresh();
+    } else if (ev.type === "resync" || ev.type.startsWith("job_")) {
+      refresh();
+    }
   });
   refresh();
   // Elapsed times and ETAs move on without events.
