@@ -108,4 +108,7 @@ pub use settings::{
 /// another, instead of one map as large as it takes: such iterations (images of a million
 /// pixels or more, or long photon paths in bright closed rooms) sum their flux in another
 /// order. Other images unchanged.
-pub const RENDER_VERSION: u32 = 15;
+/// 16 (2026-12-07): glTF's `KHR_texture_transform` rotation turns textures the way the sample
+/// asset TextureTransformTest and other viewers do (the transpose of the extension's GLSL
+/// listing, which v-down texture coordinates need). Images of other scenes unchanged.
+pub const RENDER_VERSION: u32 = 16;

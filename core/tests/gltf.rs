@@ -267,6 +267,60 @@ fn texture_transform() {
         .all(|t| t.width > 0 && t.texels.len() == (t.width * t.height) as usize));
 }
 
+/// The sample's arrow, turned by each quad's transform, points at that quad's "Correct"
+/// marker (and, for the rotation, not at its "Error" marker). The arrow's tip is where the
+/// "Not Supported" marker sits, seen with no transform; each quad shows at a point p the texel
+/// at its transform times p's texture coordinates, so the tip shows where that product is the
+/// tip's texture coordinates.
+#[test]
+fn texture_transform_points_the_arrow_at_correct() {
+    let Some(s) = load(SAMPLES, "TextureTransformTest/TextureTransformTest.gltf") else {
+        return;
+    };
+    let object = |name: &str| {
+        s.objects
+            .iter()
+            .position(|o| o.name == name)
+            .unwrap_or_else(|| panic!("no node '{name}'"))
+    };
+    let centre = |name: &str| s.objects[object(name)].transform.w_axis.truncate();
+    // The affine map from world position (in the quad's plane, z constant) to texture
+    // coordinates, from the quad's first triangle.
+    let uv_map = |name: &str| {
+        let o = &s.objects[object(name)];
+        let ShapeDesc::Mesh { mesh } = o.shape else {
+            panic!("'{name}' is not a mesh")
+        };
+        let m = &s.meshes[mesh];
+        let [a, b, c] = m.indices[0].map(|i| i as usize);
+        let p = |i: usize| o.transform.transform_point3(m.positions[i]).truncate();
+        let uv = |i: usize| m.uvs[0][i];
+        let world = glam::Mat3::from_cols(p(a).extend(1.0), p(b).extend(1.0), p(c).extend(1.0));
+        let tex = glam::Mat3::from_cols(uv(a).extend(1.0), uv(b).extend(1.0), uv(c).extend(1.0));
+        tex * world.inverse()
+    };
+    let tip = uv_map("Rotation") * centre("Rotation - Not Supported").truncate().extend(1.0);
+    for (quad, correct, error) in [
+        ("Rotation", "Rotation - Correct", Some("Rotation - Error")),
+        ("Scale", "Scale - Correct", None),
+        ("All", "All - Correct", None),
+    ] {
+        let i = object(quad);
+        let t = pbr(&s, i).base_color_texture.unwrap().transform;
+        let shown = (t * uv_map(quad)).inverse() * tip;
+        let shown = shown.truncate() / shown.z;
+        let miss = (shown - centre(correct).truncate()).length();
+        assert!(
+            miss < 0.05,
+            "{quad}: the arrow points at {shown}, {miss} from '{correct}'"
+        );
+        if let Some(error) = error {
+            let off = (shown - centre(error).truncate()).length();
+            assert!(off > 0.3, "{quad}: the arrow points at '{error}'");
+        }
+    }
+}
+
 #[test]
 fn cornell_box() {
     let Some(s) = load(SCENES, "cornell-box.gltf") else {
