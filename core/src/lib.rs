@@ -110,5 +110,7 @@ pub use settings::{
 /// order. Other images unchanged.
 /// 16 (2026-12-07): glTF's `KHR_texture_transform` rotation turns textures the way the sample
 /// asset TextureTransformTest and other viewers do (the transpose of the extension's GLSL
-/// listing, which v-down texture coordinates need). Images of other scenes unchanged.
+/// listing, which v-down texture coordinates need); normal maps on a mirroring node bend
+/// normals as on the mesh unmirrored (the bitangent's sign follows the transform's
+/// determinant). Images of other scenes unchanged.
 pub const RENDER_VERSION: u32 = 16;

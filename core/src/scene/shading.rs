@@ -119,6 +119,12 @@ impl Scene {
             geom.e1
         };
         let dpdu = o.to_world.transform_vector3a(dpdu_obj);
+        if mat.slots.normal.is_some() && o.to_world.matrix3.determinant() < 0.0 {
+            // The bitangent is n × t · w in the mesh's own space (glTF 2.0, 3.7.2.1). A
+            // mirroring transform maps a cross product to minus the cross product of the
+            // mapped vectors, so the world n × t needs the other sign.
+            tangent_sign = -tangent_sign;
+        }
         let mut ns = mat.shading_normal(&self.textures, &uv, ns, dpdu, tangent_sign);
         if ns.dot(ng) < 0.0 {
             // Interpolated normals disagreeing with the winding: the winding defines the front
@@ -302,6 +308,47 @@ mod tests {
             // u = 0.6 reads the right texel (blue): the diffuse albedo there.
             assert_eq!(scene.bsdf(&it).albedo(), Vec3A::new(0.0, 0.0, 1.0));
             assert_eq!(scene.emitted(&it, Vec3A::Z), Vec3A::ZERO);
+        }
+    }
+
+    /// A normal map bends the normal the same way in the world whether the node mirrors the
+    /// mesh or not, with supplied tangents (w = ±1) and with tangents from the uvs: the
+    /// bitangent is n × t · w in the mesh's own space (glTF 2.0, 3.7.2.1).
+    #[test]
+    fn a_normal_map_bends_alike_under_a_mirroring_transform() {
+        // A texel that leans toward +bitangent: (0, 0.6, 0.8) in tangent space.
+        let texel = [0.5, 0.8, 0.9, 1.0];
+        for (tangents, w) in [(true, 1.0f32), (true, -1.0), (false, 1.0)] {
+            let mut want = None;
+            for mirror in [
+                Vec3::ONE,
+                Vec3::new(-1.0, 1.0, 1.0),
+                Vec3::new(1.0, 1.0, -1.0),
+            ] {
+                let transform = Mat4::from_scale(mirror);
+                let mut d = triangle_scene(transform, vec![Vec3::Z; 3]);
+                d.textures[0].texels = vec![texel; 2].into();
+                d.materials[0].normal_texture = Some((TextureRef::new(0), 1.0));
+                if tangents {
+                    d.meshes[0].tangents = vec![[1.0, 0.0, 0.0, w]; 3];
+                }
+                let scene = Scene::build(&d).unwrap();
+                // Toward the triangle's front side, wherever the mirror put it.
+                let front = Vec3A::from(mirror.z * Vec3::Z);
+                let ray = Ray::new(Vec3A::new(0.2 * mirror.x, 0.2, 0.0) + front, -front);
+                let hit = scene.intersect(&ray, f32::INFINITY).unwrap();
+                let it = scene.interaction(&ray, &hit);
+                // The mapped normal in the mesh's own frame: mirrored back by the transform.
+                let local = Vec3A::from(mirror) * it.ns;
+                let want = *want.get_or_insert(local);
+                assert!(
+                    (local - want).length() < 1e-5,
+                    "tangents {tangents}, w {w}, scale {mirror}: {local} against {want}"
+                );
+                // Up the mesh's bitangent, n × t · w = +y · w, for supplied tangents; from
+                // the uvs the tangent is +x and the bitangent +y.
+                assert!((local.y - 0.6 * w).abs() < 1e-2, "{local}");
+            }
         }
     }
 }
