@@ -112,5 +112,7 @@ pub use settings::{
 /// asset TextureTransformTest and other viewers do (the transpose of the extension's GLSL
 /// listing, which v-down texture coordinates need); normal maps on a mirroring node bend
 /// normals as on the mesh unmirrored (the bitangent's sign follows the transform's
-/// determinant). Images of other scenes unchanged.
+/// determinant); `BLEND` surfaces draw their stochastic threshold from the hit's barycentrics
+/// too, so rays that cross one at a common distance (toward a directional light, from an
+/// orthographic camera) no longer pass or stop together. Images of other scenes unchanged.
 pub const RENDER_VERSION: u32 = 16;

@@ -252,8 +252,10 @@ pub struct MaterialDesc {
     pub emission: Vec3,
     /// Multiplies `emission` per texel (sRGB texture).
     pub emission_texture: Option<TextureRef>,
-    /// Whether the surface is seen (and emits) from both sides. One-sided emitters emit only on
-    /// the side their geometric normal faces (the counter-clockwise side of a triangle).
+    /// Whether the surface emits from both sides. One-sided emitters emit only on the side
+    /// their geometric normal faces (the counter-clockwise side of a triangle). Every surface
+    /// is seen, lit and casts shadows from both sides whatever this says (no back-face
+    /// culling).
     pub two_sided: bool,
     /// Alpha handling; alpha is base colour alpha times the base colour texture's alpha.
     pub alpha_mode: AlphaMode,
