@@ -114,5 +114,8 @@ pub use settings::{
 /// normals as on the mesh unmirrored (the bitangent's sign follows the transform's
 /// determinant); `BLEND` surfaces draw their stochastic threshold from the hit's barycentrics
 /// too, so rays that cross one at a common distance (toward a directional light, from an
-/// orthographic camera) no longer pass or stop together. Images of other scenes unchanged.
+/// orthographic camera) no longer pass or stop together; an environment map's `rotation` turns
+/// it by the right-hand rule about +Y, as an object's rotation turns the object (it turned the
+/// other way: images of maps with a rotation other than 0 or 180 degrees change). Images of
+/// other scenes unchanged.
 pub const RENDER_VERSION: u32 = 16;

@@ -179,17 +179,22 @@ impl Environment {
     }
 }
 
+/// The map's (u, v) seen along `d`: u = 0.5 (the image's centre column) along −Z and 0.75
+/// along +X when `rotation` is 0, v = 0 (the top row) along +Y. A `rotation` turns the map by
+/// the right-hand rule about +Y, as an object's rotation turns the object: at a quarter turn
+/// the centre column faces −X.
 #[inline]
 fn dir_to_uv(d: Vec3A, rotation: f32) -> Vec2 {
-    let phi = d.x.atan2(-d.z) - rotation;
+    let phi = d.x.atan2(-d.z) + rotation;
     let u = (0.5 + phi / (2.0 * PI)).rem_euclid(1.0);
     let v = d.y.clamp(-1.0, 1.0).acos() / PI;
     Vec2::new(u, v)
 }
 
+/// The direction that sees (u, v) of the map, and sin θ there: the inverse of [`dir_to_uv`].
 #[inline]
 fn uv_to_dir(uv: Vec2, rotation: f32) -> (Vec3A, f32) {
-    let phi = (uv.x - 0.5) * 2.0 * PI + rotation;
+    let phi = (uv.x - 0.5) * 2.0 * PI - rotation;
     let theta = uv.y * PI;
     let (sin_t, cos_t) = theta.sin_cos();
     (
@@ -212,6 +217,16 @@ mod tests {
             assert!((uv - Vec2::new(u, v)).length() < 1e-4, "{uv}");
         }
         assert!((uv_to_dir(Vec2::new(0.5, 0.5), 0.0).0 - (-Vec3A::Z)).length() < 1e-6);
+        assert!((dir_to_uv(Vec3A::X, 0.0) - Vec2::new(0.75, 0.5)).length() < 1e-6);
+        assert!((dir_to_uv(Vec3A::Y, 0.0).y).abs() < 1e-6);
+        // A quarter turn by the right-hand rule about +Y (as an object's rotation turns it)
+        // takes the centre column from −Z to −X, and the column that faced +X to −Z.
+        let quarter = std::f32::consts::FRAC_PI_2;
+        let centre = uv_to_dir(Vec2::new(0.5, 0.5), quarter).0;
+        assert!((centre - (-Vec3A::X)).length() < 1e-6, "{centre}");
+        let turned = glam::Quat::from_rotation_y(quarter) * glam::Vec3::X;
+        let uv = dir_to_uv(Vec3A::from(turned), quarter);
+        assert!((uv - Vec2::new(0.75, 0.5)).length() < 1e-6, "{uv}");
     }
 
     #[test]
