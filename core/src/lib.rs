@@ -116,6 +116,8 @@ pub use settings::{
 /// too, so rays that cross one at a common distance (toward a directional light, from an
 /// orthographic camera) no longer pass or stop together; an environment map's `rotation` turns
 /// it by the right-hand rule about +Y, as an object's rotation turns the object (it turned the
-/// other way: images of maps with a rotation other than 0 or 180 degrees change). Images of
-/// other scenes unchanged.
+/// other way: images of maps with a rotation other than 0 or 180 degrees change); inside a
+/// glTF body with transmission, light that cannot refract out through a microfacet (beyond
+/// the critical angle) is reflected totally instead of ending the path. Images of other
+/// scenes unchanged.
 pub const RENDER_VERSION: u32 = 16;

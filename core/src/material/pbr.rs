@@ -44,8 +44,11 @@
 //! through the surface (light goes straight through, only blurred by the roughness); otherwise
 //! Walter et al.'s refraction with `ior` (as [`super::rough_dielectric`], radiance transport,
 //! divided by η²). For transmission, h is the (generalised) half vector of the transmitted pair.
-//! glTF does not define the interface seen from inside, so the same Schlick Fresnel is used on
-//! both sides and opaque (or thin) surfaces are two-sided.
+//! Seen from inside a body, the interface uses the same Schlick Fresnel at the inside angle
+//! (`KHR_materials_volume` evaluates it at the angle outside, which moves light between
+//! reflection and refraction without changing their sum), and light the refraction lobe would
+//! carry through a microfacet beyond the critical angle is reflected totally, untinted, as the
+//! extension's F = 1 there; opaque (or thin) surfaces are two-sided.
 //!
 //! Clearcoat (`KHR_materials_clearcoat`, `fresnel_coat` of the extension, with the coat normal
 //! equal to the shading normal):
@@ -203,6 +206,15 @@ impl Params {
     }
 }
 
+/// Whether light along `wo` cannot cross a microfacet with cos θ = `vh` into a medium of
+/// relative index `etap` (η_t/η_i): the test [`refract`] makes, so that sampling and evaluation
+/// agree on which microfacets reflect totally.
+#[inline]
+fn total_internal(vh: f32, etap: f32) -> bool {
+    let sin2_i = (1.0 - vh * vh).max(0.0);
+    sin2_i / (etap * etap) >= 1.0
+}
+
 impl Pbr {
     #[inline]
     fn params(&self) -> Params {
@@ -338,6 +350,14 @@ impl Pbr {
             let mut f = (spec_f + p.base * FRAC_1_PI * diffuse_w) * (1.0 - coat);
             let mut pdf = probs.spec * reflection_pdf(ggx, wo, h)
                 + (probs.diffuse + probs.ms) * cosine_hemisphere_pdf(wi.z);
+            // Total internal reflection: light the refraction lobe would carry through a
+            // microfacet it cannot cross (inside a body, beyond the critical angle) is
+            // reflected instead, untinted (KHR_materials_volume: F = 1 there).
+            let trans_w = dielectric * p.transmission * (1.0 - coat);
+            if trans_w > 0.0 && !self.thin && !p.pass_through && total_internal(vh, etap) {
+                f += Vec3A::splat(trans_w * at.base_w * spec_brdf);
+                pdf += probs.trans * reflection_pdf(ggx, wo, h);
+            }
             if coat > 0.0 {
                 let cg = &p.coat_ggx;
                 f += Vec3A::splat(coat * cg.d(h) * cg.g(wo, wi) / (4.0 * wo.z * wi.z));
@@ -455,8 +475,11 @@ impl Pbr {
             (Vec3A::new(wr.x, wr.y, -wr.z), Lobe::GlossyTransmission, 1.0)
         } else {
             let wm = p.ggx.sample_wm(wo_u, u);
-            let (wi, e) = refract(wo_u, wm, etap)?;
-            (wi, Lobe::GlossyTransmission, e)
+            match refract(wo_u, wm, etap) {
+                Some((wi, e)) => (wi, Lobe::GlossyTransmission, e),
+                // Total internal reflection at this microfacet (see `eval_pdf_upper`).
+                None => (reflect(wo_u, wm), Lobe::GlossyReflection, 1.0),
+            }
         };
         // The lobe must land on its own side; otherwise the sample is lost.
         if lobe.is_transmission() != (wi.z < 0.0) || wi.z == 0.0 {
