@@ -118,6 +118,8 @@ pub use settings::{
 /// it by the right-hand rule about +Y, as an object's rotation turns the object (it turned the
 /// other way: images of maps with a rotation other than 0 or 180 degrees change); inside a
 /// glTF body with transmission, light that cannot refract out through a microfacet (beyond
-/// the critical angle) is reflected totally instead of ending the path. Images of other
-/// scenes unchanged.
+/// the critical angle) is reflected totally instead of ending the path; the JSON format's
+/// cylinders, cones, paraboloids and hyperboloids take texture coordinate v from the height
+/// (it was the angle from +Y seen from the clip box's centre). Images of other scenes
+/// unchanged.
 pub const RENDER_VERSION: u32 = 16;

@@ -12,9 +12,13 @@ use std::f32::consts::PI;
 /// the constructors below (and any ellipsoid written as x²/a² + y²/b² + z²/c² − 1 = 0) that is
 /// outward. Multiply Q by −1 to flip it.
 ///
-/// uv: spherical angles of the hit point about the clip box centre c, with the sphere's
-/// convention: u = φ/2π, φ the longitude about +Y from +X towards −Z, v = θ/π, θ the angle
-/// from +Y. ∂p/∂u is a unit tangent (the surface tangent closest to the direction of growing φ).
+/// uv: u = φ/2π, φ the longitude of the hit point about the clip box centre c, about +Y from
+/// +X towards −Z (the sphere's convention). v: for the shapes about the Y axis
+/// ([`Quadric::cylinder`], [`Quadric::cone`], [`Quadric::paraboloid`],
+/// [`Quadric::hyperboloid`]) the height, 0 at the clip box's top and 1 at its bottom, so that
+/// an image wraps round them upright, as a label round a can; for the others (ellipsoids,
+/// general quadrics) θ/π, θ the angle from +Y seen from c. ∂p/∂u is a unit tangent (the
+/// surface tangent closest to the direction of growing φ).
 ///
 /// Quadrics are not supported as area lights: [`Quadric::area`] is NaN and
 /// [`Quadric::sample`] returns `None` (the scene builder rejects emissive quadrics).
@@ -29,6 +33,8 @@ pub struct Quadric {
     /// Slack of the clip test (a tiny fraction of the box size), so that a surface that just
     /// touches the box (an ellipsoid in its own bounds) keeps its poles.
     clip_eps: f32,
+    /// v by height along Y (shapes about the Y axis) rather than by the angle from +Y.
+    v_by_height: bool,
 }
 
 impl Quadric {
@@ -62,7 +68,22 @@ impl Quadric {
             clip_min,
             clip_max,
             clip_eps: 1e-5 * size,
+            v_by_height: false,
         })
+    }
+
+    /// The same surface with v by height along Y (`true`) or by the angle from +Y (see the
+    /// type's documentation).
+    pub fn with_v_by_height(self, on: bool) -> Self {
+        Self {
+            v_by_height: on,
+            ..self
+        }
+    }
+
+    /// Whether v is the height along Y (see the type's documentation).
+    pub fn v_by_height(&self) -> bool {
+        self.v_by_height
     }
 
     // The named quadrics below are what the JSON format's shapes of the same names mean. Their
@@ -92,7 +113,10 @@ impl Quadric {
         let r2 = radius * radius;
         let m = radius * 1.001;
         let q = Mat4::from_diagonal(Vec4::new(1.0 / r2, 0.0, 1.0 / r2, -1.0));
-        Self::new(q, Vec3A::new(-m, y_min, -m), Vec3A::new(m, y_max, m))
+        Ok(
+            Self::new(q, Vec3A::new(-m, y_min, -m), Vec3A::new(m, y_max, m))?
+                .with_v_by_height(true),
+        )
     }
 
     /// The double cone x² + z² − (s·y)² = 0 with apex at the origin, axis Y and slope
@@ -106,7 +130,10 @@ impl Quadric {
         }
         let q = Mat4::from_diagonal(Vec4::new(1.0, -slope * slope, 1.0, 0.0));
         let m = slope * y_min.abs().max(y_max.abs()) * 1.001;
-        Self::new(q, Vec3A::new(-m, y_min, -m), Vec3A::new(m, y_max, m))
+        Ok(
+            Self::new(q, Vec3A::new(-m, y_min, -m), Vec3A::new(m, y_max, m))?
+                .with_v_by_height(true),
+        )
     }
 
     /// The paraboloid y = k·(x² + z²), i.e. k·x² + k·z² − y = 0, opening towards +Y for k > 0,
@@ -122,7 +149,10 @@ impl Quadric {
         q.y_axis.w = -0.5;
         q.w_axis.y = -0.5;
         let m = (height / k).sqrt() * 1.001;
-        Self::new(q, Vec3A::new(-m, -1e-3, -m), Vec3A::new(m, height, m))
+        Ok(
+            Self::new(q, Vec3A::new(-m, -1e-3, -m), Vec3A::new(m, height, m))?
+                .with_v_by_height(true),
+        )
     }
 
     /// The hyperboloid of one sheet x²/a² + z²/a² − y²/c² − 1 = 0 about the Y axis (waist radius
@@ -141,7 +171,10 @@ impl Quadric {
         ));
         let y = y_min.abs().max(y_max.abs());
         let m = a * (1.0 + y * y / (c * c)).sqrt() * 1.001;
-        Self::new(q, Vec3A::new(-m, y_min, -m), Vec3A::new(m, y_max, m))
+        Ok(
+            Self::new(q, Vec3A::new(-m, y_min, -m), Vec3A::new(m, y_max, m))?
+                .with_v_by_height(true),
+        )
     }
 
     /// The clip box's minimum corner.
@@ -265,12 +298,17 @@ impl Quadric {
         let dir = (p - c).normalize_or(Vec3A::Y);
         let phi = (-dir.z).atan2(dir.x);
         let phi = if phi < 0.0 { phi + 2.0 * PI } else { phi };
-        let theta = dir.y.clamp(-1.0, 1.0).acos();
+        let v = if self.v_by_height {
+            let (bottom, top) = (self.clip_min.y, self.clip_max.y);
+            ((top - p.y) / (top - bottom)).clamp(0.0, 1.0)
+        } else {
+            dir.y.clamp(-1.0, 1.0).acos() / PI
+        };
         let dpdu = Frame::from_zx(n, Vec3A::new(dir.z, 0.0, -dir.x)).x;
         LocalHit {
             p,
             n,
-            uv: Vec2::new(phi / (2.0 * PI), theta / PI),
+            uv: Vec2::new(phi / (2.0 * PI), v),
             dpdu,
         }
     }
@@ -428,6 +466,45 @@ mod tests {
         // ... and of its −Z point: φ = π/2.
         let h = e.hit(Vec3A::new(0.0, 0.0, -4.0), Vec3A::Z, 3.5);
         assert!((h.uv - Vec2::new(0.25, 0.5)).length() < 1e-5, "uv {}", h.uv);
+    }
+
+    /// The shapes about the Y axis take v from the height, 0 at the top and 1 at the bottom,
+    /// linearly (a label wraps a can upright and undistorted); u is the longitude as on a
+    /// sphere.
+    #[test]
+    fn shapes_about_the_y_axis_take_v_from_the_height() {
+        let tall = Quadric::cylinder(0.2, 0.0, 2.0).unwrap();
+        for (y, v) in [(1.95f32, 0.025f32), (1.5, 0.25), (1.0, 0.5), (0.1, 0.95)] {
+            // From +X, and from −Z a quarter turn on.
+            let o = Vec3A::new(3.0, y, 0.0);
+            let t = tall.intersect(o, -Vec3A::X, 0.0, f32::INFINITY).unwrap();
+            let h = tall.hit(o, -Vec3A::X, t);
+            assert!(
+                (h.uv - Vec2::new(0.0, v)).length() < 1e-5,
+                "y {y}: uv {}",
+                h.uv
+            );
+            let o = Vec3A::new(0.0, y, -3.0);
+            let t = tall.intersect(o, Vec3A::Z, 0.0, f32::INFINITY).unwrap();
+            let h = tall.hit(o, Vec3A::Z, t);
+            assert!(
+                (h.uv - Vec2::new(0.25, v)).length() < 1e-5,
+                "y {y}: uv {}",
+                h.uv
+            );
+        }
+        let cone = Quadric::cone(0.5, 1.0, 3.0).unwrap();
+        let hyperboloid = Quadric::hyperboloid(1.0, 1.0, -1.0, 1.0).unwrap();
+        for (q, y, v) in [(&cone, 2.5f32, 0.25f32), (&hyperboloid, 0.0, 0.5)] {
+            let o = Vec3A::new(5.0, y, 0.0);
+            let t = q.intersect(o, -Vec3A::X, 0.0, f32::INFINITY).unwrap();
+            let h = q.hit(o, -Vec3A::X, t);
+            assert!((h.uv.y - v).abs() < 1e-5, "y {y}: uv {}", h.uv);
+        }
+        // Ellipsoids keep the angle from +Y.
+        let e = Quadric::ellipsoid(Vec3A::new(1.0, 2.0, 1.0)).unwrap();
+        let h = e.hit(Vec3A::new(0.0, 5.0, 0.0), -Vec3A::Y, 3.0);
+        assert!(h.uv.y.abs() < 1e-3, "uv {}", h.uv);
     }
 
     #[test]

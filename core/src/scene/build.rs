@@ -820,7 +820,10 @@ fn build_analytic(shape: &ShapeDesc) -> Result<Analytic, String> {
             q,
             clip_min,
             clip_max,
-        } => Analytic::Quadric(quadric::Quadric::new(*q, v(*clip_min), v(*clip_max))?),
+            v_by_height,
+        } => Analytic::Quadric(
+            quadric::Quadric::new(*q, v(*clip_min), v(*clip_max))?.with_v_by_height(*v_by_height),
+        ),
         ShapeDesc::Mesh { .. } => unreachable!("meshes are handled by the caller"),
     })
 }

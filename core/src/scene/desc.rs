@@ -239,6 +239,24 @@ impl TextureRef {
             transform: glam::Mat3::IDENTITY,
         }
     }
+
+    /// A texture coordinate transform: translation · rotation · scale, applied to
+    /// `(u, v, 1)` (glTF's `KHR_texture_transform`, and the JSON format's `uv` of a texture).
+    ///
+    /// The rotation turns the UVs by `rotation` radians counter-clockwise as seen in texture
+    /// space, where v runs down the image: `(u, v)` → `(u·cos + v·sin, −u·sin + v·cos)`, which
+    /// turns the image clockwise on the surface. That is the transpose of the rotation in
+    /// `KHR_texture_transform`'s GLSL listing, a counter-clockwise turn only where v runs up
+    /// (KhronosGroup/glTF issue 1563); the sample asset TextureTransformTest, Blender's
+    /// importer and Babylon.js use this one.
+    pub fn uv_transform(offset: [f32; 2], rotation: f32, scale: [f32; 2]) -> glam::Mat3 {
+        use glam::{Mat3, Vec3};
+        let (s, c) = rotation.sin_cos();
+        let t = Mat3::from_cols(Vec3::X, Vec3::Y, Vec3::new(offset[0], offset[1], 1.0));
+        let r = Mat3::from_cols(Vec3::new(c, -s, 0.0), Vec3::new(s, c, 0.0), Vec3::Z);
+        let sc = Mat3::from_diagonal(Vec3::new(scale[0], scale[1], 1.0));
+        t * r * sc
+    }
 }
 
 /// A surface material: a BSDF plus emission, alpha and normal mapping.
@@ -539,6 +557,10 @@ pub enum ShapeDesc {
         clip_min: Vec3,
         /// Maximum corner of the clipping box.
         clip_max: Vec3,
+        /// Texture coordinate v from the height along Y, 0 at the box's top (the JSON format's
+        /// cylinders, cones, paraboloids and hyperboloids), rather than from the angle from +Y
+        /// (see [`crate::geometry::quadric::Quadric`]).
+        v_by_height: bool,
     },
     /// A triangle mesh: index into [`SceneDesc::meshes`].
     Mesh {
@@ -751,6 +773,23 @@ impl RenderDefaults {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn texture_transform_is_t_r_s() {
+        use glam::{Mat3, Vec3};
+        let m = TextureRef::uv_transform([0.5, 0.25], std::f32::consts::FRAC_PI_2, [2.0, 3.0]);
+        // (1, 0) scaled to (2, 0), turned a quarter counter-clockwise in a v-down space (up
+        // the image, toward −v) to (0, −2), then offset.
+        let p = m * Vec3::new(1.0, 0.0, 1.0);
+        assert!((p - Vec3::new(0.5, -1.75, 1.0)).length() < 1e-5, "{p}");
+        // (0, 1), down the image, is turned toward +u.
+        let p = m * Vec3::new(0.0, 1.0 / 3.0, 1.0);
+        assert!((p - Vec3::new(1.5, 0.25, 1.0)).length() < 1e-5, "{p}");
+        assert_eq!(
+            TextureRef::uv_transform([0.0; 2], 0.0, [1.0; 2]),
+            Mat3::IDENTITY
+        );
+    }
 
     #[test]
     fn flags_override_the_scene_which_overrides_the_defaults() {

@@ -278,6 +278,8 @@ enum JTexture {
         wrap: WrapMode,
         #[serde(default = "yes")]
         bilinear: bool,
+        #[serde(default)]
+        uv: JUv,
     },
     Checker {
         #[serde(default = "white")]
@@ -287,7 +289,56 @@ enum JTexture {
         /// Checks per unit of texture coordinate.
         #[serde(default = "one")]
         scale: f32,
+        #[serde(default)]
+        uv: JUv,
     },
+}
+
+/// A texture's own transform of the texture coordinates (`KHR_texture_transform`'s).
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct JUv {
+    #[serde(default)]
+    offset: [f32; 2],
+    /// Degrees.
+    #[serde(default)]
+    rotation: f32,
+    #[serde(default = "ones2")]
+    scale: [f32; 2],
+}
+
+impl Default for JUv {
+    fn default() -> Self {
+        JUv {
+            offset: [0.0; 2],
+            rotation: 0.0,
+            scale: ones2(),
+        }
+    }
+}
+
+fn ones2() -> [f32; 2] {
+    [1.0, 1.0]
+}
+
+impl JUv {
+    /// The transform, or which of its fields is not finite.
+    fn matrix(&self) -> Result<Mat3, &'static str> {
+        for (field, ok) in [
+            ("offset", self.offset.iter().all(|x| x.is_finite())),
+            ("rotation", self.rotation.is_finite()),
+            ("scale", self.scale.iter().all(|x| x.is_finite())),
+        ] {
+            if !ok {
+                return Err(field);
+            }
+        }
+        Ok(TextureRef::uv_transform(
+            self.offset,
+            self.rotation.to_radians(),
+            self.scale,
+        ))
+    }
 }
 
 struct JMaterial {
@@ -1109,12 +1160,21 @@ impl Converter<'_> {
         let mut spaces = HashSet::new();
         for (name, t) in &f.textures {
             let at = format!("textures.{name}");
+            let (JTexture::Image { uv, .. } | JTexture::Checker { uv, .. }) = &t.0;
+            let uv = uv.matrix().map_err(|field| {
+                self.err(
+                    &format!("{at}.uv.{field}"),
+                    format!("uv {field} must be finite"),
+                    &format!("\"{field}\""),
+                )
+            })?;
             let desc = match &t.0 {
                 JTexture::Image {
                     path,
                     srgb,
                     wrap,
                     bilinear,
+                    ..
                 } => {
                     let mut d = self.image(&format!("{at}.path"), path)?;
                     // An f32 image is converted for each of colour and data it is read as
@@ -1138,9 +1198,11 @@ impl Converter<'_> {
                     d.wrap_u = *wrap;
                     d.wrap_v = *wrap;
                     d.bilinear = *bilinear;
-                    (d, Mat3::IDENTITY)
+                    (d, uv)
                 }
-                JTexture::Checker { even, odd, scale } => {
+                JTexture::Checker {
+                    even, odd, scale, ..
+                } => {
                     if !(*scale > 0.0 && scale.is_finite()) {
                         return Err(self.err(&at, "checker scale must be positive", name));
                     }
@@ -1163,8 +1225,9 @@ impl Converter<'_> {
                         wrap_v: WrapMode::Repeat,
                         bilinear: false,
                     };
-                    // Two texels per check pair: scale uv so `scale` checks fit one unit.
-                    (d, Mat3::from_scale(Vec2::splat(*scale * 0.5)))
+                    // Two texels per check pair: scale uv so `scale` checks fit one unit
+                    // (after the texture's own transform).
+                    (d, Mat3::from_scale(Vec2::splat(*scale * 0.5)) * uv)
                 }
             };
             tex_index.insert(name.clone(), (self.desc.textures.len(), desc.1));
@@ -1945,6 +2008,7 @@ impl Converter<'_> {
                 q: q.q(),
                 clip_min: q.clip_min().into(),
                 clip_max: q.clip_max().into(),
+                v_by_height: q.v_by_height(),
             })
             .map_err(|e| this.err(&format!("{at}.shape"), e, &format!("\"{kind}\"")))
         };
@@ -2033,6 +2097,7 @@ impl Converter<'_> {
                 q: q(*matrix),
                 clip_min: v3(*clip_min),
                 clip_max: v3(*clip_max),
+                v_by_height: false,
             },
             JShape::Ellipsoid { radii } => quadric(
                 Quadric::ellipsoid(Vec3A::from(v3(*radii))),
@@ -2243,6 +2308,52 @@ mod tests {
 
     fn parse(text: &str) -> Result<SceneDesc, String> {
         parse_json(text, Path::new("."), Path::new("test.json")).map_err(|e| e.to_string())
+    }
+
+    /// A texture's `uv` transforms the texture coordinates its materials read it through:
+    /// flipped (an image upright on a rectangle whose `edge_v` points up), turned, tiled;
+    /// a checker's own scale applies after it.
+    #[test]
+    fn a_textures_uv_transform_reaches_its_materials() {
+        let d = parse(
+            r#"{
+              "textures": {
+                "flipped": {"type": "checker", "uv": {"scale": [1, -1], "offset": [0, 1]}},
+                "turned": {"type": "checker", "scale": 2, "uv": {"rotation": 90}},
+                "plain": {"type": "checker"}
+              },
+              "materials": {
+                "a": {"type": "diffuse", "texture": "flipped"},
+                "b": {"type": "diffuse", "texture": "turned"},
+                "c": {"type": "diffuse", "texture": "plain"}
+              },
+              "objects": [
+                {"shape": {"type": "sphere"}, "material": "a"},
+                {"shape": {"type": "sphere"}, "material": "b"},
+                {"shape": {"type": "sphere"}, "material": "c"}
+              ]
+            }"#,
+        )
+        .unwrap();
+        let transform = |name: &str| {
+            let m = d.materials.iter().find(|m| m.name == name).unwrap();
+            match &m.bsdf {
+                BsdfDesc::Diffuse {
+                    texture: Some(t), ..
+                } => t.transform,
+                other => panic!("{other:?}"),
+            }
+        };
+        let at = |name: &str, u: f32, v: f32| (transform(name) * Vec3::new(u, v, 1.0)).truncate();
+        // The checker's two texels per check pair halve the coordinates.
+        // Materials a, b and c read the textures flipped, turned and plain.
+        assert!((at("a", 0.2, 0.3) - Vec2::new(0.1, 0.35)).length() < 1e-6);
+        assert!((at("c", 0.2, 0.3) - Vec2::new(0.1, 0.15)).length() < 1e-6);
+        // A quarter turn takes (1, 0) to (0, −1), then scale 2 × 0.5.
+        assert!((at("b", 1.0, 0.0) - Vec2::new(0.0, -1.0)).length() < 1e-6);
+        let e =
+            parse(r#"{"textures": {"t": {"type": "checker", "uv": {"shear": 1}}}}"#).unwrap_err();
+        assert!(e.contains("shear"), "{e}");
     }
 
     #[test]
@@ -2509,11 +2620,15 @@ mod tests {
             q,
             clip_min,
             clip_max,
+            v_by_height,
         } = d.objects[0].shape
         else {
             panic!("a cylinder is a quadric");
         };
-        let built = Quadric::new(q, clip_min.into(), clip_max.into()).unwrap();
+        assert!(v_by_height, "a cylinder's v is its height");
+        let built = Quadric::new(q, clip_min.into(), clip_max.into())
+            .unwrap()
+            .with_v_by_height(v_by_height);
         assert_eq!(built, expected);
     }
 
@@ -3116,6 +3231,11 @@ mod tests {
             r#"{"textures": {"c": {"type": "checker", "odd": [-1, 0, 0]}}}"#,
             "at textures.c.odd",
             "between 0 and 1",
+        );
+        refused(
+            r#"{"textures": {"c": {"type": "checker", "uv": {"scale": [1e39, 1]}}}}"#,
+            "at textures.c.uv.scale",
+            "must be finite",
         );
         // A field of view or a lens so small that bdpt's importance would overflow.
         refused(

@@ -76,22 +76,7 @@ pub(super) fn texture_transform(
                 as u32,
         ),
     };
-    Ok((transform_matrix(offset, rotation, scale), tex_coord))
-}
-
-/// Translation · rotation · scale, applied to `(u, v, 1)`.
-///
-/// The rotation turns the UVs by `rotation` radians counter-clockwise as seen in the
-/// extension's UV space, where v runs down: `(u, v)` → `(u·cos + v·sin, −u·sin + v·cos)`.
-/// That is the transpose of the rotation in the extension's GLSL listing, which is a
-/// counter-clockwise turn only where v runs up (KhronosGroup/glTF issue 1563); the sample
-/// asset TextureTransformTest, Blender's importer and Babylon.js use this one.
-pub(super) fn transform_matrix(offset: [f32; 2], rotation: f32, scale: [f32; 2]) -> Mat3 {
-    let (s, c) = rotation.sin_cos();
-    let t = Mat3::from_cols(Vec3::X, Vec3::Y, Vec3::new(offset[0], offset[1], 1.0));
-    let r = Mat3::from_cols(Vec3::new(c, -s, 0.0), Vec3::new(s, c, 0.0), Vec3::Z);
-    let sc = Mat3::from_diagonal(Vec3::new(scale[0], scale[1], 1.0));
-    t * r * sc
+    Ok((TextureRef::uv_transform(offset, rotation, scale), tex_coord))
 }
 
 impl Loader<'_> {
@@ -467,23 +452,5 @@ impl Loader<'_> {
         self.image_cache.insert(image.index(), decoded.clone());
         self.image_content.insert(content, decoded.clone());
         Ok(decoded)
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn texture_transform_is_t_r_s() {
-        let m = transform_matrix([0.5, 0.25], std::f32::consts::FRAC_PI_2, [2.0, 3.0]);
-        // (1, 0) scaled to (2, 0), turned a quarter counter-clockwise in a v-down space (up
-        // the image, toward −v) to (0, −2), then offset.
-        let p = m * Vec3::new(1.0, 0.0, 1.0);
-        assert!((p - Vec3::new(0.5, -1.75, 1.0)).length() < 1e-5, "{p}");
-        // (0, 1), down the image, is turned toward +u.
-        let p = m * Vec3::new(0.0, 1.0 / 3.0, 1.0);
-        assert!((p - Vec3::new(1.5, 0.25, 1.0)).length() < 1e-5, "{p}");
-        assert_eq!(transform_matrix([0.0; 2], 0.0, [1.0; 2]), Mat3::IDENTITY);
     }
 }
