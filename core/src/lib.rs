@@ -120,6 +120,7 @@ pub use settings::{
 /// glTF body with transmission, light that cannot refract out through a microfacet (beyond
 /// the critical angle) is reflected totally instead of ending the path; the JSON format's
 /// cylinders, cones, paraboloids and hyperboloids take texture coordinate v from the height
-/// (it was the angle from +Y seen from the clip box's centre). Images of other scenes
-/// unchanged.
+/// (it was the angle from +Y seen from the clip box's centre); light samples on an emissive
+/// glTF MASK or BLEND surface count by its alpha, as the rays that find it do (they counted
+/// in full, cut-out texels and all). Images of other scenes unchanged.
 pub const RENDER_VERSION: u32 = 16;

@@ -692,7 +692,8 @@ pub(super) fn sample_emission(
             }
             let d = Frame::from_z(nn).to_world(local).normalize();
             let pdf_dir = emit_dir_pdf(al.emission.two_sided, ng, d);
-            let le = al.emission.radiance(&scene.textures, ng, &uv, d);
+            let le = al.emission.radiance(&scene.textures, ng, &uv, d)
+                * al.coverage(&scene.textures, &uv);
             (p, d, le, pdf_area, pdf_dir, ng, f32::INFINITY, false)
         }
         None => {

@@ -81,6 +81,18 @@ impl AreaLight {
         lum * area * scale
     }
 
+    /// The share of the surface there at a point sampled with texture coordinates `uv`
+    /// ([`crate::material::Coverage`]): the alpha of a MASK or BLEND mesh, which rays that
+    /// find the surface pass by the intersection's alpha test; 1 for analytic shapes, which
+    /// that test does not look at.
+    #[inline]
+    pub fn coverage(&self, textures: &[Texture], uv: &[Vec2; 2]) -> f32 {
+        match self.shape {
+            Emitter::Triangles { .. } => self.emission.coverage(textures, uv),
+            Emitter::Shape(_) => 1.0,
+        }
+    }
+
     /// Samples a point on triangle `prim` (or on the shape) uniformly by area: (point, front
     /// normal, texture coordinates, density per unit area).
     #[inline]
@@ -91,7 +103,7 @@ impl AreaLight {
                 let (b1, b2) = uniform_triangle(u);
                 // Texture coordinates only when the emission looks them up.
                 let uv = match uvs.get(prim as usize) {
-                    Some(c) if self.emission.texture.is_some() => {
+                    Some(c) if self.emission.reads_uv() => {
                         let b0 = 1.0 - b1 - b2;
                         c.map(|[c0, c1, c2]| c0 * b0 + c1 * b1 + c2 * b2)
                     }
@@ -129,7 +141,8 @@ impl AreaLight {
         }
         let dist = d2.sqrt();
         let wi_light = to / dist;
-        let li = self.emission.radiance(textures, ng, &uv, -wi_light);
+        let li =
+            self.emission.radiance(textures, ng, &uv, -wi_light) * self.coverage(textures, &uv);
         let cos_l = ng.dot(-wi_light).abs();
         let pdf = area_to_solid_angle(pdf_area, d2, cos_l);
         if pdf <= 0.0 || !pdf.is_finite() {
@@ -211,6 +224,7 @@ mod tests {
             radiance: Vec3A::new(1.0, 2.0, 3.0),
             two_sided: true,
             texture: None,
+            coverage: None,
         }
     }
 
@@ -404,5 +418,86 @@ mod tests {
             lit += usize::from(white);
         }
         assert!(lit > 0 && lit < 64);
+    }
+
+    /// A MASK emitter's light samples carry nothing where its alpha cuts it out, and a BLEND
+    /// one's carry alpha of its radiance: as much as the rays that find it (the intersection
+    /// passes them through by the same alpha). Analytic shapes, which the alpha test does not
+    /// look at, keep all of it.
+    #[test]
+    fn alpha_emitters_give_light_samples_their_coverage() {
+        use crate::material::{AlphaMode, Coverage};
+        use crate::texture::{TexSlot, TextureLookup};
+        // Alpha 0 on the left half, 1 on the right half.
+        let tex = Texture::new(
+            2,
+            1,
+            &[[1.0, 1.0, 1.0, 0.0], [1.0; 4]],
+            false,
+            TextureLookup::default(),
+        );
+        let textures = [tex];
+        let mut light = triangle([
+            Vec3A::new(0.0, 1.0, 0.0),
+            Vec3A::new(1.0, 1.0, 0.0),
+            Vec3A::new(0.0, 1.0, 1.0),
+        ]);
+        let Emitter::Triangles { uvs, .. } = &mut light.shape else {
+            unreachable!()
+        };
+        uvs.push(
+            [[
+                Vec2::new(0.1, 0.5),
+                Vec2::new(0.9, 0.5),
+                Vec2::new(0.1, 0.5),
+            ]; 2],
+        );
+        let from = Vec3A::new(0.2, 0.0, 0.2);
+        light.emission.coverage = Some(Coverage {
+            mode: AlphaMode::Mask(0.5),
+            alpha: 1.0,
+            texture: Some(TexSlot::new(0, 0, glam::Mat3::IDENTITY)),
+        });
+        let mut kept = 0;
+        for i in 0..64 {
+            let u = Vec2::new(rnd(2 * i), rnd(2 * i + 1));
+            let s = light.sample(0, from, u, &textures).unwrap();
+            let there = 0.1 + 0.8 * s.p_light.x >= 0.5;
+            assert_eq!(
+                s.li,
+                if there {
+                    emission().radiance
+                } else {
+                    Vec3A::ZERO
+                }
+            );
+            kept += usize::from(there);
+        }
+        assert!(kept > 0 && kept < 64);
+        light.emission.coverage = Some(Coverage {
+            mode: AlphaMode::Blend,
+            alpha: 0.3,
+            texture: None,
+        });
+        let s = light
+            .sample(0, from, Vec2::new(0.3, 0.4), &textures)
+            .unwrap();
+        assert!(
+            (s.li - emission().radiance * 0.3).abs().max_element() < 1e-6,
+            "{}",
+            s.li
+        );
+        let mut ball = placed(
+            Analytic::Sphere(sphere::Sphere {
+                center: Vec3A::ZERO,
+                radius: 0.5,
+            }),
+            Mat4::IDENTITY,
+        );
+        ball.emission.coverage = light.emission.coverage;
+        let s = ball
+            .sample(0, Vec3A::new(0.0, 3.0, 0.0), Vec2::new(0.3, 0.4), &[])
+            .unwrap();
+        assert_eq!(s.li, emission().radiance);
     }
 }

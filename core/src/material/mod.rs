@@ -29,7 +29,7 @@ pub mod surface;
 #[cfg(test)]
 mod tests;
 
-pub use surface::{AlphaMode, Emission, Material, MaterialSlots, Model, PbrParams};
+pub use surface::{AlphaMode, Coverage, Emission, Material, MaterialSlots, Model, PbrParams};
 
 use glam::{Vec2, Vec3A};
 

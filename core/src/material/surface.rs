@@ -94,9 +94,66 @@ pub struct Emission {
     pub two_sided: bool,
     /// Multiplies `radiance` (colour texture).
     pub texture: Option<TexSlot>,
+    /// Where the surface is there at all (a MASK or BLEND material); `None`: everywhere.
+    pub coverage: Option<Coverage>,
+}
+
+/// The alpha of an emitting MASK or BLEND surface, for its light samples: a ray finds such a
+/// surface only where, or as often as, its alpha lets it (the intersection's alpha test), so a
+/// point sampled on it counts by the same share.
+#[derive(Clone, Copy, Debug)]
+pub struct Coverage {
+    /// MASK (with its cutoff) or BLEND.
+    pub mode: AlphaMode,
+    /// The base colour's alpha factor.
+    pub alpha: f32,
+    /// The base colour texture, whose alpha multiplies `alpha`.
+    pub texture: Option<TexSlot>,
+}
+
+impl Coverage {
+    /// The share of the surface that is there at texture coordinates `uv`: 1 or 0 for MASK
+    /// (alpha at least the cutoff), alpha in [0, 1] for BLEND, as the intersection's alpha
+    /// test passes a ray there (`Scene::alpha_passes`).
+    #[inline]
+    pub fn at(&self, textures: &[Texture], uv: &[Vec2; 2]) -> f32 {
+        let alpha = match self.texture {
+            Some(s) => self.alpha * s.lookup(textures, uv).w,
+            None => self.alpha,
+        };
+        match self.mode {
+            AlphaMode::Opaque => 1.0,
+            AlphaMode::Mask(cutoff) => {
+                if alpha >= cutoff {
+                    1.0
+                } else {
+                    0.0
+                }
+            }
+            AlphaMode::Blend => {
+                if alpha > 0.0 {
+                    alpha.min(1.0)
+                } else {
+                    0.0
+                }
+            }
+        }
+    }
 }
 
 impl Emission {
+    /// Whether [`Emission::radiance`] or [`Emission::coverage`] reads texture coordinates.
+    #[inline]
+    pub fn reads_uv(&self) -> bool {
+        self.texture.is_some() || self.coverage.is_some_and(|c| c.texture.is_some())
+    }
+
+    /// The share of the surface that is there at `uv` (see [`Coverage`]): 1 without alpha.
+    #[inline]
+    pub fn coverage(&self, textures: &[Texture], uv: &[Vec2; 2]) -> f32 {
+        self.coverage.map_or(1.0, |c| c.at(textures, uv))
+    }
+
     /// Radiance leaving a point with geometric normal `ng` and texture coordinates `uv`
     /// towards `wo` (unit, pointing away from the surface).
     #[inline]

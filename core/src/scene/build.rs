@@ -23,7 +23,7 @@ use crate::geometry::{aabox, plane, polygon, quadric, sphere, Aabb, Analytic};
 use crate::light::area::{Emitter, PlacedShape, TriangleLight};
 use crate::light::environment::check_map;
 use crate::light::{check_radiance, AreaLight, Environment, Light};
-use crate::material::{AlphaMode, Emission, Material, MaterialSlots, Model, PbrParams};
+use crate::material::{AlphaMode, Coverage, Emission, Material, MaterialSlots, Model, PbrParams};
 use crate::medium::{GridMedium, HomogeneousMedium, Medium};
 use crate::settings::{EnvironmentChoice, RenderSettings};
 use crate::texture::{TexSlot, Texels, Texture, TextureLookup};
@@ -379,7 +379,7 @@ impl Scene {
                             }
                         })
                         .collect();
-                    let uvs = if emission.texture.is_some() {
+                    let uvs = if emission.reads_uv() {
                         m.indices.iter().map(|&c| corner_uvs(m, c)).collect()
                     } else {
                         Vec::new()
@@ -1029,6 +1029,11 @@ fn build_material(m: &MaterialDesc, n_textures: usize) -> Result<Material, Scene
         radiance,
         two_sided: m.two_sided,
         texture: check(&m.emission_texture)?,
+        coverage: (m.alpha_mode != AlphaMode::Opaque).then_some(Coverage {
+            mode: m.alpha_mode,
+            alpha: base_color.w,
+            texture: slots.base,
+        }),
     };
     Ok(Material {
         model,
