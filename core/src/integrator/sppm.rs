@@ -355,7 +355,9 @@ fn trace_photon(
         }
         let bsdf = scene.bsdf(&si);
         let wo_w = -ray.d;
-        if depth > 0 && !bsdf.is_delta() && beta.is_finite() && beta != Vec3A::ZERO {
+        // Photons are gathered only where camera paths stop: not on delta or near-specular
+        // surfaces.
+        if depth > 0 && !bsdf.is_near_specular() && beta.is_finite() && beta != Vec3A::ZERO {
             out.push(Photon {
                 p: si.p.into(),
                 wi: wo_w.into(),
@@ -398,11 +400,12 @@ struct VisiblePoint {
     frame: Frame,
     bsdf: Bsdf,
     beta: Vec3A,
-    /// The delta bounces (mirrors, glass) the camera ray took to reach it.
+    /// The bounces (mirrors, glass, near-specular surfaces) the camera ray took to reach it.
     depth: u32,
 }
 
-/// The camera path of one pixel's iteration: emission seen directly or through delta BSDFs,
+/// The camera path of one pixel's iteration: emission seen directly or through delta and
+/// near-specular BSDFs ([`Bsdf::is_near_specular`]),
 /// direct light at the visible point (one light as `path` chooses it, no MIS: emitters found past the
 /// visible point are the photons' part), and the visible point itself.
 fn camera_pass(
@@ -451,7 +454,10 @@ fn camera_pass(
         let [u_fine, u_lobe, _] = sampler.hashed_3();
         let u_ld = sampler.next_2d();
         let u_dir = sampler.next_2d();
-        if !bsdf.is_delta() {
+        // Through delta and near-specular surfaces (mirrors, glass, smooth metal) the camera
+        // path goes on, sampling the BSDF: gathering there would need photons that line up
+        // with the view, which almost never come.
+        if !bsdf.is_near_specular() {
             if let Some((index, pmf, u_ld)) = job.lights().choose_in(u_ld, u_fine) {
                 let ld = light_contribution(scene, job, &si, &bsdf, &frame, wo, index, u_ld, false);
                 l += beta * ld / pmf;

@@ -75,6 +75,10 @@ pub struct BsdfSample {
     pub eta: f32,
 }
 
+/// GGX alpha (roughness squared) up to which [`Bsdf::is_near_specular`] counts a lobe as
+/// nearly specular: roughness 0.25.
+pub const NEAR_SPECULAR_ALPHA: f32 = 0.0625;
+
 /// A BSDF with its parameters resolved at one surface point.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Bsdf {
@@ -138,6 +142,23 @@ impl Bsdf {
     #[inline]
     pub fn is_delta(&self) -> bool {
         dispatch!(self, b => b.is_delta())
+    }
+
+    /// Whether every lobe is a delta or a GGX lobe of alpha at most [`NEAR_SPECULAR_ALPHA`],
+    /// with no diffuse part: a surface so close to a mirror or clear glass that a photon
+    /// arriving at it almost never lines up with a given view. `sppm` carries its camera paths
+    /// on through such surfaces, as through delta ones (pbrt-v4's SPPM through every glossy
+    /// surface), instead of gathering photons on them.
+    #[inline]
+    pub fn is_near_specular(&self) -> bool {
+        let near = |alpha: f32| alpha <= NEAR_SPECULAR_ALPHA;
+        match self {
+            Bsdf::Diffuse(_) => false,
+            Bsdf::Mirror(_) | Bsdf::Dielectric(_) => true,
+            Bsdf::Conductor(c) => near(c.alpha),
+            Bsdf::RoughDielectric(d) => near(d.alpha),
+            Bsdf::Pbr(p) => p.is_delta() || p.is_near_specular(near),
+        }
     }
 
     /// A colour summarising the surface, for the `albedo` debug output and denoisers.

@@ -507,6 +507,21 @@ impl Pbr {
             && unit(self.metallic) == 0.0
             && unit(self.clearcoat) == 0.0
     }
+    /// Whether every lobe is a GGX lobe whose alpha `near` accepts (the clearcoat's too), with
+    /// no diffuse part: metallic, or fully transmissive ([`super::Bsdf::is_near_specular`]).
+    pub fn is_near_specular(&self, near: impl Fn(f32) -> bool) -> bool {
+        let alpha = |a: f32| {
+            if a.is_nan() {
+                PBR_MIN_ALPHA
+            } else {
+                a.max(PBR_MIN_ALPHA)
+            }
+        };
+        let diffuse = (1.0 - unit(self.metallic)) * (1.0 - unit(self.transmission));
+        diffuse == 0.0
+            && near(alpha(self.alpha))
+            && (unit(self.clearcoat) == 0.0 || near(alpha(self.clearcoat_alpha)))
+    }
     /// The base colour.
     pub fn albedo(&self) -> Vec3A {
         self.base_color
