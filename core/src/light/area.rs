@@ -370,6 +370,21 @@ mod tests {
         }
     }
 
+    /// Gives the triangle of [`triangle`] texture coordinates with u = 0.9 at corner 1 and 0.1
+    /// at corners 0 and 2 (v = 0.5), in both sets: a point's u is 0.1 + 0.8 × its x.
+    fn spread_u(light: &mut AreaLight) {
+        let Emitter::Triangles { uvs, .. } = &mut light.shape else {
+            unreachable!()
+        };
+        uvs.push(
+            [[
+                Vec2::new(0.1, 0.5),
+                Vec2::new(0.9, 0.5),
+                Vec2::new(0.1, 0.5),
+            ]; 2],
+        );
+    }
+
     #[test]
     fn one_sided_lights_are_dark_from_behind_and_textured_ones_read_their_uvs() {
         let mut light = triangle([
@@ -393,18 +408,8 @@ mod tests {
             crate::texture::TextureLookup::default(),
         );
         light.emission.texture = Some(crate::texture::TexSlot::new(0, 0, glam::Mat3::IDENTITY));
-        let Emitter::Triangles { uvs, .. } = &mut light.shape else {
-            unreachable!()
-        };
-        // Corner 1 sits at u = 0.9 (white), corners 0 and 2 at u = 0.1 (black).
-        uvs.push(
-            [[
-                Vec2::new(0.1, 0.5),
-                Vec2::new(0.9, 0.5),
-                Vec2::new(0.1, 0.5),
-            ]; 2],
-        );
         // The sampled point's x is its barycentric weight of corner 1, so its u is 0.1 + 0.8 x.
+        spread_u(&mut light);
         let textures = [tex];
         let mut lit = 0;
         for i in 0..64 {
@@ -442,16 +447,7 @@ mod tests {
             Vec3A::new(1.0, 1.0, 0.0),
             Vec3A::new(0.0, 1.0, 1.0),
         ]);
-        let Emitter::Triangles { uvs, .. } = &mut light.shape else {
-            unreachable!()
-        };
-        uvs.push(
-            [[
-                Vec2::new(0.1, 0.5),
-                Vec2::new(0.9, 0.5),
-                Vec2::new(0.1, 0.5),
-            ]; 2],
-        );
+        spread_u(&mut light);
         let from = Vec3A::new(0.2, 0.0, 0.2);
         light.emission.coverage = Some(Coverage {
             mode: AlphaMode::Mask(0.5),
