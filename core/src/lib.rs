@@ -123,6 +123,7 @@ pub use settings::{
 /// (it was the angle from +Y seen from the clip box's centre); light samples on an emissive
 /// glTF MASK or BLEND surface count by its alpha, as the rays that find it do (they counted
 /// in full, cut-out texels and all); `sppm` carries its camera paths on through nearly
-/// specular surfaces (smooth `pbr` glass and metal, GGX alpha up to 0.0625, no diffuse part)
-/// instead of gathering photons on them. Images of other scenes unchanged.
+/// specular surfaces (smooth `pbr` glass and metal, GGX alpha up to 0.0625, no diffuse part),
+/// taking a light sample there for point, spot and directional lights alone, instead of
+/// gathering photons on them. Images of other scenes unchanged.
 pub const RENDER_VERSION: u32 = 16;

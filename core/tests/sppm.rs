@@ -90,7 +90,7 @@ fn sppm_matches_path_on_the_cornell_box() {
 /// some 17 % brighter than `path`, `bdpt` and Mitsuba.)
 #[test]
 fn sppm_bounds_the_whole_path_by_max_depth_behind_glass() {
-    ball_agrees_with_path(r#"{"type": "dielectric", "ior": 1.5}"#, 3);
+    ball_agrees_with_path(r#"{"type": "dielectric", "ior": 1.5}"#, 3, "");
 }
 
 /// Smooth glTF-model glass and smooth metal are not delta (their GGX alpha is clamped above
@@ -103,17 +103,26 @@ fn sppm_sees_through_smooth_pbr_glass_and_in_smooth_metal() {
         r#"{"type": "pbr", "transmission": 1, "roughness": 0}"#,
         r#"{"type": "pbr", "metallic": 1, "roughness": 0.1, "base_color": [0.9, 0.8, 0.6]}"#,
     ] {
-        ball_agrees_with_path(ball, 6);
+        ball_agrees_with_path(ball, 6, "");
     }
+    // A point light's glint on smooth metal: no ray can find the light, so the camera path
+    // takes it from a light sample on the surface it goes on through.
+    ball_agrees_with_path(
+        r#"{"type": "pbr", "metallic": 1, "roughness": 0.2}"#,
+        4,
+        r#""lights": [{"type": "point", "position": [0.8, 1.8, 2], "intensity": [20, 20, 20]}],"#,
+    );
 }
 
 /// `sppm` and `path` agree, within 4 standard errors over six seeds, on the 8 × 8 pixels at
-/// the centre of a ball of material `ball` (JSON) on a floor before a wall, under a lamp and a
-/// grey sky, with paths of at most `max_depth` bounces.
-fn ball_agrees_with_path(ball: &str, max_depth: u32) {
+/// the centre of a ball of material `ball` (JSON) on a floor before a wall, under a lamp, a
+/// grey sky and the scene's `lights` (a JSON member and its comma, or nothing), with paths of
+/// at most `max_depth` bounces.
+fn ball_agrees_with_path(ball: &str, max_depth: u32, lights: &str) {
     let scene = load(&format!(
         r#"{{
   "camera": {{"position": [0, 1, 4], "look_at": [0, 0.7, 0], "fov": 40}},
+  {lights}
   "materials": {{
     "floor": {{"type": "diffuse", "albedo": [0.7, 0.6, 0.5]}},
     "wall": {{"type": "diffuse", "albedo": [0.3, 0.5, 0.7]}},

@@ -30,12 +30,25 @@ pub(crate) fn sample_one_light(
     let Some((index, pmf, u)) = job.lights().choose_in(u, jitter) else {
         return Vec3A::ZERO;
     };
-    light_contribution(scene, job, it, bsdf, frame, wo, index, u, true) / pmf
+    light_contribution(scene, job, it, bsdf, frame, wo, index, u, Counted::Mis) / pmf
 }
 
-/// Contribution of light `index` sampled once with `u` (without the selection probability).
-/// With `mis`, weighted by the power heuristic against BSDF sampling (the path tracer also
-/// finds emitters by BSDF sampling); without, the full estimate (Whitted finds them only here).
+/// How a light sample counts beside the emitters a path finds by going on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Counted {
+    /// Weighted by the power heuristic against BSDF sampling: the path goes on and finds
+    /// emitters too (`path`).
+    Mis,
+    /// In full: nothing else finds the light from here (Whitted's shading, `sppm`'s visible
+    /// point).
+    Full,
+    /// Only a light no ray can hit (point, spot, directional), in full: the path goes on and
+    /// finds the others, unweighted (`sppm` through a near-specular surface).
+    DeltaOnly,
+}
+
+/// Contribution of light `index` sampled once with `u` (without the selection probability),
+/// counted as `counted` says.
 #[inline]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn light_contribution(
@@ -47,12 +60,12 @@ pub(crate) fn light_contribution(
     wo: Vec3A,
     index: usize,
     u: Vec2,
-    mis: bool,
+    counted: Counted,
 ) -> Vec3A {
     let Some(s) = job.sample_light(scene, index, it.p, u) else {
         return Vec3A::ZERO;
     };
-    if s.li == Vec3A::ZERO || !(s.pdf > 0.0) {
+    if s.li == Vec3A::ZERO || !(s.pdf > 0.0) || (counted == Counted::DeltaOnly && !s.delta) {
         return Vec3A::ZERO;
     }
     let wi_local = frame.to_local(s.wi);
@@ -69,7 +82,7 @@ pub(crate) fn light_contribution(
     if scene.occluded_past_interfaces(&shadow, tmax) {
         return Vec3A::ZERO;
     }
-    if s.delta || !mis {
+    if s.delta || counted != Counted::Mis {
         f * s.li / s.pdf
     } else {
         let w = power_heuristic(s.pdf * job.lights().pmf(index), bsdf_pdf);

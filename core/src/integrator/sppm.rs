@@ -21,7 +21,7 @@
 //! adjoint BSDF, as `bdpt`'s light subpaths.
 
 use super::bdpt::{adjoint_f, sample_emission, scene_sphere};
-use super::direct::light_contribution;
+use super::direct::{light_contribution, Counted};
 use super::Cancelled;
 use crate::light::range_window;
 use crate::material::Bsdf;
@@ -456,12 +456,23 @@ fn camera_pass(
         let u_dir = sampler.next_2d();
         // Through delta and near-specular surfaces (mirrors, glass, smooth metal) the camera
         // path goes on, sampling the BSDF: gathering there would need photons that line up
-        // with the view, which almost never come.
-        if !bsdf.is_near_specular() {
+        // with the view, which almost never come. A near-specular surface still takes the
+        // lights no ray can find (a point light's glint on smooth metal) from a light sample;
+        // the path finds the others.
+        let stop = !bsdf.is_near_specular();
+        if stop || !bsdf.is_delta() {
             if let Some((index, pmf, u_ld)) = job.lights().choose_in(u_ld, u_fine) {
-                let ld = light_contribution(scene, job, &si, &bsdf, &frame, wo, index, u_ld, false);
+                let counted = if stop {
+                    Counted::Full
+                } else {
+                    Counted::DeltaOnly
+                };
+                let ld =
+                    light_contribution(scene, job, &si, &bsdf, &frame, wo, index, u_ld, counted);
                 l += beta * ld / pmf;
             }
+        }
+        if stop {
             let vp = VisiblePoint {
                 p: si.p,
                 wo,

@@ -6,7 +6,7 @@
 //! Area and environment lights are sampled once per light per camera sample (so soft shadows
 //! converge with more samples); point, spot and directional lights give hard shadows.
 
-use super::direct::light_contribution;
+use super::direct::{light_contribution, Counted};
 use crate::geometry::Ray;
 use crate::material::{fresnel_dielectric, refract, Bsdf};
 use crate::sampling::detmath::exp3;
@@ -70,7 +70,7 @@ fn trace(
     if !bsdf.is_delta() {
         for i in 0..job.lights().len() {
             let u = sampler.next_2d();
-            l += light_contribution(scene, job, &it, &bsdf, &frame, wo, i, u, false);
+            l += light_contribution(scene, job, &it, &bsdf, &frame, wo, i, u, Counted::Full);
         }
     }
     if depth >= max_depth {
