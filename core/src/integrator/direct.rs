@@ -1,7 +1,8 @@
 //! Direct lighting: the light a surface point receives straight from the lights, estimated by
 //! sampling a point or direction on a light and tracing a shadow ray. Shared by the path tracer
-//! (one light chosen by `LightSet::choose_in`, weighted by multiple importance sampling against BSDF sampling)
-//! and Whitted's tracer (every light, full weight).
+//! (one light chosen by `LightSet::choose_in`, weighted by multiple importance sampling against BSDF sampling),
+//! Whitted's tracer (every light, full weight) and `sppm`'s camera paths (full weight at the
+//! visible point, delta lights alone on the near-specular surfaces before it).
 
 use crate::geometry::Interaction;
 use crate::material::Bsdf;

@@ -1,6 +1,7 @@
 //! Stochastic progressive photon mapping (Hachisuka and Jensen 2009, as pbrt-v4's
 //! `SPPMIntegrator`): each iteration finds one visible point per pixel (the first surface
-//! with a BSDF that is not a delta, following mirrors and glass on the way), traces a
+//! whose BSDF is neither a delta nor near-specular, `Bsdf::is_near_specular`, following
+//! mirrors, glass and smooth metal on the way), traces a
 //! photon pass from the lights, and updates each pixel's photon count N, search radius r and
 //! flux τ from the photons within r of its visible point (α = 2/3):
 //! N' = N + αM, r' = r √(N'/(N + M)), τ' = (τ + β Φ) r'²/r². After n iterations of P photons
@@ -405,7 +406,9 @@ struct VisiblePoint {
 }
 
 /// The camera path of one pixel's iteration: emission seen directly or through delta and
-/// near-specular BSDFs ([`Bsdf::is_near_specular`]),
+/// near-specular BSDFs ([`Bsdf::is_near_specular`]), the light of point, spot and
+/// directional lights on the near-specular surfaces passed (a light sample there that counts
+/// only those, which no ray can find),
 /// direct light at the visible point (one light as `path` chooses it, no MIS: emitters found past the
 /// visible point are the photons' part), and the visible point itself.
 fn camera_pass(
