@@ -126,4 +126,12 @@ pub use settings::{
 /// specular surfaces (smooth `pbr` glass and metal, GGX alpha up to 0.0625, no diffuse part),
 /// taking a light sample there for point, spot and directional lights alone, instead of
 /// gathering photons on them. Images of other scenes unchanged.
-pub const RENDER_VERSION: u32 = 16;
+///
+/// 17 (2026-12-07): every integrator tracks the solid transmissive bodies a path is in
+/// (`scene::bodies`), so a body's absorption (a `dielectric`'s `absorption`, glTF's
+/// `KHR_materials_volume`) attenuates every stretch of a path within it: to an object immersed
+/// in it, and a light sample's shadow ray to a light in it, as well as the stretch to the
+/// body's own surface (only that one was attenuated before; `bdpt` and `sppm` attenuated a
+/// part of the rest). Images of scenes with such a body change where objects or lights sit
+/// inside it; images of other scenes are unchanged.
+pub const RENDER_VERSION: u32 = 17;

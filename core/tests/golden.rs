@@ -276,9 +276,9 @@ fn image_hash(integrator: IntegratorKind) -> String {
 /// The hashes of the current arithmetic, pinned with [`raytile_core::RENDER_VERSION`].
 const GOLDEN: [(IntegratorKind, &str); 9] = [
     (IntegratorKind::Path, "3597a8cf8e8636a7"),
-    (IntegratorKind::Volpath, "067f6e4a914ede8c"),
-    (IntegratorKind::Bdpt, "672d7c5e534d19ae"),
-    (IntegratorKind::Sppm, "fdff6c23475f6a0f"),
+    (IntegratorKind::Volpath, "12660f1ea1462eae"),
+    (IntegratorKind::Bdpt, "facff1132bdb5124"),
+    (IntegratorKind::Sppm, "8cd6978ad287d687"),
     (IntegratorKind::Whitted, "1fb03513b2104f1a"),
     (IntegratorKind::Normals, "7bc0a2763bfb615f"),
     (IntegratorKind::Albedo, "ad105da7432cb490"),

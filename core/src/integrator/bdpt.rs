@@ -21,6 +21,7 @@ use crate::sampling::detmath::exp3;
 use crate::sampling::warp::{concentric_disk, cosine_hemisphere, uniform_cone, uniform_sphere};
 use crate::sampling::warp::{Frame, UNIFORM_SPHERE_PDF};
 use crate::sampling::{hash_u32, Sampler};
+use crate::scene::bodies::{beer, Bodies};
 use crate::scene::ObjectKind;
 use crate::{RenderJob, Scene};
 use glam::{Vec2, Vec3A};
@@ -108,6 +109,8 @@ struct Vertex {
     src: Src,
     /// An environment or directional light (no position).
     infinite: bool,
+    /// The bodies the vertex is inside (for a surface, on the side the walk reached it from).
+    bodies: Bodies,
 }
 
 impl Vertex {
@@ -125,6 +128,7 @@ impl Vertex {
             pdf_rev: 0.0,
             src: Src::None,
             infinite: false,
+            bodies: Bodies::default(),
         }
     }
 
@@ -380,9 +384,9 @@ fn connectible(ctx: &Ctx, v: &Vertex) -> bool {
     }
 }
 
-/// Geometry term with visibility between two vertices, times the transmittance of an
-/// absorbing body the segment runs through (as the random walk attenuates its segments: by the
-/// body whose surface the segment reaches from behind).
+/// Geometry term with visibility between two vertices, times the transmittance of the
+/// absorbing body the segment runs through (the one `b`'s side toward `a` is in, as a walk
+/// from `b` would find it).
 fn g(ctx: &Ctx, a: &Vertex, b: &Vertex) -> Vec3A {
     let d = a.p - b.p;
     let d2 = d.length_squared();
@@ -401,16 +405,24 @@ fn g(ctx: &Ctx, a: &Vertex, b: &Vertex) -> Vec3A {
     if g == 0.0 || occluded(ctx, a, b) {
         return Vec3A::ZERO;
     }
-    // `w` points from b to a: the segment reaches b from behind when it leaves b's body there.
-    let inside = |v: &Vertex, toward: Vec3A| match &v.it {
-        Some(it) if v.ng.dot(toward) > 0.0 => ctx.scene.absorption(it.object),
-        _ => Vec3A::ZERO,
+    // `w` points from b to a.
+    Vec3A::splat(g) * transmittance(ctx, b, w, dist)
+}
+
+/// The transmittance of the absorbing body (if any) along the stretch of length `dist` that
+/// leaves vertex `v` along `w`.
+fn transmittance(ctx: &Ctx, v: &Vertex, w: Vec3A, dist: f32) -> Vec3A {
+    if !ctx.scene.absorbs {
+        return Vec3A::ONE;
+    }
+    let sigma = match &v.it {
+        Some(it) => v.bodies.sigma_leaving(ctx.scene, it, w, false),
+        None => v.bodies.sigma(ctx.scene, false),
     };
-    let sigma = inside(b, -w).max(inside(a, w));
     if sigma == Vec3A::ZERO {
-        Vec3A::splat(g)
+        Vec3A::ONE
     } else {
-        Vec3A::splat(g) * exp3(-sigma * dist)
+        beer(sigma, dist)
     }
 }
 
@@ -441,6 +453,7 @@ fn random_walk(
     max_vertices: usize,
     importance: bool,
     first_range: f32,
+    mut bodies: Bodies,
     path: &mut Vec<Vertex>,
 ) {
     if max_vertices == 0 {
@@ -462,8 +475,8 @@ fn random_walk(
             break;
         };
         let it = ctx.scene.interaction(&ray, &hit);
-        if it.ng.dot(ray.d) > 0.0 {
-            let sigma = ctx.scene.absorption(it.object);
+        if ctx.scene.absorbs {
+            let sigma = bodies.arrive(ctx.scene, &it, ray.d, false);
             if sigma != Vec3A::ZERO {
                 beta *= exp3(-sigma * hit.t);
             }
@@ -482,6 +495,7 @@ fn random_walk(
         v.ns = it.ns;
         v.it = Some(it);
         v.bsdf = Some(bsdf);
+        v.bodies = bodies;
         if let Some(i) = ctx.emitter_index(&it) {
             v.src = Src::Light(i);
         }
@@ -524,6 +538,9 @@ fn random_walk(
         path[n - 1].delta = delta;
         let cur = path[n - 1];
         path[n - 2].pdf_rev = convert_density(pdf_rev, &cur, &path[n - 2]);
+        if ctx.scene.absorbs {
+            bodies.leave(ctx.scene, &it, wi_w);
+        }
         ray = it.spawn_ray(wi_w);
         // Russian roulette from the third bounce, on the throughput (pbrt-v4's rule).
         let rr_beta = beta * eta_scale;
@@ -759,6 +776,7 @@ fn light_subpath(ctx: &Ctx, sampler: &mut Sampler, max_vertices: usize, path: &m
     v.ns = n;
     v.infinite = infinite;
     v.pdf_fwd = pdf_pos * pmf;
+    v.bodies = ctx.job.starts.light(ctx.scene, index);
     path.push(v);
     random_walk(
         ctx,
@@ -769,6 +787,7 @@ fn light_subpath(ctx: &Ctx, sampler: &mut Sampler, max_vertices: usize, path: &m
         max_vertices - 1,
         true,
         range,
+        v.bodies,
         path,
     );
     if infinite {
@@ -916,6 +935,7 @@ pub fn li(
     // Camera subpath.
     let mut camera: Vec<Vertex> = Vec::with_capacity(max_depth + 2);
     let mut cam0 = Vertex::new(Kind::Camera, ray.o, Vec3A::ONE);
+    cam0.bodies = job.starts.camera();
     // An orthographic camera's importance is a delta in direction: no light subpath can
     // reach it, and the strategies that would are out of the weights.
     cam0.delta = !job.camera.is_perspective();
@@ -930,6 +950,7 @@ pub fn li(
         max_depth + 1,
         false,
         f32::INFINITY,
+        cam0.bodies,
         &mut camera,
     );
     // Light subpath.
@@ -999,7 +1020,10 @@ fn connect(
         v.pdf_fwd = 0.0;
         // s ≥ 2 here (s = t = 1 is skipped): qs is a surface vertex of the light subpath.
         let mut c = qs.beta * v.beta * vertex_f(qs, &light[s - 2], &v, true);
-        c *= qs.ns.dot((cs.p - qs.p).normalize_or_zero()).abs();
+        let to_camera = cs.p - qs.p;
+        c *= qs.ns.dot(to_camera.normalize_or_zero()).abs();
+        let dist = to_camera.length();
+        c *= transmittance(ctx, qs, to_camera / dist, dist);
         if c == Vec3A::ZERO || occluded(ctx, qs, &v) {
             return None;
         }
@@ -1024,7 +1048,8 @@ fn connect(
         v.infinite = infinite;
         v.pdf_fwd = ctx.pdf_light_origin(&v, -ls.wi);
         let f = vertex_f(pt, &camera[t - 2], &v, false);
-        let c = pt.beta * f * v.beta * pt.ns.dot(ls.wi).abs();
+        let c =
+            pt.beta * f * v.beta * pt.ns.dot(ls.wi).abs() * transmittance(ctx, pt, ls.wi, ls.dist);
         if c == Vec3A::ZERO {
             return None;
         }

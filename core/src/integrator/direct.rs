@@ -8,6 +8,7 @@ use crate::geometry::Interaction;
 use crate::material::Bsdf;
 use crate::sampling::power_heuristic;
 use crate::sampling::warp::Frame;
+use crate::scene::bodies::{beer, Bodies};
 use crate::{RenderJob, Scene};
 use glam::{Vec2, Vec3A};
 
@@ -25,13 +26,26 @@ pub(crate) fn sample_one_light(
     bsdf: &Bsdf,
     frame: &Frame,
     wo: Vec3A,
+    bodies: &Bodies,
     u: Vec2,
     jitter: f32,
 ) -> Vec3A {
     let Some((index, pmf, u)) = job.lights().choose_in(u, jitter) else {
         return Vec3A::ZERO;
     };
-    light_contribution(scene, job, it, bsdf, frame, wo, index, u, Counted::Mis) / pmf
+    let c = light_contribution(
+        scene,
+        job,
+        it,
+        bsdf,
+        frame,
+        wo,
+        bodies,
+        index,
+        u,
+        Counted::Mis,
+    );
+    c / pmf
 }
 
 /// How a light sample counts beside the emitters a path finds by going on.
@@ -49,7 +63,8 @@ pub(crate) enum Counted {
 }
 
 /// Contribution of light `index` sampled once with `u` (without the selection probability),
-/// counted as `counted` says.
+/// counted as `counted` says, for a path inside `bodies` (whose absorption the shadow ray
+/// takes).
 #[inline]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn light_contribution(
@@ -59,6 +74,7 @@ pub(crate) fn light_contribution(
     bsdf: &Bsdf,
     frame: &Frame,
     wo: Vec3A,
+    bodies: &Bodies,
     index: usize,
     u: Vec2,
     counted: Counted,
@@ -71,9 +87,15 @@ pub(crate) fn light_contribution(
     }
     let wi_local = frame.to_local(s.wi);
     let (f, bsdf_pdf) = bsdf.eval_pdf(wo, wi_local);
-    let f = f * wi_local.z.abs();
+    let mut f = f * wi_local.z.abs();
     if f.max_element() <= 0.0 {
         return Vec3A::ZERO;
+    }
+    if scene.absorbs {
+        let sigma = bodies.sigma_leaving(scene, it, s.wi, false);
+        if sigma != Vec3A::ZERO {
+            f *= beer(sigma, s.dist);
+        }
     }
     let (shadow, tmax) = if s.dist.is_finite() {
         it.spawn_ray_to(s.p_light, s.n_light)

@@ -29,6 +29,7 @@ pub fn li(
     let mut prev_it: Option<Interaction> = None;
     let mut eta_scale = 1.0f32;
     let mut depth = 0u32;
+    let mut bodies = job.starts.camera();
     loop {
         let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
             if let Some(env) = job.environment() {
@@ -45,9 +46,9 @@ pub fn li(
         };
         let it = scene.interaction(&ray, &hit);
         let wo_world = -ray.d;
-        // A ray that reaches a surface from its back side travelled inside that body.
-        if it.ng.dot(ray.d) > 0.0 {
-            let sigma = scene.absorption(it.object);
+        // Absorption inside the body the stretch ran through.
+        if scene.absorbs {
+            let sigma = bodies.arrive(scene, &it, ray.d, false);
             if sigma != Vec3A::ZERO {
                 beta *= exp3(-sigma * hit.t);
             }
@@ -85,7 +86,8 @@ pub fn li(
         let u_dir = sampler.next_2d();
 
         if !bsdf.is_delta() {
-            l += beta * sample_one_light(scene, job, &it, &bsdf, &frame, wo, u_light, u_fine);
+            l += beta
+                * sample_one_light(scene, job, &it, &bsdf, &frame, wo, &bodies, u_light, u_fine);
         }
         let Some(bs) = bsdf.sample(wo, u_lobe, u_dir) else {
             break;
@@ -104,6 +106,9 @@ pub fn li(
             eta_scale *= bs.eta * bs.eta;
         }
         let wi = frame.to_world(bs.wi).normalize();
+        if scene.absorbs {
+            bodies.leave(scene, &it, wi);
+        }
         ray = it.spawn_ray(wi);
         prev_it = Some(it);
         depth += 1;

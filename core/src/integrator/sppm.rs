@@ -335,13 +335,14 @@ fn trace_photon(
     let max_depth = job.settings.max_depth;
     let mut depth = 0u32;
     let mut travelled = 0.0f32;
+    let mut bodies = job.starts.light(scene, e.index);
     while depth < max_depth {
         let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
             return;
         };
         let si = scene.interaction(&ray, &hit);
-        if si.ng.dot(ray.d) > 0.0 {
-            let sigma = scene.absorption(si.object);
+        if scene.absorbs {
+            let sigma = bodies.arrive(scene, &si, ray.d, false);
             if sigma != Vec3A::ZERO {
                 beta *= exp3(-sigma * hit.t);
             }
@@ -390,6 +391,9 @@ fn trace_photon(
             return;
         }
         beta = next / (1.0 - q);
+        if scene.absorbs {
+            bodies.leave(scene, &si, wi_w);
+        }
         ray = si.spawn_ray(wi_w);
     }
 }
@@ -427,6 +431,7 @@ fn camera_pass(
     let mut beta = Vec3A::ONE;
     let max_depth = job.settings.max_depth;
     let mut depth = 0u32;
+    let mut bodies = job.starts.camera();
     loop {
         let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
             if let Some(env) = job.environment() {
@@ -436,8 +441,8 @@ fn camera_pass(
         };
         let si = scene.interaction(&ray, &hit);
         let wo_w = -ray.d;
-        if si.ng.dot(ray.d) > 0.0 {
-            let sigma = scene.absorption(si.object);
+        if scene.absorbs {
+            let sigma = bodies.arrive(scene, &si, ray.d, false);
             if sigma != Vec3A::ZERO {
                 beta *= exp3(-sigma * hit.t);
             }
@@ -470,8 +475,9 @@ fn camera_pass(
                 } else {
                     Counted::DeltaOnly
                 };
-                let ld =
-                    light_contribution(scene, job, &si, &bsdf, &frame, wo, index, u_ld, counted);
+                let ld = light_contribution(
+                    scene, job, &si, &bsdf, &frame, wo, &bodies, index, u_ld, counted,
+                );
                 l += beta * ld / pmf;
             }
         }
@@ -496,7 +502,11 @@ fn camera_pass(
         if !beta.is_finite() || beta == Vec3A::ZERO {
             return (l, None);
         }
-        ray = si.spawn_ray(frame.to_world(bs.wi).normalize());
+        let wi_w = frame.to_world(bs.wi).normalize();
+        if scene.absorbs {
+            bodies.leave(scene, &si, wi_w);
+        }
+        ray = si.spawn_ray(wi_w);
         depth += 1;
     }
 }

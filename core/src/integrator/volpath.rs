@@ -34,6 +34,7 @@ use crate::medium::{sample_t_maj, HashRng, HenyeyGreenstein, RandomSource};
 use crate::sampling::detmath::exp3;
 use crate::sampling::warp::Frame;
 use crate::sampling::Sampler;
+use crate::scene::bodies::{beer, Bodies};
 use crate::{RenderJob, Scene};
 use glam::{Vec2, Vec3A};
 
@@ -76,6 +77,7 @@ pub fn li(
         (((u_seed_hi * 16_777_216.0) as u32) << 8) ^ (u_seed_lo * 16_777_216.0) as u32,
     );
     let mut medium = scene.camera_medium;
+    let mut bodies = job.starts.camera();
 
     let mut l = Vec3A::ZERO;
     let mut beta = Vec3A::ONE;
@@ -134,6 +136,13 @@ pub fn li(
                 break;
             }
             if let Some(p) = scattered {
+                // A medium can go on inside a body that bounds no medium of its own.
+                if scene.absorbs {
+                    let sigma = bodies.sigma(scene, true);
+                    if sigma != Vec3A::ZERO {
+                        beta *= exp3(-sigma * (p - ray.o).dot(ray.d));
+                    }
+                }
                 depth += 1;
                 let phase = m.phase();
                 let wo = -ray.d;
@@ -143,7 +152,10 @@ pub fn li(
                 let u_dir = sampler.next_2d();
                 let v = Vertex::Medium { p, phase, wo };
                 let u_ld = (u_light, u_fine);
-                l += beta * sample_ld(scene, job, &v, medium, channel, &mut rng, r_u, u_ld);
+                l += beta
+                    * sample_ld(
+                        scene, job, &v, medium, &bodies, channel, &mut rng, r_u, u_ld,
+                    );
                 let ps = phase.sample(wo, u_dir);
                 if !(ps.pdf > 0.0) {
                     break;
@@ -180,10 +192,9 @@ pub fn li(
             break;
         };
         let it = scene.interaction(&ray, &hit);
-        let object = &scene.objects[it.object as usize];
         // Beer–Lambert inside a transmissive body that bounds no medium (as `path` does).
-        if object.media.is_none() && it.ng.dot(ray.d) > 0.0 {
-            let sigma = scene.absorption(it.object);
+        if scene.absorbs {
+            let sigma = bodies.arrive(scene, &it, ray.d, true);
             if sigma != Vec3A::ZERO {
                 beta *= exp3(-sigma * hit.t);
             }
@@ -226,7 +237,10 @@ pub fn li(
                 wo,
             };
             let u_ld = (u_light, u_fine);
-            l += beta * sample_ld(scene, job, &v, medium, channel, &mut rng, r_u, u_ld);
+            l += beta
+                * sample_ld(
+                    scene, job, &v, medium, &bodies, channel, &mut rng, r_u, u_ld,
+                );
         }
         let Some(bs) = bsdf.sample(wo, u_lobe, u_dir) else {
             break;
@@ -246,6 +260,9 @@ pub fn li(
         }
         let wi = frame.to_world(bs.wi).normalize();
         medium = scene.medium_after(it.object, it.ng, wi, medium);
+        if scene.absorbs {
+            bodies.leave(scene, &it, wi);
+        }
         ray = it.spawn_ray(wi);
         prev_p = Some(it.p);
         depth += 1;
@@ -274,6 +291,7 @@ fn sample_ld<R: RandomSource>(
     job: &RenderJob,
     v: &Vertex<'_>,
     medium: Option<u32>,
+    bodies: &Bodies,
     channel: usize,
     rng: &mut R,
     r_p: Vec3A,
@@ -328,6 +346,18 @@ fn sample_ld<R: RandomSource>(
     };
     if f_hat.max_element() <= 0.0 {
         return Vec3A::ZERO;
+    }
+    // Absorption inside the body the shadow ray runs through (bodies block shadow rays, so it
+    // is one body all the way).
+    let mut f_hat = f_hat;
+    if scene.absorbs {
+        let sigma = match v {
+            Vertex::Surface { it, .. } => bodies.sigma_leaving(scene, it, s.wi, true),
+            Vertex::Medium { .. } => bodies.sigma(scene, true),
+        };
+        if sigma != Vec3A::ZERO {
+            f_hat *= beer(sigma, s.dist);
+        }
     }
     let weigh = |t_ray: Vec3A, r_l: Vec3A, r_u: Vec3A| {
         let r_l = r_l * r_p * light_pdf;

@@ -11,6 +11,7 @@ use crate::geometry::Ray;
 use crate::material::{fresnel_dielectric, refract, Bsdf};
 use crate::sampling::detmath::exp3;
 use crate::sampling::Sampler;
+use crate::scene::bodies::Bodies;
 use crate::{RenderJob, Scene};
 use glam::Vec3A;
 
@@ -25,9 +26,12 @@ pub fn li(
     sampler: &mut Sampler,
     max_depth: u32,
 ) -> Vec3A {
-    trace(scene, job, ray, sampler, max_depth, 0, Vec3A::ONE)
+    let bodies = job.starts.camera();
+    trace(scene, job, ray, sampler, max_depth, 0, Vec3A::ONE, bodies)
 }
 
+/// Radiance along `ray`, which starts inside `bodies`.
+#[allow(clippy::too_many_arguments)]
 fn trace(
     scene: &Scene,
     job: &RenderJob,
@@ -36,31 +40,27 @@ fn trace(
     max_depth: u32,
     depth: u32,
     weight: Vec3A,
+    mut bodies: Bodies,
 ) -> Vec3A {
     let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
         return job.environment().map_or(Vec3A::ZERO, |e| e.radiance(ray.d));
     };
     let it = scene.interaction(&ray, &hit);
-    // An interface (a medium boundary) does not scatter: cross it.
-    if scene.is_interface(it.object) {
-        return trace(
-            scene,
-            job,
-            it.spawn_ray(ray.d),
-            sampler,
-            max_depth,
-            depth,
-            weight,
-        );
-    }
-    let wo_world = -ray.d;
+    // Absorption inside the body the ray ran through.
     let mut transmittance = Vec3A::ONE;
-    if it.ng.dot(ray.d) > 0.0 {
-        let sigma = scene.absorption(it.object);
+    if scene.absorbs {
+        let sigma = bodies.arrive(scene, &it, ray.d, false);
         if sigma != Vec3A::ZERO {
             transmittance = exp3(-sigma * hit.t);
         }
     }
+    // An interface (a medium boundary) does not scatter: cross it.
+    if scene.is_interface(it.object) {
+        let next = it.spawn_ray(ray.d);
+        let w = weight * transmittance;
+        return trace(scene, job, next, sampler, max_depth, depth, w, bodies) * transmittance;
+    }
+    let wo_world = -ray.d;
     let mut l = scene.emitted(&it, wo_world);
     let bsdf = scene.bsdf(&it);
     let frame = it.shading_frame();
@@ -70,7 +70,8 @@ fn trace(
     if !bsdf.is_delta() {
         for i in 0..job.lights().len() {
             let u = sampler.next_2d();
-            l += light_contribution(scene, job, &it, &bsdf, &frame, wo, i, u, Counted::Full);
+            let c = Counted::Full;
+            l += light_contribution(scene, job, &it, &bsdf, &frame, wo, &bodies, i, u, c);
         }
     }
     if depth >= max_depth {
@@ -82,16 +83,12 @@ fn trace(
             return Vec3A::ZERO;
         }
         let d = frame.to_world(dir_local).normalize();
-        factor
-            * trace(
-                scene,
-                job,
-                it.spawn_ray(d),
-                sampler,
-                max_depth,
-                depth + 1,
-                w,
-            )
+        let mut inside = bodies;
+        if scene.absorbs {
+            inside.leave(scene, &it, d);
+        }
+        let next = it.spawn_ray(d);
+        factor * trace(scene, job, next, sampler, max_depth, depth + 1, w, inside)
     };
     match bsdf {
         Bsdf::Mirror(m) => {

@@ -187,6 +187,9 @@ pub struct Material {
     pub alpha_mode: AlphaMode,
     /// Beer–Lambert absorption coefficient inside a solid transmissive body (per metre).
     pub absorption: Vec3A,
+    /// The surface bounds a solid transmissive body (glass, water: not thin-walled), which a
+    /// path that refracts through it is inside (see `scene::bodies`).
+    pub body: bool,
     /// A medium boundary that does not scatter: rays cross it unchanged.
     pub interface: bool,
 }
@@ -379,6 +382,7 @@ mod tests {
             emission: None,
             alpha_mode: AlphaMode::Opaque,
             absorption: Vec3A::ZERO,
+            body: false,
             interface: false,
         }
     }

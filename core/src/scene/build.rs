@@ -456,7 +456,19 @@ impl Scene {
             .collect::<Result<_, SceneError>>()?;
 
         let has_interfaces = materials.iter().any(|m| m.interface);
+        let absorbs = materials
+            .iter()
+            .any(|m| m.body && m.absorption != Vec3A::ZERO);
+        let mut medium_bodies: Vec<u32> = objects
+            .iter()
+            .filter(|o| o.media.is_some() && materials[o.material as usize].body)
+            .map(|o| o.material)
+            .collect();
+        medium_bodies.sort_unstable();
+        medium_bodies.dedup();
         Ok(Scene {
+            absorbs,
+            medium_bodies,
             media,
             camera_medium,
             has_interfaces,
@@ -945,6 +957,7 @@ fn build_material(m: &MaterialDesc, n_textures: usize) -> Result<Material, Scene
     let mut absorption = Vec3A::ZERO;
     let mut base_color = Vec4::ONE;
     let mut interface = false;
+    let mut body = false;
     if let Some((field, v)) = m.bsdf.tint() {
         check_reflectance(field, v).map_err(bad)?;
     }
@@ -970,6 +983,7 @@ fn build_material(m: &MaterialDesc, n_textures: usize) -> Result<Material, Scene
             check_coefficient("absorption", *a).map_err(bad)?;
             if !thin {
                 absorption = Vec3A::from(*a);
+                body = true;
             }
             Model::dielectric(*ior, Vec3A::from(*transmittance), *thin)
         }
@@ -985,6 +999,7 @@ fn build_material(m: &MaterialDesc, n_textures: usize) -> Result<Material, Scene
         } => {
             check_ior(*ior).map_err(bad)?;
             check_unit("alpha (roughness²)", *alpha).map_err(bad)?;
+            body = true;
             Model::rough_dielectric(*ior, *alpha, Vec3A::from(*transmittance))
         }
         BsdfDesc::Pbr(p) => {
@@ -1001,6 +1016,7 @@ fn build_material(m: &MaterialDesc, n_textures: usize) -> Result<Material, Scene
             slots.clearcoat = check(&p.clearcoat_texture)?;
             slots.clearcoat_roughness = check(&p.clearcoat_roughness_texture)?;
             base_color = Vec4::from(p.base_color);
+            body = !p.thin_walled && p.transmission > 0.0;
             if !p.thin_walled
                 && p.transmission > 0.0
                 && p.attenuation_distance.is_finite()
@@ -1042,6 +1058,7 @@ fn build_material(m: &MaterialDesc, n_textures: usize) -> Result<Material, Scene
         emission: m.emits().then_some(emission),
         alpha_mode: m.alpha_mode,
         absorption,
+        body,
         interface,
     })
 }

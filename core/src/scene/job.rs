@@ -3,6 +3,7 @@
 //! that picks lights, which depends on that environment. Cheap to make (the light distribution
 //! is linear in the number of lights), so a scene built once serves every job on it.
 
+use super::bodies::Starts;
 use super::{ObjectKind, Scene, SceneCamera, SceneError};
 use crate::camera::{Camera, Projection};
 use crate::film::FilterSampler;
@@ -31,6 +32,8 @@ pub struct RenderJob {
     /// What an integrator computes once for the whole job and reuses in every tile of it
     /// (`sppm`'s photon maps); shared by clones, emptied when the environment changes.
     pub(crate) cache: Arc<JobCache>,
+    /// The bodies around the camera and the lights, where paths start.
+    pub(crate) starts: Arc<Starts>,
 }
 
 /// Values computed once per job and kept for its other tiles, by key, up to
@@ -196,7 +199,15 @@ impl RenderJob {
                 )))
             }
         };
+        let eye = camera
+            .generate_ray(
+                Vec2::new(settings.width as f32, settings.height as f32) * 0.5,
+                Vec2::splat(0.5),
+            )
+            .o;
+        let starts = Arc::new(Starts::new(scene, eye));
         let job = RenderJob {
+            starts,
             settings: settings.clone(),
             camera,
             filter: FilterSampler::new(settings.filter),

@@ -8,6 +8,7 @@
 //! once and renders every job on that scene with it. A [`RenderJob`] is the cheap rest.
 
 pub mod aggregate;
+pub(crate) mod bodies;
 pub mod build;
 pub mod desc;
 pub mod files;
@@ -42,6 +43,11 @@ pub struct Scene {
     pub(crate) camera_medium: Option<u32>,
     /// Some material is an interface (a medium boundary that does not scatter).
     pub(crate) has_interfaces: bool,
+    /// Some body absorbs ([`Material::absorption`]): paths track the bodies they are in.
+    pub(crate) absorbs: bool,
+    /// The materials of bodies whose surface bounds a medium (in `volpath` the medium stands
+    /// for their inside), in order.
+    pub(crate) medium_bodies: Vec<u32>,
     pub(crate) meshes: Vec<Mesh>,
     pub(crate) materials: Vec<Material>,
     pub(crate) textures: Vec<Texture>,

@@ -222,12 +222,6 @@ impl Scene {
         }
         true
     }
-
-    /// Absorption coefficient of the body behind the surface of `object` (zero if none).
-    #[inline]
-    pub(crate) fn absorption(&self, object: u32) -> Vec3A {
-        self.material_of(object).absorption
-    }
 }
 
 #[cfg(test)]
