@@ -133,5 +133,8 @@ pub use settings::{
 /// in it, and a light sample's shadow ray to a light in it, as well as the stretch to the
 /// body's own surface (only that one was attenuated before; `bdpt` and `sppm` attenuated a
 /// part of the rest). Images of scenes with such a body change where objects or lights sit
-/// inside it; images of other scenes are unchanged.
+/// inside it. `sppm`'s light sample on a near-specular surface picks among the point, spot
+/// and directional lights alone (it picked among all the lights and kept only those): the same
+/// image on average, less noise, different bits where a scene has such a surface and area
+/// lights or a sky besides. Images of other scenes are unchanged.
 pub const RENDER_VERSION: u32 = 17;

@@ -468,18 +468,23 @@ fn camera_pass(
         // lights no ray can find (a point light's glint on smooth metal) from a light sample;
         // the path finds the others.
         let stop = !bsdf.is_near_specular();
-        if stop || !bsdf.is_delta() {
-            if let Some((index, pmf, u_ld)) = job.lights().choose_in(u_ld, u_fine) {
-                let counted = if stop {
-                    Counted::Full
-                } else {
-                    Counted::DeltaOnly
-                };
-                let ld = light_contribution(
-                    scene, job, &si, &bsdf, &frame, wo, &bodies, index, u_ld, counted,
-                );
-                l += beta * ld / pmf;
-            }
+        let chosen = if stop {
+            job.lights()
+                .choose_in(u_ld, u_fine)
+                .map(|(index, pmf, u)| (index, pmf, u, Counted::Full))
+        } else if !bsdf.is_delta() {
+            // Among the delta lights alone (their samples need no numbers).
+            job.lights()
+                .choose_delta(u_ld.x, u_fine)
+                .map(|(index, pmf)| (index, pmf, u_ld, Counted::DeltaOnly))
+        } else {
+            None
+        };
+        if let Some((index, pmf, u, counted)) = chosen {
+            let ld = light_contribution(
+                scene, job, &si, &bsdf, &frame, wo, &bodies, index, u, counted,
+            );
+            l += beta * ld / pmf;
         }
         if stop {
             let vp = VisiblePoint {

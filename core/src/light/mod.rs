@@ -160,6 +160,12 @@ pub fn range_window(dist: f32, range: f32) -> f32 {
 }
 
 impl Light {
+    /// Whether the light is a delta distribution (point, spot, directional): no ray finds it.
+    #[inline]
+    pub fn is_delta(&self) -> bool {
+        !matches!(self, Light::Area { .. })
+    }
+
     /// Samples the delta lights (point, spot, directional) from `p`; area lights sample
     /// themselves ([`AreaLight::sample`]).
     #[inline]
@@ -275,6 +281,10 @@ pub struct LightSet {
     len: usize,
     /// Index of the environment, if any: `lights.len()`.
     environment: Option<usize>,
+    /// Selection among the delta lights alone (point, spot, directional) with the shares
+    /// `select` gives them, and their indices; empty without one.
+    delta: Distribution1D,
+    delta_index: Vec<u32>,
 }
 
 impl LightSet {
@@ -300,7 +310,17 @@ impl LightSet {
             .chain(environment_power.map(|_| true))
             .collect();
         let direct = group_shares(&weights, &at_infinity);
+        let delta_index: Vec<u32> = (0..lights.len() as u32)
+            .filter(|&i| lights[i as usize].is_delta())
+            .collect();
+        let delta_weights: Vec<f32> = delta_index.iter().map(|&i| direct[i as usize]).collect();
         Self {
+            delta: if delta_index.is_empty() {
+                Distribution1D::default()
+            } else {
+                Distribution1D::new(&delta_weights)
+            },
+            delta_index,
             select: Distribution1D::new(&direct),
             emit: Distribution1D::new(&weights),
             len: powers.len(),
@@ -361,6 +381,18 @@ impl LightSet {
         }
         let (i, p, x) = self.select.sample_discrete_fine(u.x, jitter);
         Some((i, p, Vec2::new(x, u.y)))
+    }
+
+    /// Picks one of the delta lights (point, spot, directional: those no ray can hit) with
+    /// `u` refined by `jitter`, in proportion to their shares in [`LightSet::choose_in`]:
+    /// (index, probability). `None` without one.
+    #[inline]
+    pub fn choose_delta(&self, u: f32, jitter: f32) -> Option<(usize, f32)> {
+        if self.delta_index.is_empty() {
+            return None;
+        }
+        let (i, p, _) = self.delta.sample_discrete_fine(u, jitter);
+        Some((self.delta_index[i] as usize, p))
     }
 
     /// Probability that [`LightSet::choose_in`] picks light `i`.
@@ -476,6 +508,40 @@ mod tests {
         assert!(LightSet::new(&[], 1.0, None).choose(0.5).is_none());
         assert!(LightSet::new(&[], 1.0, None)
             .choose_in(Vec2::splat(0.5), 0.5)
+            .is_none());
+    }
+
+    /// `choose_delta` picks among the point, spot and directional lights alone, in the
+    /// proportions `choose_in` gives them, never an area light or the environment.
+    #[test]
+    fn the_delta_choice_keeps_the_delta_lights_shares() {
+        let point = |i: f32| Light::Point {
+            position: Vec3A::ZERO,
+            intensity: Vec3A::splat(i),
+            range: f32::INFINITY,
+        };
+        let area = || Light::Area {
+            light: 0,
+            prim: 0,
+            power: 50.0,
+        };
+        let lights = [area(), point(1.0), area(), point(3.0)];
+        let set = LightSet::new(&lights, 1.0, Some(10.0));
+        let mut got = [0.0f32; 5];
+        let n = 4000;
+        for k in 0..n {
+            let (i, pmf) = set.choose_delta((k as f32 + 0.5) / n as f32, 0.5).unwrap();
+            assert!(lights[i].is_delta(), "picked light {i}");
+            let want = set.pmf(i) / (set.pmf(1) + set.pmf(3));
+            assert!((pmf - want).abs() < 1e-5, "light {i}: {pmf} against {want}");
+            got[i] += 1.0 / n as f32;
+        }
+        assert!(
+            (got[1] - 0.25).abs() < 1e-3 && (got[3] - 0.75).abs() < 1e-3,
+            "{got:?}"
+        );
+        assert!(LightSet::new(&[area()], 1.0, Some(1.0))
+            .choose_delta(0.5, 0.5)
             .is_none());
     }
 
