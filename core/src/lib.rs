@@ -129,12 +129,14 @@ pub use settings::{
 ///
 /// 17 (2026-12-07): every integrator tracks the solid transmissive bodies a path is in
 /// (`scene::bodies`), so a body's absorption (a `dielectric`'s `absorption`, glTF's
-/// `KHR_materials_volume`) attenuates every stretch of a path within it: to an object immersed
-/// in it, and a light sample's shadow ray to a light in it, as well as the stretch to the
-/// body's own surface (only that one was attenuated before; `bdpt` and `sppm` attenuated a
-/// part of the rest). Images of scenes with such a body change where objects or lights sit
-/// inside it. `sppm`'s light sample on a near-specular surface picks among the point, spot
-/// and directional lights alone (it picked among all the lights and kept only those): the same
-/// image on average, less noise, different bits where a scene has such a surface and area
-/// lights or a sky besides. Images of other scenes are unchanged.
+/// `KHR_materials_volume`) attenuates every stretch of a path within it: to an object immersed in
+/// it, and a light sample's shadow ray to a light in it, as well as the stretch to the body's own
+/// surface (only that one was attenuated before; `bdpt` and `sppm` attenuated a part of the rest),
+/// and light that escapes to the sky from inside an open body. Images of scenes with such a body
+/// change where objects, lights or the camera sit inside it; in `volpath`, a `dielectric` whose
+/// object bounds only an `exterior` medium keeps its absorption (one that bounds an `interior`
+/// absorbs through that medium alone). `sppm`'s light sample on a near-specular surface picks among
+/// the point, spot and directional lights alone (it picked among all the lights and kept only
+/// those): the same image on average, less noise, different bits where a scene has such a surface
+/// and area lights or a sky besides. Images of other scenes are unchanged.
 pub const RENDER_VERSION: u32 = 17;

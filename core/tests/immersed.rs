@@ -24,22 +24,30 @@ const ALL: [IntegratorKind; 5] = [
 /// missing (neither stretch ends on the box's surface from within).
 #[test]
 fn light_in_an_absorbing_body_reaches_an_immersed_floor_attenuated_in_every_integrator() {
-    let scene = load(
-        r#"{
-  "materials": {
-    "ink": {"type": "dielectric", "ior": 1.0, "absorption": [0.2, 0.5, 1.0]},
-    "floor": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}
-  },
+    // The camera above the box, then inside it (the probe finds it there): the floor is 0.9
+    // and 0.7 below the camera's entry into the ink.
+    for (camera_y, depth) in [(3.0, 0.9), (0.8, 0.7)] {
+        floor_under_a_lamp_in_ink(camera_y, depth);
+    }
+}
+
+fn floor_under_a_lamp_in_ink(camera_y: f64, depth: f64) {
+    let scene = load(&format!(
+        r#"{{
+  "materials": {{
+    "ink": {{"type": "dielectric", "ior": 1.0, "absorption": [0.2, 0.5, 1.0]}},
+    "floor": {{"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}}
+  }},
   "objects": [
-    {"shape": {"type": "box", "min": [-1, 0, -1], "max": [1, 1, 1]}, "material": "ink"},
-    {"shape": {"type": "rectangle", "corner": [-0.8, 0.1, -0.8], "edge_u": [0, 0, 1.6],
-               "edge_v": [1.6, 0, 0]}, "material": "floor"}
+    {{"shape": {{"type": "box", "min": [-1, 0, -1], "max": [1, 1, 1]}}, "material": "ink"}},
+    {{"shape": {{"type": "rectangle", "corner": [-0.8, 0.1, -0.8], "edge_u": [0, 0, 1.6],
+               "edge_v": [1.6, 0, 0]}}, "material": "floor"}}
   ],
-  "lights": [{"type": "point", "position": [0, 0.6, 0], "intensity": [5, 5, 5]}],
-  "camera": {"type": "orthographic", "position": [0, 3, 0], "look_at": [0, 0, 0],
-             "up": [0, 0, -1], "half_height": 0.1}
-}"#,
-    );
+  "lights": [{{"type": "point", "position": [0, 0.6, 0], "intensity": [5, 5, 5]}}],
+  "camera": {{"type": "orthographic", "position": [0, {camera_y}, 0], "look_at": [0, 0, 0],
+             "up": [0, 0, -1], "half_height": 0.1}}
+}}"#
+    ));
     let (w, h) = (8u32, 8u32);
     let sigma = [0.2f64, 0.5, 1.0];
     // The floor point under pixel (x, y): the view is 0.2 m square (pixels small enough that
@@ -47,7 +55,7 @@ fn light_in_an_absorbing_body_reaches_an_immersed_floor_attenuated_in_every_inte
     let want = |x: u32, y: u32| {
         let px = (f64::from(x) + 0.5) / f64::from(w) * 0.2 - 0.1;
         let pz = (f64::from(y) + 0.5) / f64::from(h) * 0.2 - 0.1;
-        let (dy, depth) = (0.5f64, 0.9f64);
+        let dy = 0.5f64;
         let r = (px * px + dy * dy + pz * pz).sqrt();
         let e = 5.0 * (dy / r) / (r * r);
         sigma.map(|s| 0.5 / std::f64::consts::PI * e * (-s * (r + depth)).exp())
@@ -69,7 +77,8 @@ fn light_in_an_absorbing_body_reaches_an_immersed_floor_attenuated_in_every_inte
                     let err = (f64::from(got[k]) - want[k]).abs() / want[k];
                     assert!(
                         err < 0.01,
-                        "{integrator:?}, pixel ({x}, {y}), channel {k}: {} against {}",
+                        "{integrator:?}, camera at {camera_y}, pixel ({x}, {y}), channel {k}: \
+                         {} against {}",
                         got[k],
                         want[k]
                     );
@@ -171,5 +180,86 @@ fn integrators_agree_with_a_medium_on_objects_immersed_in_coloured_water() {
                 want[k]
             );
         }
+    }
+}
+
+/// A camera above a sea of coloured water (an index-matched absorbing half-space, a `plane`)
+/// looks straight down through it into the sky below: light that reaches the camera from
+/// inside the water has come an infinite way through it, so only the channel the water does
+/// not absorb is left. Escaping paths kept the sky's light before.
+#[test]
+fn the_sky_seen_through_an_endless_absorbing_sea_keeps_what_it_does_not_absorb() {
+    let scene = load(
+        r#"{
+  "materials": {"sea": {"type": "dielectric", "ior": 1.0, "absorption": [1, 0, 1]}},
+  "objects": [{"shape": {"type": "plane", "point": [0, 0, 0], "normal": [0, 1, 0]},
+               "material": "sea"}],
+  "environment": {"type": "constant", "radiance": [0.5, 0.5, 0.5]},
+  "camera": {"type": "orthographic", "position": [0, 2, 0], "look_at": [0, 0, 0],
+             "up": [0, 0, -1], "half_height": 0.5}
+}"#,
+    );
+    for integrator in [
+        IntegratorKind::Path,
+        IntegratorKind::Volpath,
+        IntegratorKind::Whitted,
+        IntegratorKind::Bdpt,
+    ] {
+        let s = RenderSettings {
+            width: 4,
+            height: 4,
+            spp: 4,
+            integrator,
+            ..Default::default()
+        };
+        for p in image(&scene, &s) {
+            assert_eq!(p, [0.0, 0.5, 0.0], "{integrator:?}");
+        }
+    }
+}
+
+/// One absorbing glass for three balls in `volpath`: one holds a medium as absorbing as the
+/// glass (`interior`: the medium stands for its inside), one names only an `exterior` medium
+/// of empty air, and one bounds no medium. All three absorb as the glass says, as `path`
+/// renders them (which ignores media and takes the glass's own absorption everywhere).
+#[test]
+fn volpath_takes_a_bodys_absorption_from_its_own_interior_medium_or_from_its_glass() {
+    let scene = load(
+        r#"{
+  "media": {
+    "ink": {"type": "homogeneous", "sigma_a": [0.5, 2, 4], "sigma_s": [0, 0, 0]},
+    "air": {"type": "homogeneous", "sigma_a": [0, 0, 0], "sigma_s": [0, 0, 0]}
+  },
+  "materials": {"glass": {"type": "dielectric", "ior": 1.3, "absorption": [0.5, 2, 4]}},
+  "objects": [
+    {"shape": {"type": "sphere", "center": [-1.1, 0, 0], "radius": 0.5}, "material": "glass",
+     "interior": "ink"},
+    {"shape": {"type": "sphere", "center": [0, 0, 0], "radius": 0.5}, "material": "glass",
+     "exterior": "air"},
+    {"shape": {"type": "sphere", "center": [1.1, 0, 0], "radius": 0.5}, "material": "glass"}
+  ],
+  "environment": {"type": "constant", "radiance": [1, 1, 1]},
+  "camera": {"position": [0, 0, 6], "look_at": [0, 0, 0], "fov": 30}
+}"#,
+    );
+    let s = |integrator| RenderSettings {
+        width: 36,
+        height: 12,
+        spp: 32,
+        max_depth: 16,
+        integrator,
+        ..Default::default()
+    };
+    let (want, want_se) = seed_stats(&scene, &s(IntegratorKind::Path), 4);
+    let (got, se) = seed_stats(&scene, &s(IntegratorKind::Volpath), 4);
+    eprintln!("path {want:.4?} ± {want_se:.4?}, volpath {got:.4?} ± {se:.4?}");
+    for k in 0..3 {
+        let tol = 4.0 * (se[k].powi(2) + want_se[k].powi(2)).sqrt() + 0.005 * want[k];
+        assert!(
+            (got[k] - want[k]).abs() <= tol,
+            "channel {k}: volpath {} against path {} (tolerance {tol})",
+            got[k],
+            want[k]
+        );
     }
 }

@@ -467,6 +467,7 @@ fn random_walk(
     loop {
         let Some(hit) = ctx.scene.intersect(&ray, f32::INFINITY) else {
             if !importance && ctx.job.environment().is_some() {
+                let beta = beta * bodies.escape(ctx.scene, false);
                 let mut v = Vertex::new(Kind::Light, ray.o + ray.d * (2.0 * ctx.radius), beta);
                 v.infinite = true;
                 v.pdf_fwd = pdf_fwd;

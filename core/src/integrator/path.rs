@@ -33,7 +33,7 @@ pub fn li(
     loop {
         let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
             if let Some(env) = job.environment() {
-                let le = env.radiance(ray.d);
+                let le = env.radiance(ray.d) * bodies.escape(scene, false);
                 if specular || prev_it.is_none() {
                     l += beta * le;
                 } else {

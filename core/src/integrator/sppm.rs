@@ -435,7 +435,7 @@ fn camera_pass(
     loop {
         let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
             if let Some(env) = job.environment() {
-                l += beta * env.radiance(ray.d);
+                l += beta * env.radiance(ray.d) * bodies.escape(scene, false);
             }
             return (l, None);
         };

@@ -19,7 +19,8 @@
 //!
 //! Shadow rays cross interface surfaces and media, their transmittance estimated by ratio
 //! tracking with the same hero channel (and Russian roulette on small estimates). Surfaces are
-//! shaded as in `path`; a dielectric that bounds no medium keeps its Beer–Lambert absorption.
+//! shaded as in `path`; a dielectric without an `interior` medium keeps its Beer–Lambert
+//! absorption, along every stretch inside it (`scene::bodies`), as in `path`.
 //!
 //! Random numbers: the hero channel is the sampler's first dimension after the camera's; each
 //! scattering vertex (surface or medium) takes one 4D set of the sampler (light choice and
@@ -136,7 +137,7 @@ pub fn li(
                 break;
             }
             if let Some(p) = scattered {
-                // A medium can go on inside a body that bounds no medium of its own.
+                // A medium can go on inside a body without an interior medium of its own.
                 if scene.absorbs {
                     let sigma = bodies.sigma(scene, true);
                     if sigma != Vec3A::ZERO {
@@ -179,7 +180,7 @@ pub fn li(
 
         let Some(hit) = hit else {
             if let Some(env) = job.environment() {
-                let le = env.radiance(ray.d);
+                let le = env.radiance(ray.d) * bodies.escape(scene, true);
                 match prev_p {
                     Some(_) if !specular => {
                         let env_index = job.lights().environment().unwrap_or(0);
@@ -192,7 +193,7 @@ pub fn li(
             break;
         };
         let it = scene.interaction(&ray, &hit);
-        // Beer–Lambert inside a transmissive body that bounds no medium (as `path` does).
+        // Beer–Lambert inside a transmissive body without an interior medium (as `path` does).
         if scene.absorbs {
             let sigma = bodies.arrive(scene, &it, ray.d, true);
             if sigma != Vec3A::ZERO {

@@ -43,7 +43,8 @@ fn trace(
     mut bodies: Bodies,
 ) -> Vec3A {
     let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
-        return job.environment().map_or(Vec3A::ZERO, |e| e.radiance(ray.d));
+        let le = job.environment().map_or(Vec3A::ZERO, |e| e.radiance(ray.d));
+        return le * bodies.escape(scene, false);
     };
     let it = scene.interaction(&ray, &hit);
     // Absorption inside the body the ray ran through.

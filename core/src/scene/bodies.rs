@@ -18,9 +18,15 @@
 //!   that a path entered but never left): the body is removed.
 //!
 //! So the stack mends itself, and where bodies are closed and do not overlap it is exact.
-//! Where a path starts, the bodies around its first point are found by a probe ray walked
-//! from it out of the scene ([`Bodies::around`]): once per job for the camera, once per light
-//! for the light paths of `bdpt` and `sppm`.
+//! Where a path starts, the bodies around its first point are found by probe rays walked from
+//! it out of the scene ([`Bodies::around`]): once per job for the camera (from the lens
+//! centre: an orthographic view or a lens that straddles a body's surface is taken as a
+//! whole on one side), and once per light for the light paths of `bdpt` and `sppm` (from one
+//! point of an emitting surface: an emitter that straddles a body's surface is taken as wholly
+//! on the side of that point).
+//!
+//! In `volpath`, a body whose surface bounds a medium of its own (an `interior`) absorbs
+//! through that medium alone; the stack keeps that per object, in the entry's top bit.
 
 use super::Scene;
 use crate::geometry::{offset_ray_origin, Interaction, Ray};
@@ -32,11 +38,33 @@ use glam::Vec3A;
 /// cube with a bubble is three).
 const NESTING: usize = 4;
 
-/// The direction of the probe ray of [`Bodies::around`]: a fixed one, oblique to every axis so
-/// that it rarely runs along the faces and edges of boxes built on the axes.
-const PROBE: Vec3A = Vec3A::new(0.260_931_3, 0.870_806_7, 0.416_643_6);
+/// The directions of the probe rays of [`Bodies::around`] (normalised where used): near the
+/// six axis directions, where openings usually face (a glass open at the top, a tube open
+/// at its ends), and tilted off every axis and diagonal so that they rarely run along the
+/// faces, edges and corners of boxes built on the axes.
+const PROBES: [Vec3A; 6] = [
+    Vec3A::new(0.97, 0.17, 0.13),
+    Vec3A::new(-0.95, 0.21, -0.19),
+    Vec3A::new(0.15, 0.98, -0.11),
+    Vec3A::new(-0.18, -0.96, 0.2),
+    Vec3A::new(0.12, -0.2, 0.97),
+    Vec3A::new(-0.21, 0.14, -0.96),
+];
 
-/// The materials of the bodies a path is inside, innermost last (see the module).
+/// The surfaces one probe ray may cross before its answer is given up as unknown.
+const PROBE_STEPS: usize = 4096;
+
+/// The top bit of a stack entry: the body's object bounds an `interior` medium.
+const WITH_MEDIUM: u32 = 1 << 31;
+
+/// Whether two stack entries are the same body (the same material).
+#[inline]
+fn same(a: u32, b: u32) -> bool {
+    (a ^ b) & !WITH_MEDIUM == 0
+}
+
+/// The materials of the bodies a path is inside, innermost last, each with the
+/// [`WITH_MEDIUM`] bit of the object the path entered it by (see the module).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub(crate) struct Bodies {
     len: u8,
@@ -65,7 +93,7 @@ impl Bodies {
 
     /// Removes the innermost entry of `m`, if any.
     fn remove(&mut self, m: u32) {
-        if let Some(i) = self.kept().iter().rposition(|&k| k == m) {
+        if let Some(i) = self.kept().iter().rposition(|&k| same(k, m)) {
             self.materials.copy_within(i + 1..self.len as usize, i);
             self.len -= 1;
         }
@@ -73,8 +101,11 @@ impl Bodies {
 
     /// Makes `m` the innermost body: drops what is kept inside it, or pushes it.
     fn enter(&mut self, m: u32) {
-        match self.kept().iter().rposition(|&k| k == m) {
-            Some(i) => self.len = i as u8 + 1,
+        match self.kept().iter().rposition(|&k| same(k, m)) {
+            Some(i) => {
+                self.len = i as u8 + 1;
+                self.materials[i] = m;
+            }
             None => self.push(m),
         }
     }
@@ -100,7 +131,7 @@ impl Bodies {
         d: Vec3A,
         media: bool,
     ) -> Vec3A {
-        if let Some(m) = scene.body_material(it.object) {
+        if let Some(m) = scene.body_key(it.object) {
             if it.ng.dot(d) > 0.0 {
                 self.enter(m);
             } else {
@@ -113,12 +144,25 @@ impl Bodies {
     /// The path leaves `it` along `wi`: into the body behind the surface, or out of it.
     #[inline]
     pub(crate) fn leave(&mut self, scene: &Scene, it: &Interaction, wi: Vec3A) {
-        if let Some(m) = scene.body_material(it.object) {
-            if it.ng.dot(wi) < 0.0 {
-                self.enter(m);
-            } else {
+        if let Some(m) = scene.body_key(it.object) {
+            if it.ng.dot(wi) >= 0.0 {
                 self.remove(m);
+            } else if !self.innermost().is_some_and(|k| same(k, m)) {
+                // Into the body: nested in what is kept (a body of a material kept further
+                // out is a new body inside the others, not that one).
+                self.push(m);
             }
+        }
+    }
+
+    /// The transmittance to infinity from inside these bodies (a path that escapes the scene
+    /// from inside an open body): 0 in the channels the innermost absorbs, else 1.
+    #[inline]
+    pub(crate) fn escape(&self, scene: &Scene, media: bool) -> Vec3A {
+        if scene.absorbs {
+            beer(self.sigma(scene, media), f32::INFINITY)
+        } else {
+            Vec3A::ONE
         }
     }
 
@@ -137,40 +181,61 @@ impl Bodies {
         b.sigma(scene, media)
     }
 
-    /// The bodies around the point `p`: a probe ray walks from `p` out of the scene, and a
-    /// body whose surface it first crosses from within encloses `p` (bodies it enters and
-    /// leaves again do not). Nothing when the scene has no absorbing body.
+    /// The bodies around the point `p`, outermost first: those that every probe ray from `p`
+    /// finds around it (see [`probe`]). Rays in six directions must agree, so that an open
+    /// surface (a lampshade open below, a tube open at its ends, a glass sheet) does not put
+    /// the point inside it. Nothing when the scene has no absorbing body.
     pub(crate) fn around(scene: &Scene, p: Vec3A) -> Bodies {
         let mut found = Bodies::default();
         if !scene.absorbs {
             return found;
         }
-        // Bodies the probe is inside of, outermost last, and bodies it entered on its way.
-        let mut enclosing: Vec<u32> = Vec::new();
-        let mut entered: Vec<u32> = Vec::new();
-        let mut ray = Ray::new(p, PROBE);
-        // Each step moves past one surface; a bound keeps a degenerate case from looping.
-        for _ in 0..1024 {
-            let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
-                break;
+        let mut agreed: Option<Vec<u32>> = None;
+        for d in PROBES {
+            let Some(list) = probe(scene, p, d.normalize()) else {
+                continue;
             };
-            let it = scene.interaction(&ray, &hit);
-            if let Some(m) = scene.body_material(it.object) {
-                if it.ng.dot(PROBE) < 0.0 {
-                    entered.push(m);
-                } else if let Some(i) = entered.iter().rposition(|&k| k == m) {
-                    entered.remove(i);
-                } else if !enclosing.contains(&m) {
-                    enclosing.push(m);
+            agreed = Some(match agreed {
+                None => list,
+                Some(a) => {
+                    let n = a.iter().zip(&list).take_while(|(x, y)| x == y).count();
+                    a[..n].to_vec()
                 }
-            }
-            ray = Ray::new(offset_ray_origin(it.p, it.ng, PROBE), PROBE);
+            });
         }
-        for &m in enclosing.iter().rev() {
+        for m in agreed.unwrap_or_default() {
             found.push(m);
         }
         found
     }
+}
+
+/// The bodies one probe ray from `p` along `d` finds around `p`, outermost first: a body
+/// whose surface the ray crosses from within before it has entered that body encloses `p`
+/// (bodies it enters and leaves again do not). `None` if the ray crosses more than
+/// [`PROBE_STEPS`] surfaces: no answer.
+fn probe(scene: &Scene, p: Vec3A, d: Vec3A) -> Option<Vec<u32>> {
+    let mut enclosing: Vec<u32> = Vec::new();
+    let mut entered: Vec<u32> = Vec::new();
+    let mut ray = Ray::new(p, d);
+    for _ in 0..PROBE_STEPS {
+        let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
+            enclosing.reverse();
+            return Some(enclosing);
+        };
+        let it = scene.interaction(&ray, &hit);
+        if let Some(m) = scene.body_key(it.object) {
+            if it.ng.dot(d) < 0.0 {
+                entered.push(m);
+            } else if let Some(i) = entered.iter().rposition(|&k| same(k, m)) {
+                entered.remove(i);
+            } else if !enclosing.iter().any(|&k| same(k, m)) {
+                enclosing.push(m);
+            }
+        }
+        ray = Ray::new(offset_ray_origin(it.p, it.ng, d), d);
+    }
+    None
 }
 
 /// Beer–Lambert transmittance over `dist` with absorption coefficient `sigma`: 0 over an
@@ -185,40 +250,50 @@ pub(crate) fn beer(sigma: Vec3A, dist: f32) -> Vec3A {
 }
 
 impl Scene {
-    /// The material of `object` if it bounds a body.
+    /// The stack entry of `object` if it bounds a body: its material, with [`WITH_MEDIUM`]
+    /// if the object bounds an `interior` medium.
     #[inline]
-    pub(crate) fn body_material(&self, object: u32) -> Option<u32> {
-        let m = self.objects[object as usize].material;
-        self.materials[m as usize].body.then_some(m)
+    pub(crate) fn body_key(&self, object: u32) -> Option<u32> {
+        let o = &self.objects[object as usize];
+        let interior = o.media.is_some_and(|[inside, _]| inside.is_some());
+        let flag = if interior { WITH_MEDIUM } else { 0 };
+        self.materials[o.material as usize]
+            .body
+            .then_some(o.material | flag)
     }
 
-    /// The absorption coefficient inside bodies of material `m` (see [`Bodies::sigma`]).
+    /// The absorption coefficient inside the body of stack entry `k` (see [`Bodies::sigma`]).
     #[inline]
-    fn body_absorption(&self, m: u32, media: bool) -> Vec3A {
-        if media && self.medium_bodies.contains(&m) {
+    fn body_absorption(&self, k: u32, media: bool) -> Vec3A {
+        if media && k & WITH_MEDIUM != 0 {
             Vec3A::ZERO
         } else {
-            self.materials[m as usize].absorption
+            self.materials[(k & !WITH_MEDIUM) as usize].absorption
         }
     }
 }
 
-/// Where a job's paths start: the bodies around the camera and around each light.
+/// Where a job's paths start: the bodies around the camera, and (found when first asked: only
+/// `bdpt` and `sppm` start paths at lights) around each light.
 #[derive(Debug, Default)]
 pub(crate) struct Starts {
     camera: Bodies,
+    lights: std::sync::OnceLock<LightStarts>,
+}
+
+/// The bodies around the lights.
+#[derive(Debug, Default)]
+struct LightStarts {
     /// By [`AreaLight`](crate::light::AreaLight), around a point of its surface.
     area: Vec<Bodies>,
     /// Point and spot lights inside some body, by index in [`Scene::lights`].
     points: Vec<(usize, Bodies)>,
 }
 
-impl Starts {
-    /// The bodies around `eye` (the camera's centre) and around each of the scene's lights;
-    /// empty when the scene has no absorbing body. Lights at infinity are outside every body.
-    pub(crate) fn new(scene: &Scene, eye: Vec3A) -> Starts {
+impl LightStarts {
+    fn new(scene: &Scene) -> LightStarts {
         if !scene.absorbs {
-            return Starts::default();
+            return LightStarts::default();
         }
         let area = scene
             .area_lights
@@ -240,10 +315,17 @@ impl Starts {
                 _ => None,
             })
             .collect();
+        LightStarts { area, points }
+    }
+}
+
+impl Starts {
+    /// The bodies around `eye` (the camera's centre); empty when the scene has no absorbing
+    /// body.
+    pub(crate) fn new(scene: &Scene, eye: Vec3A) -> Starts {
         Starts {
             camera: Bodies::around(scene, eye),
-            area,
-            points,
+            lights: std::sync::OnceLock::new(),
         }
     }
 
@@ -253,16 +335,21 @@ impl Starts {
         self.camera
     }
 
-    /// The bodies around light `index` of [`Scene::lights`] (none for the environment).
+    /// The bodies around light `index` of [`Scene::lights`] (none for lights at infinity,
+    /// which are outside every body).
     pub(crate) fn light(&self, scene: &Scene, index: usize) -> Bodies {
+        if !scene.absorbs {
+            return Bodies::default();
+        }
+        let starts = self.lights.get_or_init(|| LightStarts::new(scene));
         match scene.lights.get(index) {
             Some(&Light::Area { light, .. }) => {
-                self.area.get(light as usize).copied().unwrap_or_default()
+                starts.area.get(light as usize).copied().unwrap_or_default()
             }
-            Some(Light::Point { .. } | Light::Spot { .. }) => self
+            Some(Light::Point { .. } | Light::Spot { .. }) => starts
                 .points
                 .binary_search_by_key(&index, |&(i, _)| i)
-                .map_or(Bodies::default(), |k| self.points[k].1),
+                .map_or(Bodies::default(), |k| starts.points[k].1),
             _ => Bodies::default(),
         }
     }
@@ -385,6 +472,47 @@ mod tests {
         let (top, d) = hit([0.0, 0.0, 5.0], [0.0, 0.0, -1.0]);
         assert_eq!(wrong.arrive(&scene, &top, d, false), Vec3A::ZERO);
         assert_eq!(wrong.kept(), &[] as &[u32]);
+    }
+
+    #[test]
+    fn a_path_into_a_body_of_a_material_kept_further_out_nests_it() {
+        // A marble of the glass (material 1) in water (2) in a glass block: refracting into
+        // the marble nests a new glass body; it does not drop the water.
+        let scene = load(NESTED);
+        let water = scene.objects[0].material;
+        let ray = Ray::new(Vec3A::new(0.5, 0.0, 0.9), Vec3A::NEG_Z);
+        let marble = scene.interaction(&ray, &scene.intersect(&ray, f32::INFINITY).unwrap());
+        let glass = scene.objects[1].material;
+        let mut b = stack(&[glass, water]);
+        b.leave(&scene, &marble, Vec3A::NEG_Z);
+        assert_eq!(b.kept(), &[glass, water, glass]);
+        b.leave(&scene, &marble, Vec3A::Z);
+        assert_eq!(b.kept(), &[glass, water]);
+    }
+
+    #[test]
+    fn an_open_surface_does_not_put_a_point_inside_it() {
+        // A lamp in a glass tube open at both ends (a cylinder has no caps): rays sideways
+        // leave the tube from within, rays along it escape; the probes must agree, so the
+        // lamp is outside every body. A closed sphere around it counts.
+        let scene = load(
+            r#"{
+          "materials": {"glass": {"type": "dielectric", "absorption": [1, 1, 1]},
+                        "tint": {"type": "dielectric", "absorption": [2, 2, 2]}},
+          "objects": [
+            {"shape": {"type": "cylinder", "radius": 0.5, "y_min": -1, "y_max": 1},
+             "material": "glass"},
+            {"shape": {"type": "sphere", "center": [3, 0, 0], "radius": 0.5}, "material": "tint"}
+          ],
+          "camera": {"position": [0, 0, 5], "look_at": [0, 0, 0]}
+        }"#,
+        );
+        let tint = scene.objects[1].material;
+        assert_eq!(Bodies::around(&scene, Vec3A::ZERO).kept(), &[] as &[u32]);
+        assert_eq!(
+            Bodies::around(&scene, Vec3A::new(3.0, 0.1, 0.0)).kept(),
+            &[tint]
+        );
     }
 
     #[test]

@@ -459,16 +459,8 @@ impl Scene {
         let absorbs = materials
             .iter()
             .any(|m| m.body && m.absorption != Vec3A::ZERO);
-        let mut medium_bodies: Vec<u32> = objects
-            .iter()
-            .filter(|o| o.media.is_some() && materials[o.material as usize].body)
-            .map(|o| o.material)
-            .collect();
-        medium_bodies.sort_unstable();
-        medium_bodies.dedup();
         Ok(Scene {
             absorbs,
-            medium_bodies,
             media,
             camera_medium,
             has_interfaces,

@@ -91,7 +91,8 @@ impl JobCache {
 /// image (without an error). `path` and `bdpt` render such scenes.
 const SPPM_UNBOUNDED: &str = "sppm cannot render an unbounded plane lit by a directional light \
      or an environment (its photons start on a disk around the scene's finite objects and never \
-     reach the plane beyond it): use path or bdpt, or a rectangle for the plane";
+     reach the plane beyond it): use path or bdpt (volpath if the scene has media), or a \
+     rectangle for the plane";
 
 /// Refuses `sppm` where it cannot render the scene (see [`SPPM_UNBOUNDED`]).
 fn check_sppm_lighting(

@@ -45,9 +45,6 @@ pub struct Scene {
     pub(crate) has_interfaces: bool,
     /// Some body absorbs ([`Material::absorption`]): paths track the bodies they are in.
     pub(crate) absorbs: bool,
-    /// The materials of bodies whose surface bounds a medium (in `volpath` the medium stands
-    /// for their inside), in order.
-    pub(crate) medium_bodies: Vec<u32>,
     pub(crate) meshes: Vec<Mesh>,
     pub(crate) materials: Vec<Material>,
     pub(crate) textures: Vec<Texture>,

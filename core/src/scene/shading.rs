@@ -1,6 +1,6 @@
 //! Shading: from a hit to the surface point's [`Interaction`] (position, normals with
 //! interpolation and normal mapping, tangent, texture coordinates), and from there to what the
-//! point's material gives: its [`Bsdf`], its emitted radiance and the absorption behind it.
+//! point's material gives: its [`Bsdf`] and its emitted radiance.
 
 use super::aggregate::Prim;
 use super::{Object, ObjectKind, Scene};
