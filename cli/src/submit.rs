@@ -389,6 +389,55 @@ impl std::io::Write for ChannelWriter {
     }
 }
 
+/// How long a client that follows a job keeps asking a coordinator that does not answer (a
+/// restart, a network cut, a proxy without its upstream) before it gives up.
+const OUTAGE: Duration = Duration::from_secs(300);
+
+/// Whether a request may succeed if made again: no answer, or a gateway's or an overloaded
+/// server's status.
+fn transient(e: &ClientError) -> bool {
+    match e {
+        ClientError::Unreachable { .. } => true,
+        ClientError::Status { status, .. } => matches!(status.as_u16(), 502..=504),
+        _ => false,
+    }
+}
+
+/// `call` for job `id`, made again while its failure is [`transient`], with backoff, for up
+/// to [`OUTAGE`]; `say` tells the user once that the coordinator does not answer, and again
+/// when it does.
+async fn patiently<T, F, Fut>(id: &str, say: &dyn Fn(String), mut call: F) -> anyhow::Result<T>
+where
+    F: FnMut() -> Fut,
+    Fut: std::future::Future<Output = Result<T, ClientError>>,
+{
+    let start = std::time::Instant::now();
+    let mut delay = Duration::from_millis(250);
+    let mut told = false;
+    loop {
+        match call().await {
+            Ok(v) => {
+                if told {
+                    say(format!("raytile: the coordinator answers again (job {id})"));
+                }
+                return Ok(v);
+            }
+            Err(e) if transient(&e) && start.elapsed() < OUTAGE => {
+                if !told {
+                    say(format!(
+                        "raytile: {e}; asking again for up to {} minutes (job {id} goes on)",
+                        OUTAGE.as_secs() / 60
+                    ));
+                    told = true;
+                }
+                tokio::time::sleep(delay).await;
+                delay = (delay * 2).min(Duration::from_secs(5));
+            }
+            Err(e) => return Err(anyhow::Error::new(e).context(format!("following job {id}"))),
+        }
+    }
+}
+
 /// Uploads the scene, submits the job and, if `wait`, follows it to the end and writes the
 /// image to `output`. Bad flags, an unknown output extension and a scene naming a file a farm
 /// would refuse are refused before anything is uploaded.
@@ -445,10 +494,17 @@ pub async fn submit_and_follow(
             bar.println(m);
         }
     };
+    // The id first: a user who stops waiting can still find the job, which goes on.
+    say(format!(
+        "raytile: job {} submitted; it goes on if you stop waiting (the coordinator's \
+         DELETE /v1/jobs/{} cancels it)",
+        status.id, status.id
+    ));
+    let id = status.id.clone();
     loop {
         while !status.state.is_final() {
             tokio::time::sleep(Duration::from_millis(100)).await;
-            status = c.job(&status.id).await?;
+            status = patiently(&id, &say, || c.job(&id)).await?;
             bar.set_position(status.tasks_done);
             bar.set_message(format!(
                 "{} ({} workers)",
@@ -471,13 +527,13 @@ pub async fn submit_and_follow(
         let (Some(out), Some(format)) = (output, format) else {
             break;
         };
-        let (bytes, tag) = c.job_image_tagged(&status.id, format.name()).await?;
+        let (bytes, tag) = patiently(&id, &say, || c.job_image_tagged(&id, format.name())).await?;
         // Making the frame reads every stored tile: one found lost or damaged is left out (the
         // frame has no tag) and rendered again, and the job runs again (and may be done again
         // already). The frame is written once it has every tile; a frame that stays without a
         // tag while its job stays done (the tile could not be queued again) is written after
         // a few tries, with a warning.
-        let after = c.job(&status.id).await?;
+        let after = patiently(&id, &say, || c.job(&id)).await?;
         let same = after.state == JobState::Done && after.finished_ms == status.finished_ms;
         if same && (tag.is_some() || untagged >= UNTAGGED_TRIES) {
             bar.finish_and_clear();
@@ -514,6 +570,54 @@ const UNTAGGED_TRIES: u32 = 5;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Following a job rides out a coordinator that does not answer for a while (a restart),
+    /// saying so once and again when it answers; an answer that will not change (404) ends it
+    /// at once, naming the job.
+    #[tokio::test]
+    async fn following_a_job_asks_again_while_the_coordinator_is_away() {
+        let said = std::sync::Mutex::new(Vec::<String>::new());
+        let say = |m: String| said.lock().unwrap().push(m);
+        let mut calls = 0;
+        let got = patiently("job-1", &say, || {
+            calls += 1;
+            let n = calls;
+            async move {
+                match n {
+                    1 => Err(ClientError::Unreachable {
+                        base: "http://127.0.0.1:9".into(),
+                        message: "connection refused".into(),
+                    }),
+                    2 => Err(ClientError::Status {
+                        status: reqwest::StatusCode::BAD_GATEWAY,
+                        code: None,
+                        field: None,
+                        message: "no upstream".into(),
+                    }),
+                    _ => Ok(7),
+                }
+            }
+        })
+        .await
+        .unwrap();
+        assert_eq!((got, calls), (7, 3));
+        let said = said.lock().unwrap().clone();
+        assert_eq!(said.len(), 2, "{said:?}");
+        assert!(said[0].contains("connection refused") && said[0].contains("job-1"));
+        assert!(said[1].contains("answers again"));
+
+        let e = patiently("job-2", &|_| {}, || async {
+            Err::<(), _>(ClientError::Status {
+                status: reqwest::StatusCode::NOT_FOUND,
+                code: Some("not_found".into()),
+                field: None,
+                message: "no job job-2".into(),
+            })
+        })
+        .await
+        .unwrap_err();
+        assert!(format!("{e:#}").contains("following job job-2"), "{e:#}");
+    }
 
     /// A coordinator in this process, with uploads limited to `max_upload` bytes.
     async fn coordinator(
