@@ -1500,3 +1500,114 @@ mod environment {
         c.stop().await;
     }
 }
+
+/// A farm behind a TLS proxy, as docs/farm.md tells an operator to set one up on a network it
+/// does not trust: `raytile submit` and a worker process reach the coordinator over https://,
+/// trusting a private CA through `SSL_CERT_FILE`, and the frame is the local render's; without
+/// the CA the client refuses the proxy's certificate. (Slow: RAYTILE_SLOW_TESTS=1, built
+/// binaries.)
+mod tls {
+    use super::support::*;
+    use super::*;
+    use std::process::{Command, Stdio};
+    use tokio_rustls::rustls;
+
+    fn fixture(name: &str) -> PathBuf {
+        PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("fixtures/tls")
+            .join(name)
+    }
+
+    /// A TLS-terminating relay on 127.0.0.1 to the plain port `to`, with the fixture's
+    /// certificate for `localhost`: its port.
+    async fn tls_proxy(to: u16) -> u16 {
+        use rustls::pki_types::{pem::PemObject, CertificateDer, PrivateKeyDer};
+        let certs: Vec<CertificateDer> = CertificateDer::pem_file_iter(fixture("cert.pem"))
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
+        let key = PrivateKeyDer::from_pem_file(fixture("key.pem")).unwrap();
+        // The crate's one provider (ring, as reqwest's rustls has it).
+        let config = rustls::ServerConfig::builder()
+            .with_no_client_auth()
+            .with_single_cert(certs, key)
+            .unwrap();
+        let acceptor = tokio_rustls::TlsAcceptor::from(Arc::new(config));
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let port = listener.local_addr().unwrap().port();
+        tokio::spawn(async move {
+            while let Ok((tcp, _)) = listener.accept().await {
+                let acceptor = acceptor.clone();
+                tokio::spawn(async move {
+                    let Ok(mut tls) = acceptor.accept(tcp).await else {
+                        return;
+                    };
+                    if let Ok(mut up) = tokio::net::TcpStream::connect(("127.0.0.1", to)).await {
+                        let _ = tokio::io::copy_bidirectional(&mut tls, &mut up).await;
+                    }
+                });
+            }
+        });
+        port
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_farm_behind_a_tls_proxy_renders_the_local_image() {
+        if std::env::var("RAYTILE_SLOW_TESTS").as_deref() != Ok("1") {
+            eprintln!("skipping: set RAYTILE_SLOW_TESTS=1");
+            return;
+        }
+        let scene = cornell();
+        let dir = tempfile::tempdir().unwrap();
+        let c = Coord::start(test_config(&dir.path().join("data")), 0).await;
+        let https = format!("https://localhost:{}", tls_proxy(c.port).await);
+        let _worker = Proc(
+            Command::new(built_binary("raytile-worker"))
+                .args(["--coordinator", &https, "--threads", "1", "--name", "tls"])
+                .arg("--cache-dir")
+                .arg(dir.path().join("worker"))
+                .env("SSL_CERT_FILE", fixture("ca.pem"))
+                .stdout(Stdio::null())
+                .stderr(Stdio::null())
+                .spawn()
+                .unwrap(),
+        );
+        let submit = |out: PathBuf, ca: Option<PathBuf>| {
+            let mut cmd = Command::new(built_binary("raytile"));
+            cmd.arg("submit")
+                .arg(&scene)
+                .args(["--coordinator", &https, "--spp", "4", "--width", "32"])
+                .args(["--height", "24", "--tile-size", "16", "-o"])
+                .arg(out)
+                .env_remove("SSL_CERT_FILE")
+                .env_remove("SSL_CERT_DIR");
+            if let Some(ca) = ca {
+                cmd.env("SSL_CERT_FILE", ca);
+            }
+            tokio::task::spawn_blocking(move || cmd.output().unwrap())
+        };
+        // Without the private CA: the proxy's certificate is refused, nothing is submitted.
+        let refused = submit(dir.path().join("no.exr"), None).await.unwrap();
+        let stderr = String::from_utf8_lossy(&refused.stderr);
+        assert!(!refused.status.success(), "{stderr}");
+        assert!(stderr.contains("certificate"), "{stderr}");
+        // With it: submitted, rendered by the worker over https, downloaded.
+        let out = dir.path().join("frame.exr");
+        let done = submit(out.clone(), Some(fixture("ca.pem"))).await.unwrap();
+        let stderr = String::from_utf8_lossy(&done.stderr);
+        assert!(done.status.success(), "{stderr}");
+        let jobs = raytile_proto::client::Client::new(&c.base, None)
+            .unwrap()
+            .jobs()
+            .await
+            .unwrap();
+        assert_eq!(jobs.jobs.len(), 1, "the refused submission made no job");
+        let job = &jobs.jobs[0];
+        assert_eq!(job.state, JobState::Done);
+        assert_eq!(
+            std::fs::read(&out).unwrap(),
+            local_exr(&scene, &job.settings)
+        );
+        c.stop().await;
+    }
+}
