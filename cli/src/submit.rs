@@ -70,6 +70,9 @@ pub fn run(args: SubmitArgs) -> anyhow::Result<()> {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
+    if let Some(problem) = raytile_proto::client::cert_store_problem() {
+        eprintln!("raytile: warning: {problem}");
+    }
     rt.block_on(async {
         let c = Client::new(&args.coordinator, args.token.clone())?;
         let wait = args.wait || args.output.is_some();
@@ -397,8 +400,12 @@ const OUTAGE: Duration = Duration::from_secs(300);
 /// server's status.
 fn transient(e: &ClientError) -> bool {
     match e {
-        ClientError::Unreachable { .. } => true,
+        // A certificate that is not trusted stays so; anything else may be the network.
+        ClientError::Unreachable { message, .. } => !message.contains("certificate"),
         ClientError::Status { status, .. } => matches!(status.as_u16(), 502..=504),
+        // An answer cut off midway (a restart while it was sent): every call asked again is
+        // a GET.
+        ClientError::Body(_) => true,
         _ => false,
     }
 }
@@ -617,6 +624,11 @@ mod tests {
         .await
         .unwrap_err();
         assert!(format!("{e:#}").contains("following job job-2"), "{e:#}");
+        // A certificate the client does not trust is not the network: no asking again.
+        assert!(!transient(&ClientError::Unreachable {
+            base: "https://farm".into(),
+            message: "client error (Connect): invalid peer certificate: UnknownIssuer".into(),
+        }));
     }
 
     /// A coordinator in this process, with uploads limited to `max_upload` bytes.

@@ -103,12 +103,46 @@ pub struct Client {
 /// request is not sent on a connection the coordinator is closing at that moment.
 pub const POOL_IDLE: Duration = Duration::from_secs(20);
 
+/// How long [`Client::new`]'s requests wait for the next byte of an answer.
+pub const READ_TIMEOUT: Duration = Duration::from_secs(300);
+
+/// What is wrong with the certificate store named by `SSL_CERT_FILE` or `SSL_CERT_DIR`, if
+/// either is set: with them, `https://` clients trust what they name and the public CAs built
+/// in, not the system's store, and a missing file is otherwise silent (until a certificate is
+/// refused as of an unknown issuer).
+pub fn cert_store_problem() -> Option<String> {
+    let file = std::env::var_os("SSL_CERT_FILE").filter(|v| !v.is_empty());
+    let dir = std::env::var_os("SSL_CERT_DIR").filter(|v| !v.is_empty());
+    if let Some(f) = &file {
+        if !std::path::Path::new(f).is_file() {
+            return Some(format!(
+                "SSL_CERT_FILE={} is not a readable file",
+                f.to_string_lossy()
+            ));
+        }
+    }
+    if let Some(d) = &dir {
+        if !std::path::Path::new(d).is_dir() {
+            return Some(format!(
+                "SSL_CERT_DIR={} is not a folder",
+                d.to_string_lossy()
+            ));
+        }
+    }
+    None
+}
+
 impl Client {
-    /// A client of the coordinator at `base` (`http://farm-host:8080`) with reqwest's defaults;
-    /// an empty token counts as none.
+    /// A client of the coordinator at `base` (`http://farm-host:8080`, or `https://` through a
+    /// TLS proxy); an empty token counts as none.
     pub fn new(base: &str, token: Option<String>) -> Result<Client, ClientError> {
         let http = reqwest::Client::builder()
             .connect_timeout(Duration::from_secs(10))
+            // A network cut leaves an open connection silent, not closed: a request fails
+            // after this long without a byte (ample for the coordinator's check of a large
+            // upload) instead of waiting for the kernel to give up on the connection.
+            .read_timeout(READ_TIMEOUT)
+            .tcp_keepalive(Duration::from_secs(15))
             .pool_idle_timeout(POOL_IDLE)
             .build()
             .map_err(|e| ClientError::BadUrl {

@@ -1561,17 +1561,32 @@ mod tls {
         let dir = tempfile::tempdir().unwrap();
         let c = Coord::start(test_config(&dir.path().join("data")), 0).await;
         let https = format!("https://localhost:{}", tls_proxy(c.port).await);
+        // The children's environment: no proxy of the runner's between them and the relay,
+        // and only the CA store a child is given.
+        let clean = |cmd: &mut Command| {
+            for v in ["HTTPS_PROXY", "https_proxy", "ALL_PROXY", "all_proxy"] {
+                cmd.env_remove(v);
+            }
+            cmd.env("NO_PROXY", "localhost,127.0.0.1")
+                .env_remove("SSL_CERT_FILE")
+                .env_remove("SSL_CERT_DIR");
+        };
+        let worker_log = dir.path().join("worker.log");
+        let mut worker = Command::new(built_binary("raytile-worker"));
+        worker
+            .args(["--coordinator", &https, "--threads", "1", "--name", "tls"])
+            .arg("--cache-dir")
+            .arg(dir.path().join("worker"))
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&worker_log).unwrap());
+        clean(&mut worker);
         let _worker = Proc(
-            Command::new(built_binary("raytile-worker"))
-                .args(["--coordinator", &https, "--threads", "1", "--name", "tls"])
-                .arg("--cache-dir")
-                .arg(dir.path().join("worker"))
+            worker
                 .env("SSL_CERT_FILE", fixture("ca.pem"))
-                .stdout(Stdio::null())
-                .stderr(Stdio::null())
                 .spawn()
                 .unwrap(),
         );
+        // `raytile submit … -o OUT`, given two minutes: its exit status and stderr.
         let submit = |out: PathBuf, ca: Option<PathBuf>| {
             let mut cmd = Command::new(built_binary("raytile"));
             cmd.arg("submit")
@@ -1579,23 +1594,36 @@ mod tls {
                 .args(["--coordinator", &https, "--spp", "4", "--width", "32"])
                 .args(["--height", "24", "--tile-size", "16", "-o"])
                 .arg(out)
-                .env_remove("SSL_CERT_FILE")
-                .env_remove("SSL_CERT_DIR");
+                .stdout(Stdio::null())
+                .stderr(Stdio::piped());
+            clean(&mut cmd);
             if let Some(ca) = ca {
                 cmd.env("SSL_CERT_FILE", ca);
             }
-            tokio::task::spawn_blocking(move || cmd.output().unwrap())
+            let log = worker_log.clone();
+            tokio::task::spawn_blocking(move || {
+                let mut child = Proc(cmd.spawn().unwrap());
+                let deadline = std::time::Instant::now() + Duration::from_secs(120);
+                while child.0.try_wait().unwrap().is_none() {
+                    if std::time::Instant::now() > deadline {
+                        let worker = std::fs::read_to_string(&log).unwrap_or_default();
+                        panic!("raytile submit still waits after 2 minutes; the worker:\n{worker}");
+                    }
+                    std::thread::sleep(Duration::from_millis(50));
+                }
+                let mut stderr = String::new();
+                std::io::Read::read_to_string(child.0.stderr.as_mut().unwrap(), &mut stderr)
+                    .unwrap();
+                (child.0.wait().unwrap().success(), stderr)
+            })
         };
         // Without the private CA: the proxy's certificate is refused, nothing is submitted.
-        let refused = submit(dir.path().join("no.exr"), None).await.unwrap();
-        let stderr = String::from_utf8_lossy(&refused.stderr);
-        assert!(!refused.status.success(), "{stderr}");
-        assert!(stderr.contains("certificate"), "{stderr}");
+        let (ok, stderr) = submit(dir.path().join("no.exr"), None).await.unwrap();
+        assert!(!ok && stderr.contains("certificate"), "{stderr}");
         // With it: submitted, rendered by the worker over https, downloaded.
         let out = dir.path().join("frame.exr");
-        let done = submit(out.clone(), Some(fixture("ca.pem"))).await.unwrap();
-        let stderr = String::from_utf8_lossy(&done.stderr);
-        assert!(done.status.success(), "{stderr}");
+        let (ok, stderr) = submit(out.clone(), Some(fixture("ca.pem"))).await.unwrap();
+        assert!(ok, "{stderr}");
         let jobs = raytile_proto::client::Client::new(&c.base, None)
             .unwrap()
             .jobs()

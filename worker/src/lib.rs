@@ -182,6 +182,9 @@ pub async fn run(config: Config, shutdown: impl Future<Output = ()> + Send) -> a
     );
     std::fs::create_dir_all(&config.cache_dir)
         .with_context(|| format!("creating {}", config.cache_dir.display()))?;
+    if let Some(problem) = raytile_proto::client::cert_store_problem() {
+        tracing::warn!("{problem}: https:// coordinators are checked against the public CAs only");
+    }
     let http = raytile_proto::client::reqwest::Client::builder()
         .connect_timeout(Duration::from_secs(5))
         // A partition leaves established connections silent, not closed: no read for
