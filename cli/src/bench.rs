@@ -53,7 +53,7 @@ pub struct BenchArgs {
     /// 2^20).
     #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=1 << 20))]
     pub caustic_spp: u32,
-    /// Skip the BVH build benchmark.
+    /// Skip the BVH build benchmark and the ray figures on its mesh.
     #[arg(long)]
     pub no_bvh: bool,
     /// BVH builds to measure (repeatable; default `binned_sah` and every obvhs preset):

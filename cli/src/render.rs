@@ -83,8 +83,17 @@ fn setting_as_flag(e: raytile_core::SceneError) -> anyhow::Error {
 /// Runs `raytile render`.
 pub fn run(args: RenderArgs) -> Result<()> {
     let start = Instant::now();
-    film::ImageFormat::from_path(&args.output)?;
+    let format = film::ImageFormat::from_path(&args.output)?;
     film::check_writable(&args.output)?;
+    if format != film::ImageFormat::Png
+        && (args.exposure != 0.0 || args.tonemap != film::ToneMap::Clamp)
+    {
+        eprintln!(
+            "raytile: warning: --exposure and --tonemap shape PNG output only; {} keeps the \
+             linear radiance",
+            args.output.display()
+        );
+    }
     let desc = load_scene(&args.scene)?;
     let settings = desc.render.resolve(&args.overrides).map_err(flag_error)?;
     if args.overrides.camera.is_some() {

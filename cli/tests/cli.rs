@@ -46,6 +46,30 @@ fn render_writes_every_format_and_prints_a_summary() {
             "{err}"
         );
         assert!(std::fs::metadata(&out).unwrap().len() > 0);
+        assert!(!err.contains("warning"), "{err}");
+        // Exposure and tone map shape the PNG alone: said, not silently ignored, for the others.
+        let o = raytile()
+            .args(["render", &scene("cornell-box.json"), "-o"])
+            .arg(&out)
+            .args([
+                "--width",
+                "8",
+                "--height",
+                "8",
+                "--spp",
+                "1",
+                "--exposure",
+                "1",
+            ])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{err}");
+        assert_eq!(
+            err.contains("--exposure and --tonemap shape PNG output only"),
+            ext != "png",
+            "{ext}: {err}"
+        );
     }
     std::fs::remove_dir_all(&dir).ok();
 }
