@@ -9,7 +9,7 @@ const INTEGRATORS = ["path", "volpath", "bdpt", "sppm", "whitted", "normals", "a
   "ao"];
 
 // What the pages did, for people debugging them and for the end-to-end test.
-window.raytile = { previews: [], events: 0 };
+window.raytile = { previews: [], events: 0, errors: [] };
 
 // ---------------------------------------------------------------- small helpers
 
@@ -75,6 +75,7 @@ function throttle(fn, ms) {
         await fn();
       } catch (e) {
         console.error(e);
+        window.raytile.errors.push(String(e));
       } finally {
         timer = null;
         if (again) run();
@@ -834,6 +835,10 @@ function jobPage(main, id) {
   // The coordinator builds the whole frame for each preview: asked for no more often than
   // every 400 ms, nor than four times as long as the last one took.
   let previewMs = 0;
+  // Whether a preview was asked for after the job was known to be finished: its frame is
+  // final. One asked for earlier may have been taken while `job` still held an answer that
+  // predates the last result.
+  let finalShown = false;
   const refreshPreview = throttle(async () => {
     if (!job || gone) return;
     const began = performance.now();
@@ -851,6 +856,7 @@ function jobPage(main, id) {
     }
     before.lit = lit / (px.length / 4);
     window.raytile.previews.push(before);
+    if (isFinal(before.state)) finalShown = true;
     previewMs = performance.now() - began;
   }, () => Math.max(400, 4 * previewMs));
 
@@ -919,7 +925,11 @@ function jobPage(main, id) {
     renderJob();
     drawOverlay();
     // The first preview waits for the job (a finished job sends no event that would ask
-    // for one later).
+    // for one later). A job seen finished for the first time is shown once more: the
+    // preview its last events asked for may have been taken with `job` still out of date
+    // (an answer to a read that began before the last result came in).
+    if (!isFinal(job.state)) finalShown = false;
+    else if (!finalShown) refreshPreview();
     if (first) refreshPreview();
   }, 300);
 

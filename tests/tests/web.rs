@@ -364,7 +364,11 @@ async fn until(c: &fantoccini::Client, secs: u64, what: &str, script: &str) -> V
         if !(v.is_null() || v == false || v == 0 || v == "") {
             return v;
         }
-        assert!(tokio::time::Instant::now() < end, "waiting for {what}");
+        if tokio::time::Instant::now() >= end {
+            // What the page knew, for the failure's message.
+            let seen = js(c, "const r = window.raytile; return JSON.stringify(r && {job: r.job && {state: r.job.state, tasks_done: r.job.tasks_done, tasks_total: r.job.tasks_total}, previews: r.previews.slice(-4), errors: r.errors, events: r.events})").await;
+            panic!("waiting for {what}; the page had {seen}");
+        }
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
 }
