@@ -75,6 +75,16 @@ fn build_params(spec: &str) -> Result<BvhBuildParams> {
     if let Some((_, p)) = PRESETS.iter().find(|(n, _)| *n == spec) {
         return Ok(*p);
     }
+    if !spec.contains('=') {
+        let names: Vec<&str> = std::iter::once(BINNED_SAH)
+            .chain(PRESETS.iter().map(|(n, _)| *n))
+            .collect();
+        anyhow::bail!(
+            "--build {spec}: no such build (the builds are {}, or `fast_build` changed by \
+             key=value pairs such as search=14,reinsert=0.05)",
+            names.join(", ")
+        );
+    }
     let mut p = BvhBuildParams::fast_build();
     for kv in spec.split(',') {
         let (k, v) = kv

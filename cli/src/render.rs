@@ -22,7 +22,8 @@ pub fn flag_error(e: SettingsError) -> anyhow::Error {
 /// Arguments of `raytile render`.
 #[derive(Args, Debug)]
 pub struct RenderArgs {
-    /// Scene file: .json (raytile format), .gltf or .glb.
+    /// Scene file: .json (raytile format), .gltf or .glb; or a folder with one scene file at
+    /// its top.
     pub scene: PathBuf,
     /// Output image: .png, .exr or .hdr.
     #[arg(short, long)]
@@ -94,7 +95,11 @@ pub fn run(args: RenderArgs) -> Result<()> {
             args.output.display()
         );
     }
-    let desc = load_scene(&args.scene)?;
+    let desc = if args.scene.is_dir() {
+        load_scene(&crate::submit::scene_in_folder(&args.scene)?)?
+    } else {
+        load_scene(&args.scene)?
+    };
     let settings = desc.render.resolve(&args.overrides).map_err(flag_error)?;
     if args.overrides.camera.is_some() {
         // A camera the scene does not have is the flag's error, said before the scene is built.

@@ -309,7 +309,7 @@ impl ScenePack {
 }
 
 /// The one scene file (`.gltf`, `.glb` or `.json`) at the top of `dir`.
-fn scene_in_folder(dir: &Path) -> anyhow::Result<PathBuf> {
+pub(crate) fn scene_in_folder(dir: &Path) -> anyhow::Result<PathBuf> {
     let mut found = Vec::new();
     for e in std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))? {
         let p = e?.path();

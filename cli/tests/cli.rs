@@ -22,12 +22,24 @@ fn scene(name: &str) -> String {
 fn render_writes_every_format_and_prints_a_summary() {
     let dir = std::env::temp_dir().join(format!("raytile-cli-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    for ext in ["png", "exr", "hdr"] {
-        let out = dir.join(format!("cb.{ext}"));
+    // The Cornell box rendered to `out` with `flags`: the exit status and stderr.
+    let render = |out: &Path, flags: &[&str]| {
         let o = raytile()
             .args(["render", &scene("cornell-box.json"), "-o"])
-            .arg(&out)
-            .args([
+            .arg(out)
+            .args(flags)
+            .output()
+            .unwrap();
+        (
+            o.status.success(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+    for ext in ["png", "exr", "hdr"] {
+        let out = dir.join(format!("cb.{ext}"));
+        let (ok, err) = render(
+            &out,
+            &[
                 "--width",
                 "24",
                 "--height",
@@ -36,11 +48,9 @@ fn render_writes_every_format_and_prints_a_summary() {
                 "2",
                 "--threads",
                 "2",
-            ])
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert!(o.status.success(), "{err}");
+            ],
+        );
+        assert!(ok, "{err}");
         assert!(
             err.contains("24x16, 2 spp") && err.contains("Msamples/s"),
             "{err}"
@@ -48,23 +58,8 @@ fn render_writes_every_format_and_prints_a_summary() {
         assert!(std::fs::metadata(&out).unwrap().len() > 0);
         assert!(!err.contains("warning"), "{err}");
         // Exposure and tone map shape the PNG alone: said, not silently ignored, for the others.
-        let o = raytile()
-            .args(["render", &scene("cornell-box.json"), "-o"])
-            .arg(&out)
-            .args([
-                "--width",
-                "8",
-                "--height",
-                "8",
-                "--spp",
-                "1",
-                "--exposure",
-                "1",
-            ])
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert!(o.status.success(), "{err}");
+        let (ok, err) = render(&out, &[&TINY[..], &["--exposure", "1"]].concat());
+        assert!(ok, "{err}");
         assert_eq!(
             err.contains("--exposure and --tonemap shape PNG output only"),
             ext != "png",
@@ -194,6 +189,12 @@ fn absurd_thread_and_worker_counts_are_refused() {
     for (args, flag) in cases {
         refused_at_once(args, 2, &[flag, "not in"]);
     }
+    // A BVH build that is no name says the names.
+    refused_at_once(
+        &["bench", "--build", "nonsense"],
+        1,
+        &["--build nonsense: no such build", "binned_sah, "],
+    );
 }
 
 /// Runs `raytile ARGS` (no token in the environment): it must exit with `code` within ten
@@ -568,6 +569,47 @@ fn submit_refuses_a_scene_naming_files_outside_its_folder() {
 
 /// `raytile submit` packs exactly the files the scene uses (a link inside the folder under the
 /// name the scene gives it), says what it packed, and the farm renders it.
+/// `render` takes a scene folder as `submit` does: the one scene file at its top, the same
+/// image as the file gives; a folder without one, or with several, is refused by name.
+#[test]
+fn render_takes_a_scene_folder() {
+    let dir = std::env::temp_dir().join(format!("raytile-cli-folder-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let d = scene_folder(&dir);
+    let exr = |scene: &Path, name: &str| {
+        let out = dir.join(name);
+        let o = raytile()
+            .arg("render")
+            .arg(scene)
+            .arg("-o")
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        std::fs::read(out).unwrap()
+    };
+    assert_eq!(
+        exr(&d, "folder.exr"),
+        exr(&d.join("scene.json"), "file.exr")
+    );
+    let empty = dir.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let empty = empty.display().to_string();
+    refused_at_once(
+        &["render", &empty, "-o", "x.png"],
+        1,
+        &["no .gltf, .glb or .json"],
+    );
+    std::fs::write(d.join("other.json"), "{}").unwrap();
+    let two = d.display().to_string();
+    refused_at_once(
+        &["render", &two, "-o", "x.png"],
+        1,
+        &["other.json, scene.json"],
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 #[test]
 fn submit_packs_exactly_the_files_the_scene_uses() {
     let dir = std::env::temp_dir().join(format!("raytile-cli-pack-{}", std::process::id()));
