@@ -765,6 +765,20 @@ fn parse_text(
         // serde_json appends " at line L column C" itself; keep one copy.
         let msg = msg.split(" at line ").next().unwrap_or(&msg);
         let mut place = format!("line {}, column {}", inner.line(), inner.column());
+        if matches!(
+            inner.classify(),
+            serde_json::error::Category::Syntax | serde_json::error::Category::Eof
+        ) {
+            // Text that is not JSON: its place, and the value it was in where that is known
+            // (serde_path_to_error writes `?` for a part it does not know, `.` for the root).
+            let known = path.split('?').next().unwrap_or("").trim_end_matches('.');
+            let within = if known.is_empty() {
+                String::new()
+            } else {
+                format!(", in {known}")
+            };
+            return err(format!("not valid JSON ({place}{within}): {msg}"));
+        }
         // An error inside a `type`d value: its path there, and the line of the value it names
         // (serde's position is where the whole value ends).
         let msg = match msg
@@ -842,6 +856,29 @@ fn open_edges(positions: &[[f32; 3]], indices: &[[u32; 3]]) -> usize {
         }
     }
     edges.values().filter(|&&n| n != 2).count()
+}
+
+/// Whether a closed mesh faces inward: its signed volume (corners counter-clockwise seen from
+/// outside count positive) is negative by more than rounding. A mirroring transform does not
+/// change this: the renderer flips the front face of a mirrored object.
+fn wound_inward(positions: &[[f32; 3]], indices: &[[u32; 3]]) -> bool {
+    let corner = |i: u32| positions.get(i as usize).map(|p| p.map(f64::from));
+    let mut volume = 0.0;
+    let mut scale = 0.0f64;
+    for t in indices {
+        let (Some(a), Some(b), Some(c)) = (corner(t[0]), corner(t[1]), corner(t[2])) else {
+            continue;
+        };
+        let cross = [
+            b[1] * c[2] - b[2] * c[1],
+            b[2] * c[0] - b[0] * c[2],
+            b[0] * c[1] - b[1] * c[0],
+        ];
+        let term = a[0] * cross[0] + a[1] * cross[1] + a[2] * cross[2];
+        volume += term;
+        scale += term.abs();
+    }
+    volume < -1e-6 * scale
 }
 
 /// Density grids read so far, by canonical path and the `grid` asked for: (grid, file bytes).
@@ -1500,6 +1537,18 @@ impl Converter<'_> {
                          its medium through an opening stays in that medium (close the \
                          surface, e.g. with disks or a closed mesh)"
                     ));
+                } else if let JShape::Mesh {
+                    positions, indices, ..
+                } = &o.shape.0
+                {
+                    if wound_inward(positions, indices) {
+                        self.desc.warnings.push(format!(
+                            "{at} ('{name}'): the mesh's triangles face inward (their corners \
+                             run clockwise seen from outside), so its `interior` medium is \
+                             taken to be outside it and its `exterior` inside (list each \
+                             triangle's corners the other way round)"
+                        ));
+                    }
                 }
             }
             let media = if o.interior.is_some() || o.exterior.is_some() {
@@ -2308,6 +2357,27 @@ mod tests {
 
     fn parse(text: &str) -> Result<SceneDesc, String> {
         parse_json(text, Path::new("."), Path::new("test.json")).map_err(|e| e.to_string())
+    }
+
+    /// Text that is not JSON is said to be so, with its line and column and the value it was
+    /// in where that is known: not as an error "at ?" or "at ." (a path of nothing).
+    #[test]
+    fn syntax_errors_say_where_they_are() {
+        let e = parse(
+            "{\"camera\": {\"position\": [0, 0, 4], \"look_at\": [0, 0, 0]},\n \"objects\": [{\"shape\": {\"type\": \"sphere\"},, }]}",
+        )
+        .unwrap_err();
+        assert!(e.contains("not valid JSON (line 2, column"), "{e}");
+        assert!(!e.contains('?') && !e.contains(" at ."), "{e}");
+        let e =
+            parse("{\"camera\": {\"position\": [0, 0, 4], \"look_at\": [0, 0, 0]}, \"render\": {\"width\": 8").unwrap_err();
+        assert!(e.contains("not valid JSON (line 1, column"), "{e}");
+        assert!(e.contains(", in render): EOF while parsing"), "{e}");
+        let e = parse("{\"camera\" {}}").unwrap_err();
+        assert!(
+            e.contains("not valid JSON (line 1, column 11): expected `:`"),
+            "{e}"
+        );
     }
 
     /// A texture's `uv` transforms the texture coordinates its materials read it through:
@@ -3400,6 +3470,18 @@ mod tests {
             .unwrap()
             .contains("the mesh has 3 edges on one triangle only"));
         assert_eq!(warned(r#"{"type": "sphere"}"#), None);
+        // Closed but inside out: said, with what it does to the media.
+        let inward = |shape: &str| {
+            let d = parse(&scene(shape)).unwrap();
+            d.warnings.iter().any(|w| w.contains("face inward"))
+        };
+        let reversed: Vec<[usize; 3]> = faces.iter().map(|f| [f[0], f[2], f[1]]).collect();
+        let inside_out = format!(
+            r#"{{"type": "mesh", "positions": [{}], "indices": {reversed:?}}}"#,
+            p.join(",")
+        );
+        assert!(inward(&inside_out));
+        assert!(!inward(&closed) && !inward(&unwelded));
     }
 
     #[test]
