@@ -765,10 +765,13 @@ fn parse_text(
         // serde_json appends " at line L column C" itself; keep one copy.
         let msg = msg.split(" at line ").next().unwrap_or(&msg);
         let mut place = format!("line {}, column {}", inner.line(), inner.column());
+        // serde_json says "trailing characters" (a syntax error) for an array longer than
+        // its value, which is the value's error, said at its path.
         if matches!(
             inner.classify(),
             serde_json::error::Category::Syntax | serde_json::error::Category::Eof
-        ) {
+        ) && msg != "trailing characters"
+        {
             // Text that is not JSON: its place, and the value it was in where that is known
             // (serde_path_to_error writes `?` for a part it does not know, `.` for the root).
             let known = path.split('?').next().unwrap_or("").trim_end_matches('.');
