@@ -957,7 +957,7 @@ async fn release(
 
 /// A result's splats must name pixels of the frame, each once, in increasing order, and only a
 /// job whose integrator splats (`splat_pixels`: its frame's pixel count) may carry any.
-fn check_splats(splats: &[(u32, [i64; 3])], splat_pixels: Option<u64>) -> Result<(), AppError> {
+fn check_splats(splats: &[(u32, [i128; 3])], splat_pixels: Option<u64>) -> Result<(), AppError> {
     let Some(n) = splat_pixels else {
         if splats.is_empty() {
             return Ok(());

@@ -738,7 +738,7 @@ async fn jobs_over_the_limits_are_refused_at_once_naming_the_field() {
         "{b}"
     );
     check(r#""spp": 512, "passes": 512"#, "passes").await;
-    // A bdpt tile's result can hold a splat for every pixel of the frame: 16 × 16 × 28 bytes
+    // A bdpt tile's result can hold a splat for every pixel of the frame: 16 × 16 × 52 bytes
     // is over this coordinator's 4096-byte results.
     let b = check(
         r#""width": 16, "height": 16, "integrator": "bdpt""#,
@@ -752,7 +752,7 @@ async fn jobs_over_the_limits_are_refused_at_once_naming_the_field() {
         &st,
         post(
             "/v1/jobs",
-            format!(r#"{{"scene": "{id}", "width": 8, "height": 8, "integrator": "bdpt"}}"#),
+            format!(r#"{{"scene": "{id}", "width": 6, "height": 6, "integrator": "bdpt"}}"#),
         ),
     )
     .await;

@@ -277,7 +277,7 @@ fn image_hash(integrator: IntegratorKind) -> String {
 const GOLDEN: [(IntegratorKind, &str); 9] = [
     (IntegratorKind::Path, "3597a8cf8e8636a7"),
     (IntegratorKind::Volpath, "12660f1ea1462eae"),
-    (IntegratorKind::Bdpt, "facff1132bdb5124"),
+    (IntegratorKind::Bdpt, "d38f1e26fad7077f"),
     (IntegratorKind::Sppm, "8cd6978ad287d687"),
     (IntegratorKind::Whitted, "1fb03513b2104f1a"),
     (IntegratorKind::Normals, "7bc0a2763bfb615f"),

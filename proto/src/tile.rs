@@ -5,15 +5,17 @@
 //! | bytes | field |
 //! | --- | --- |
 //! | 0..4 | magic `RTTR` |
-//! | 4..8 | format version (1) |
+//! | 4..8 | format version (2) |
 //! | 8..24 | tile `x0`, `y0`, `x1`, `y1` (u32 each) |
 //! | 24..28 | pass index (u32) |
 //! | 28..32 | number of splats `n` (u32; zero but for `bdpt`) |
 //! | 32..40 | samples dropped as NaN/Inf (u64) |
 //! | 40.. | `[r, g, b, w]` f32 sums per pixel, row-major, `width × height` pixels |
-//! | then | `n` splats: frame pixel index (u32) and `[r, g, b]` fixed-point sums (i64 each) |
+//! | then | `n` splats: frame pixel index (u32) and `[r, g, b]` fixed-point sums (i128 each, value × 2^[`SPLAT_FRACTION_BITS`]) |
 //!
 //! Floats travel as their exact bits, so the coordinator stores what the worker computed.
+//! Version 1 (stored by coordinators before render version 18) had splats of three i64 at
+//! 2^28; [`decode`] reads it still, shifting its splats exactly to the current scale.
 
 use crate::settings::Tile;
 pub use crate::settings::MAX_TILE_EDGE;
@@ -31,18 +33,28 @@ pub struct TileAccum {
     pub bad_samples: u64,
     /// Light that the tile's samples carried to other pixels (`bdpt`'s light subpaths joined
     /// to the camera): (row-major pixel index in the whole frame, RGB in fixed point, scaled
-    /// by 2^28), sorted by pixel, one entry per pixel. Integer sums, so adding them in any
-    /// order gives the same bits. Empty for every other integrator.
-    pub splats: Vec<(u32, [i64; 3])>,
+    /// by 2^[`SPLAT_FRACTION_BITS`]), sorted by pixel, one entry per pixel. Integer sums, so
+    /// adding them in any order gives the same bits. Empty for every other integrator.
+    pub splats: Vec<(u32, [i128; 3])>,
 }
 
+/// Bits after the binary point of a splat's fixed-point value: a channel value `v` travels as
+/// `round(v · 2^56)` in an i128, so sums keep 2^-56 (about 1.4·10⁻¹⁷) and reach 2^71 (about
+/// 2.4·10²¹) before they saturate: 37 decades, where the i64 at 2^28 of format version 1
+/// kept 19 and lost the light of very dim or very bright scenes.
+pub const SPLAT_FRACTION_BITS: u32 = 56;
+
 /// Bytes of one splat on the wire.
-pub const SPLAT_LEN: usize = 28;
+pub const SPLAT_LEN: usize = 4 + 3 * 16;
+
+/// Bytes of one splat in format version 1, and the bits after its binary point.
+const V1_SPLAT_LEN: usize = 4 + 3 * 8;
+const V1_FRACTION_BITS: u32 = 28;
 
 /// First four bytes of every tile result.
 pub const MAGIC: [u8; 4] = *b"RTTR";
 /// Version of the format written by [`encode`].
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 /// Size of the header in bytes.
 pub const HEADER_LEN: usize = 40;
 
@@ -110,9 +122,11 @@ pub fn decode(bytes: &[u8]) -> Result<(TileAccum, u32), TileFormatError> {
     }
     let u = |i: usize| u32::from_le_bytes([bytes[i], bytes[i + 1], bytes[i + 2], bytes[i + 3]]);
     let version = u(4);
-    if version != VERSION {
-        return Err(TileFormatError::Version(version));
-    }
+    let splat_len = match version {
+        VERSION => SPLAT_LEN,
+        1 => V1_SPLAT_LEN,
+        _ => return Err(TileFormatError::Version(version)),
+    };
     let (x0, y0, x1, y1) = (u(8), u(12), u(16), u(20));
     if x1 <= x0 || y1 <= y0 || x1 - x0 > MAX_TILE_EDGE || y1 - y0 > MAX_TILE_EDGE {
         return Err(TileFormatError::Rect(x0, y0, x1, y1));
@@ -124,7 +138,7 @@ pub fn decode(bytes: &[u8]) -> Result<(TileAccum, u32), TileFormatError> {
     let n_splats = u(28) as usize;
     let pixel_bytes = tile.pixel_count() * 16;
     let expected = n_splats
-        .checked_mul(SPLAT_LEN)
+        .checked_mul(splat_len)
         .and_then(|b| b.checked_add(pixel_bytes))
         .unwrap_or(usize::MAX);
     let body = &bytes[HEADER_LEN..];
@@ -136,13 +150,20 @@ pub fn decode(bytes: &[u8]) -> Result<(TileAccum, u32), TileFormatError> {
     }
     let (body, splat_bytes) = body.split_at(pixel_bytes);
     let splats = splat_bytes
-        .chunks_exact(SPLAT_LEN)
+        .chunks_exact(splat_len)
         .map(|b| {
             let i = u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
             let c = |k: usize| {
-                let mut v = [0u8; 8];
-                v.copy_from_slice(&b[4 + 8 * k..12 + 8 * k]);
-                i64::from_le_bytes(v)
+                if version == 1 {
+                    let mut v = [0u8; 8];
+                    v.copy_from_slice(&b[4 + 8 * k..12 + 8 * k]);
+                    // Exact: an i64 shifted by 28 bits fits an i128.
+                    i128::from(i64::from_le_bytes(v)) << (SPLAT_FRACTION_BITS - V1_FRACTION_BITS)
+                } else {
+                    let mut v = [0u8; 16];
+                    v.copy_from_slice(&b[4 + 16 * k..20 + 16 * k]);
+                    i128::from_le_bytes(v)
+                }
             };
             (i, [c(0), c(1), c(2)])
         })
@@ -189,7 +210,7 @@ mod tests {
     #[test]
     fn splats_travel_after_the_pixels() {
         let mut a = sample();
-        a.splats = vec![(0, [1, -2, i64::MAX]), (99, [i64::MIN, 0, 5])];
+        a.splats = vec![(0, [1, -2, i128::MAX]), (99, [i128::MIN, 0, 5])];
         let bytes = encode(&a, 1);
         assert_eq!(bytes.len(), encoded_len(&a.tile) + 2 * SPLAT_LEN);
         let (b, pass) = decode(&bytes).unwrap();
@@ -204,6 +225,34 @@ mod tests {
         let mut huge = bytes;
         huge[28..32].copy_from_slice(&u32::MAX.to_le_bytes());
         assert!(matches!(decode(&huge), Err(TileFormatError::Length { .. })));
+    }
+
+    /// A result stored in format version 1 (splats of i64 at 2^28) reads as the same values
+    /// at the current scale.
+    #[test]
+    fn version_1_results_still_read() {
+        let a = sample();
+        let mut bytes = encode(&a, 3);
+        bytes[4..8].copy_from_slice(&1u32.to_le_bytes());
+        bytes[28..32].copy_from_slice(&2u32.to_le_bytes());
+        for (i, rgb) in [(4u32, [1i64, -3, i64::MAX]), (9, [0, i64::MIN, 1 << 40])] {
+            bytes.extend_from_slice(&i.to_le_bytes());
+            for c in rgb {
+                bytes.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+        let (b, pass) = decode(&bytes).unwrap();
+        assert_eq!(pass, 3);
+        let k = 1i128 << 28;
+        assert_eq!(
+            b.splats,
+            [
+                (4, [k, -3 * k, i128::from(i64::MAX) * k]),
+                (9, [0, i128::from(i64::MIN) * k, (1 << 40) * k])
+            ]
+        );
+        bytes[4..8].copy_from_slice(&3u32.to_le_bytes());
+        assert_eq!(decode(&bytes).unwrap_err(), TileFormatError::Version(3));
     }
 
     #[test]

@@ -15,9 +15,10 @@ pub use output::{check_writable, encode, save, FilmError, ImageFormat, OutputOpt
 pub use raytile_proto::tile::TileAccum;
 
 /// Fixed-point scale of splats (light a sample adds to other pixels, as `bdpt`'s light paths
-/// joined to the camera do): a splat's channel value `v` is stored as `round(v · 2^28)` in an
-/// `i64`, so any number of splats add exactly and in any order.
-pub const SPLAT_SCALE: f64 = (1u64 << 28) as f64;
+/// joined to the camera do): a splat's channel value `v` is stored as `round(v · 2^56)` in an
+/// `i128` ([`raytile_proto::tile::SPLAT_FRACTION_BITS`]), so any number of splats add exactly
+/// and in any order.
+pub const SPLAT_SCALE: f64 = (1u64 << raytile_proto::tile::SPLAT_FRACTION_BITS) as f64;
 
 /// The largest value a sample may add to a pixel, per channel: half of f32's largest value
 /// over the most samples a pixel can receive ([`crate::settings::MAX_SPP`], 2^20), about
@@ -81,7 +82,7 @@ pub struct Film {
     pub bad_samples: u64,
     /// Row-major fixed-point RGB sums of the light that samples carried to other pixels
     /// (`bdpt`'s splats, see [`TileAccum::splats`]); empty while none arrived.
-    pub splats: Vec<[i64; 3]>,
+    pub splats: Vec<[i128; 3]>,
     /// Camera samples added so far over the whole frame (weights and dropped samples): the
     /// splat sums are divided by this over the pixel count (the samples per pixel).
     pub samples: f64,

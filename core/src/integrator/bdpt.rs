@@ -30,7 +30,7 @@ use std::f32::consts::PI;
 pub use crate::film::SPLAT_SCALE;
 
 /// One splat: a pixel (row-major index in the frame) and its fixed-point RGB.
-pub type Splat = (u32, [i64; 3]);
+pub type Splat = (u32, [i128; 3]);
 
 /// A number in [0, 1) from 24 bits of a hash.
 #[inline]
@@ -40,20 +40,14 @@ fn unit(h: u32) -> f32 {
 
 /// `v` in fixed point, saturating, rounded to nearest.
 #[inline]
-pub fn to_fixed(v: f32) -> i64 {
-    let x = (v as f64 * SPLAT_SCALE).round();
-    if x >= i64::MAX as f64 {
-        i64::MAX
-    } else if x <= i64::MIN as f64 {
-        i64::MIN
-    } else {
-        x as i64
-    }
+pub fn to_fixed(v: f32) -> i128 {
+    // f64 holds v · 2^56 exactly (a power-of-two scaling of an f32); the cast saturates.
+    (v as f64 * SPLAT_SCALE).round() as i128
 }
 
 /// Adds `b` into `a`, channel by channel, saturating.
 #[inline]
-pub fn add_fixed(a: &mut [i64; 3], b: [i64; 3]) {
+pub fn add_fixed(a: &mut [i128; 3], b: [i128; 3]) {
     for k in 0..3 {
         a[k] = a[k].saturating_add(b[k]);
     }
