@@ -475,7 +475,9 @@ async fn get_job(
     status.map(Json).ok_or_else(|| no_job(&id))
 }
 
+// A client's request is strict: a misspelt parameter is an error, not ignored.
 #[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
 struct DeleteQuery {
     /// Also delete the job and its tile data (default: only cancel).
     purge: Option<bool>,
@@ -619,7 +621,9 @@ async fn events(State(state): State<AppState>) -> Response {
         .into_response()
 }
 
+// A client's request is strict: a misspelt parameter is an error, not ignored.
 #[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
 struct ImageQuery {
     format: Option<String>,
 }

@@ -146,6 +146,7 @@ impl SceneMeta {
 
 /// Query of `POST /v1/scenes`.
 #[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct UploadQuery {
     /// Format hint: gltf, glb, json, tar, zip.
     pub format: Option<String>,

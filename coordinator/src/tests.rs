@@ -605,6 +605,23 @@ async fn every_rejection_of_every_route_is_the_documented_json_error() {
                 ));
             }
         }
+        // A client's misspelt parameter is an error, not ignored (`?formt=exr` answered PNG).
+        let client = crate::api::roles()
+            .into_iter()
+            .any(|(m, p, r)| m == method && p == path && matches!(r, crate::api::Role::Client));
+        if client && !query.is_empty() {
+            cases.push((
+                "an unknown parameter".into(),
+                req(
+                    &format!("{}?nosuch=1", fill(None)),
+                    None,
+                    Body::empty(),
+                    true,
+                ),
+                400,
+                Some("nosuch".into()),
+            ));
+        }
         if op["requestBody"]["content"]["application/json"].is_object() {
             let uri = fill(None);
             let json = Some("application/json");
