@@ -110,6 +110,36 @@ fn aces(x: f32) -> f32 {
     ((x * (a * x + b)) / (x * (c * x + d) + e)).clamp(0.0, 1.0)
 }
 
+/// The widest scanline Radiance's run-length encoding can state (its marker holds the width
+/// in 15 bits). The image crate's encoder uses it up to 32,768 pixels, and its files of that
+/// width are unreadable; wider images are written flat here.
+const HDR_RLE_WIDTH: u32 = 32_767;
+
+/// A Radiance `.hdr` file of flat (not run-length encoded) RGBE pixels, top row first.
+fn write_flat_hdr(
+    out: &mut impl std::io::Write,
+    px: &[image::Rgb<f32>],
+    w: u32,
+    h: u32,
+) -> std::io::Result<()> {
+    write!(out, "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y {h} +X {w}\n")?;
+    let mut bytes = Vec::with_capacity(px.len() * 4);
+    for p in px {
+        let m = p.0[0].max(p.0[1]).max(p.0[2]);
+        if m < f32::MIN_POSITIVE {
+            bytes.extend_from_slice(&[0; 4]);
+            continue;
+        }
+        // m = f · 2^e with f in [0.5, 1), read from the bits; each channel is stored as
+        // trunc(256 · v / 2^e), and the exponent as e + 128.
+        let e = ((m.to_bits() >> 23) & 0xff) as i32 - 126;
+        let scale = 2f64.powi(8 - e);
+        let c = p.0.map(|v| ((v as f64 * scale) as u32).min(255) as u8);
+        bytes.extend_from_slice(&[c[0], c[1], c[2], (e + 128) as u8]);
+    }
+    out.write_all(&bytes)
+}
+
 /// Encodes the film in `format`.
 pub fn encode(
     film: &Film,
@@ -154,13 +184,30 @@ pub fn encode(
                 })?;
         }
         ImageFormat::Hdr => {
+            // RGBE keeps a pixel's shared exponent in one byte, from 2^-128 up: a pixel whose
+            // brightest channel is below f32's normal range would wrap it around (and read
+            // back near 10^38). Such a pixel is black.
             let data: Vec<image::Rgb<f32>> = px
                 .iter()
-                .map(|p| image::Rgb(p.map(|v| v.max(0.0))))
+                .map(|p| {
+                    let p = p.map(|v| v.max(0.0));
+                    if p[0].max(p[1]).max(p[2]) < f32::MIN_POSITIVE {
+                        image::Rgb([0.0; 3])
+                    } else {
+                        image::Rgb(p)
+                    }
+                })
                 .collect();
-            image::codecs::hdr::HdrEncoder::new(&mut out)
-                .encode(&data, w as usize, h as usize)
-                .map_err(err("HDR"))?;
+            if w > HDR_RLE_WIDTH {
+                write_flat_hdr(&mut out, &data, w, h).map_err(|e| FilmError::Encode {
+                    format: "HDR",
+                    message: e.to_string(),
+                })?;
+            } else {
+                image::codecs::hdr::HdrEncoder::new(&mut out)
+                    .encode(&data, w as usize, h as usize)
+                    .map_err(err("HDR"))?;
+            }
         }
         ImageFormat::Png => {
             let scale = opts.exposure.exp2();
@@ -325,6 +372,39 @@ mod tests {
             .map(|_| encode(&f, ImageFormat::Exr, &OutputOptions::default()).unwrap())
             .collect();
         assert!(again.iter().all(|b| *b == once));
+    }
+
+    /// `.hdr` files read back as the film, within RGBE's 8-bit mantissa: a pixel too dim for
+    /// its exponent byte is black (not 10^38), and the widest frame is written flat (run-length
+    /// encoding cannot state a scanline of 32,768 pixels).
+    #[test]
+    fn hdr_keeps_dim_pixels_black_and_the_widest_frames_readable() {
+        let values = [1.0e-39f32, 3.0, 1.5e-38, 2.0e30, 0.0, 0.7];
+        for w in [6u32, 32_768] {
+            let mut f = Film::new(w, 1);
+            for (i, p) in f.pixels.iter_mut().enumerate() {
+                let v = values[i % values.len()];
+                *p = [v, v * 0.5, 0.0, 1.0];
+            }
+            let hdr = encode(&f, ImageFormat::Hdr, &OutputOptions::default()).unwrap();
+            let img = image::load_from_memory_with_format(&hdr, image::ImageFormat::Hdr)
+                .unwrap()
+                .into_rgb32f();
+            assert_eq!(img.dimensions(), (w, 1));
+            for (x, want) in values.iter().cycle().take(w.min(60) as usize).enumerate() {
+                let got = img.get_pixel(x as u32, 0).0;
+                let want = if *want < f32::MIN_POSITIVE {
+                    0.0
+                } else {
+                    *want
+                };
+                assert!(
+                    (got[0] - want).abs() <= want / 64.0
+                        && (got[1] - want * 0.5).abs() <= want / 64.0,
+                    "width {w}, pixel {x}: {got:?}, want {want}"
+                );
+            }
+        }
     }
 
     #[test]
