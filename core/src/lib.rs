@@ -144,5 +144,9 @@ pub use settings::{
 /// 2^56 instead of i64 at 2^28 (tile result format 2), so they no longer round away below about
 /// 4·10⁻⁹ nor saturate above 3.4·10¹⁰ per pixel: a scene lit by emitters of radiance 10⁻⁸ or
 /// 10¹² (or the sun's 10⁹ at thousands of samples) lost up to 60 % of its light in `bdpt`.
-/// `bdpt` images change in their last bits everywhere; other integrators are unchanged.
+/// `bdpt` images change in their last bits everywhere. The denoiser buffers take Open Image
+/// Denoise's ranges: `normals` are the world-space normal in [-1, 1] (they were mapped to
+/// [0, 1], so where no surface was seen they read as (-1, -1, -1)), and `albedo` is in [0, 1]
+/// (an emitter's, and the sky's, was its radiance; now its colour scaled to at most one).
+/// Other integrators are unchanged.
 pub const RENDER_VERSION: u32 = 18;

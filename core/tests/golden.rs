@@ -280,8 +280,8 @@ const GOLDEN: [(IntegratorKind, &str); 9] = [
     (IntegratorKind::Bdpt, "d38f1e26fad7077f"),
     (IntegratorKind::Sppm, "8cd6978ad287d687"),
     (IntegratorKind::Whitted, "1fb03513b2104f1a"),
-    (IntegratorKind::Normals, "7bc0a2763bfb615f"),
-    (IntegratorKind::Albedo, "ad105da7432cb490"),
+    (IntegratorKind::Normals, "03bf382e05250bd4"),
+    (IntegratorKind::Albedo, "4b0825cc18c681e5"),
     (IntegratorKind::Depth, "148ad63ba7c210d5"),
     (IntegratorKind::Ao, "358846d10765ac74"),
 ];

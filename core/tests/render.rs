@@ -163,23 +163,21 @@ fn debug_integrators_give_known_values() {
     // The camera is 1.5 from the centre of a unit sphere: the nearest point is 0.5 away.
     let d = image(IntegratorKind::Depth)[centre];
     assert!((d[0] - 0.5).abs() < 0.02, "depth {d:?}");
-    // Normals: the sphere faces the camera (+Z, mapped to 1) at the centre, and turns left and
-    // right (x below and above 0.5) towards the edges; up is +Y at the top rows.
+    // Normals, in [-1, 1] as denoisers take them: the sphere faces the camera (+Z) at the
+    // centre, and turns left and right (x below and above 0) towards the edges; up is +Y at
+    // the top rows.
     let n = image(IntegratorKind::Normals);
     assert!(
-        (n[centre][0] - 0.5).abs() < 0.05 && (n[centre][1] - 0.5).abs() < 0.05,
+        n[centre][0].abs() < 0.1 && n[centre][1].abs() < 0.1,
         "centre normal {:?}",
         n[centre]
     );
-    assert!(n[centre][2] > 0.95, "centre normal {:?}", n[centre]);
-    // (The sphere fills the view: at the image's edge the normal is about 0.18 off the axis.)
+    assert!(n[centre][2] > 0.9, "centre normal {:?}", n[centre]);
+    // (The sphere fills the view: at the image's edge the normal is about 0.36 off the axis.)
     let (left, right, top) = (n[8 * 16 + 1], n[8 * 16 + 14], n[16 + 8]);
-    assert!(left[0] < 0.45 && right[0] > 0.55, "{left:?} {right:?}");
-    assert!(
-        (left[0] + right[0] - 1.0).abs() < 0.02,
-        "{left:?} {right:?}"
-    );
-    assert!(top[1] > 0.55, "{top:?}");
+    assert!(left[0] < -0.1 && right[0] > 0.1, "{left:?} {right:?}");
+    assert!((left[0] + right[0]).abs() < 0.04, "{left:?} {right:?}");
+    assert!(top[1] > 0.1, "{top:?}");
     // Ambient occlusion: nothing but the sphere, which is convex, so no occlusion ray from its
     // surface can hit anything: exactly 1 everywhere (a self-hit would show as 0).
     let ao = image(IntegratorKind::Ao);
@@ -188,6 +186,41 @@ fn debug_integrators_give_known_values() {
         "occlusion on a lone convex sphere: {:?}",
         ao.iter().flatten().fold(f32::INFINITY, |a, &b| a.min(b))
     );
+}
+
+/// The denoiser buffers keep Open Image Denoise's ranges: an emitter's albedo is its colour in
+/// [0, 1] (not its radiance), and where no surface is seen the normal is zero and the albedo
+/// black (no sky here).
+#[test]
+fn denoiser_buffers_keep_their_ranges() {
+    let desc = raytile_core::scene::json::parse_json(
+        r#"{"render": {"width": 9, "height": 9, "spp": 1},
+            "camera": {"position": [0, 0, 5], "look_at": [0, 0, 0], "fov": 30},
+            "materials": {"lamp": {"type": "emitter", "emission": [40, 20, 0]}},
+            "objects": [{"shape": {"type": "sphere", "radius": 0.5}, "material": "lamp"}]}"#,
+        Path::new("."),
+        Path::new("lamp.json"),
+    )
+    .unwrap();
+    let scene = Scene::build(&desc).unwrap();
+    let image = |integrator| {
+        let settings = RenderSettings {
+            width: 9,
+            height: 9,
+            spp: 1,
+            integrator,
+            ..Default::default()
+        };
+        let job = RenderJob::new(&scene, &settings).unwrap();
+        render(&scene, &job, &()).resolve()
+    };
+    let (centre, corner) = (4 * 9 + 4, 0);
+    let albedo = image(IntegratorKind::Albedo);
+    assert_eq!(albedo[centre], [1.0, 0.5, 0.0]);
+    assert_eq!(albedo[corner], [0.0; 3]);
+    let normals = image(IntegratorKind::Normals);
+    assert_eq!(normals[corner], [0.0; 3]);
+    assert!(normals[centre][2] > 0.95, "{:?}", normals[centre]);
 }
 
 #[test]

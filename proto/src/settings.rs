@@ -29,9 +29,11 @@ pub enum IntegratorKind {
     Sppm,
     /// Whitted's recursive ray tracer: shadow rays, mirror reflection and refraction.
     Whitted,
-    /// Shading normals mapped to colours.
+    /// World-space shading normals, each component in [-1, 1]; zero where no surface is seen
+    /// (a denoiser's auxiliary buffer).
     Normals,
-    /// Surface albedo (the denoiser's auxiliary buffer).
+    /// Surface albedo in [0, 1]; an emitter's, and the sky's, is its colour scaled to at most
+    /// one (a denoiser's auxiliary buffer).
     Albedo,
     /// Distance from the camera along the primary ray.
     Depth,

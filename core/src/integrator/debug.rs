@@ -21,9 +21,10 @@ pub fn li(
     let mut crossed = 0.0f32;
     let (hit, it) = loop {
         let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
+            // No surface: a zero normal (a denoiser's "nothing here"), the sky's colour.
             return match kind {
                 IntegratorKind::Albedo => {
-                    job.environment().map_or(Vec3A::ZERO, |e| e.radiance(ray.d))
+                    unit_colour(job.environment().map_or(Vec3A::ZERO, |e| e.radiance(ray.d)))
                 }
                 _ => Vec3A::ZERO,
             };
@@ -38,14 +39,16 @@ pub fn li(
         break (hit, it);
     };
     match kind {
-        // World-space shading normal mapped from [-1, 1] to [0, 1].
-        IntegratorKind::Normals => it.ns * 0.5 + 0.5,
+        // The world-space shading normal, each component in [-1, 1], as denoisers (Open Image
+        // Denoise) and compositors take it.
+        IntegratorKind::Normals => it.ns,
+        // In [0, 1], as a denoiser takes it: an emitter's is its emission's colour.
         IntegratorKind::Albedo => {
             let e = scene.emitted(&it, -ray.d);
             if e != Vec3A::ZERO {
-                e
+                unit_colour(e)
             } else {
-                scene.bsdf(&it).albedo()
+                scene.bsdf(&it).albedo().clamp(Vec3A::ZERO, Vec3A::ONE)
             }
         }
         // Distance along the primary ray, in scene units.
@@ -72,4 +75,10 @@ pub fn li(
         | IntegratorKind::Sppm
         | IntegratorKind::Whitted => Vec3A::ZERO,
     }
+}
+
+/// A radiance's colour as an albedo: scaled so that its largest channel is at most one.
+fn unit_colour(c: Vec3A) -> Vec3A {
+    let c = c.max(Vec3A::ZERO);
+    c / c.max_element().max(1.0)
 }
