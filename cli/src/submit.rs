@@ -534,7 +534,8 @@ pub async fn submit_and_follow(
         let (Some(out), Some(format)) = (output, format) else {
             break;
         };
-        let (bytes, tag) = patiently(&id, &say, || c.job_image_tagged(&id, format.name())).await?;
+        let image = patiently(&id, &say, || c.job_image_tagged(&id, format.name())).await?;
+        let (bytes, tag) = (image.bytes, image.etag);
         // Making the frame reads every stored tile: one found lost or damaged is left out (the
         // frame has no tag) and rendered again, and the job runs again (and may be done again
         // already). The frame is written once it has every tile; a frame that stays without a
@@ -550,6 +551,9 @@ pub async fn submit_and_follow(
                      could not be rendered again (see the coordinator's log)",
                     status.id
                 );
+            }
+            if let Some(n) = image.dropped.filter(|&n| n > 0) {
+                eprintln!("raytile: warning: {n} NaN, infinite or too large samples were dropped");
             }
             std::fs::write(out, &bytes).with_context(|| format!("writing {}", out.display()))?;
             eprintln!("wrote {}", out.display());

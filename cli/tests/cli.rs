@@ -610,6 +610,64 @@ fn render_takes_a_scene_folder() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// Samples dropped as too large (a lamp of 10³⁰ a tenth of a millimetre above the floor) are
+/// said by a farm's download as by a local render, with the same count, and the images agree.
+#[test]
+fn dropped_samples_are_said_by_the_farm_as_by_render() {
+    let dir = std::env::temp_dir().join(format!("raytile-cli-dropped-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = dir.join("lamp.json");
+    std::fs::write(
+        &scene,
+        r#"{"render": {"width": 8, "height": 8, "spp": 4, "max_depth": 2},
+            "camera": {"type": "orthographic", "position": [0, 1, 0], "look_at": [0, 0, 0],
+                       "up": [0, 0, -1], "half_height": 0.02},
+            "materials": {"white": {"type": "diffuse"}},
+            "objects": [{"shape": {"type": "rectangle", "corner": [-2, 0, 2], "edge_u": [4, 0, 0],
+                                   "edge_v": [0, 0, -4]}, "material": "white"}],
+            "lights": [{"type": "point", "position": [0, 0.0001, 0],
+                        "intensity": [1e30, 1e30, 1e30]}]}"#,
+    )
+    .unwrap();
+    let said = |err: &str| -> u64 {
+        let line = err
+            .lines()
+            .find(|l| l.contains("samples were dropped"))
+            .unwrap_or_else(|| panic!("no warning: {err}"));
+        line.split_whitespace().nth(2).unwrap().parse().unwrap()
+    };
+    let o = raytile()
+        .arg("render")
+        .arg(&scene)
+        .arg("-o")
+        .arg(dir.join("local.exr"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    let local = said(&err);
+    assert!(local > 0, "{err}");
+    let o = raytile()
+        .args(["cluster", "--workers", "1", "--threads", "1", "--render"])
+        .arg(&scene)
+        .arg("-o")
+        .arg(dir.join("farm.exr"))
+        .arg("--data-dir")
+        .arg(dir.join("data"))
+        .env_remove("RAYTILE_TOKEN")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert_eq!(said(&err), local, "{err}");
+    assert_eq!(
+        std::fs::read(dir.join("farm.exr")).unwrap(),
+        std::fs::read(dir.join("local.exr")).unwrap()
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 #[test]
 fn submit_packs_exactly_the_files_the_scene_uses() {
     let dir = std::env::temp_dir().join(format!("raytile-cli-pack-{}", std::process::id()));

@@ -658,8 +658,8 @@ async fn job_image(
         ));
     }
     let kept = state.image_cache().get(&id, &etag);
-    if let Some(bytes) = kept {
-        return image_answer(&method, &headers, format, Some(&etag), bytes);
+    if let Some((bytes, dropped)) = kept {
+        return image_answer(&method, &headers, format, Some(&etag), bytes, dropped);
     }
     if method == Method::HEAD {
         // The headers a GET would send, but for the length, which only encoding the frame
@@ -695,7 +695,7 @@ async fn job_image(
     };
     let job_id = id.clone();
     // Pass by pass, one stored tile decoded at a time: the frame and one tile in memory.
-    let (bytes, lost) = tokio::task::spawn_blocking(move || -> Result<_, AppError> {
+    let (bytes, lost, dropped) = tokio::task::spawn_blocking(move || -> Result<_, AppError> {
         let _permit = permit;
         // Tasks whose stored result is missing, damaged or does not decode.
         let mut lost = Vec::new();
@@ -721,7 +721,7 @@ async fn job_image(
         let mut bytes = compose::encode(&film, format).map_err(AppError::internal)?;
         // Kept, the buffer should hold what is counted.
         bytes.shrink_to_fit();
-        Ok((bytes, lost))
+        Ok((bytes, lost, film.bad_samples))
     })
     .await
     .map_err(AppError::internal)??;
@@ -749,12 +749,16 @@ async fn job_image(
         if named {
             state
                 .image_cache()
-                .put(&id, ext, etag.clone(), bytes.clone());
+                .put(&id, ext, etag.clone(), bytes.clone(), dropped);
         }
         named.then_some(etag)
     };
-    image_answer(&method, &headers, format, named.as_deref(), bytes)
+    image_answer(&method, &headers, format, named.as_deref(), bytes, dropped)
 }
+
+/// The header that says how many samples the frame's results dropped as NaN, infinite or too
+/// large (they are not in the image; a pixel all of whose samples were dropped is black).
+pub const DROPPED_SAMPLES: &str = "x-raytile-dropped-samples";
 
 /// An empty body of no stated length: a HEAD answer (or a 304) that is not to say
 /// `Content-Length: 0` about an image whose length it does not know.
@@ -766,12 +770,14 @@ fn no_length() -> Body {
 
 /// An image's answer: the part of `bytes` the request asks for, where the image has a name
 /// (`etag`) that a range can be taken of; all of it otherwise; only the headers to a HEAD.
+/// `dropped`: the samples its results dropped ([`DROPPED_SAMPLES`]).
 fn image_answer(
     method: &Method,
     headers: &HeaderMap,
     format: ImageFormat,
     etag: Option<&str>,
     bytes: Bytes,
+    dropped: u64,
 ) -> Result<Response, AppError> {
     let len = bytes.len();
     let part = match etag {
@@ -786,13 +792,19 @@ fn image_answer(
         }
         images::Part::Unsatisfiable => return Err(AppError::RangeNotSatisfiable(len)),
     };
+    let dropped = (
+        header::HeaderName::from_static(DROPPED_SAMPLES),
+        HeaderValue::from(dropped),
+    );
     if method == Method::HEAD {
         let mut resp = image_response(status, format, etag, Body::empty());
         resp.headers_mut()
             .insert(header::CONTENT_LENGTH, HeaderValue::from(body.len()));
+        resp.headers_mut().insert(dropped.0, dropped.1);
         return Ok(resp);
     }
     let mut resp = image_response(status, format, etag, Body::from(body));
+    resp.headers_mut().insert(dropped.0, dropped.1);
     if let Some(v) = range.and_then(|r| HeaderValue::from_str(&r).ok()) {
         resp.headers_mut().insert(header::CONTENT_RANGE, v);
     }

@@ -35,6 +35,8 @@ struct Entry {
     ext: &'static str,
     etag: String,
     bytes: Bytes,
+    /// The samples the frame's results dropped as NaN, infinite or too large.
+    dropped: u64,
 }
 
 impl ImageCache {
@@ -48,21 +50,21 @@ impl ImageCache {
     }
 
     /// The image of `job` tagged `etag`, if kept; it becomes the most recently used.
-    pub fn get(&mut self, job: &str, etag: &str) -> Option<Bytes> {
+    pub fn get(&mut self, job: &str, etag: &str) -> Option<(Bytes, u64)> {
         let i = self
             .entries
             .iter()
             .position(|e| e.job == job && e.etag == etag)?;
         let e = self.entries.remove(i)?;
-        let bytes = e.bytes.clone();
+        let kept = (e.bytes.clone(), e.dropped);
         self.entries.push_back(e);
-        Some(bytes)
+        Some(kept)
     }
 
     /// Keeps `bytes`, the image of `job` in format `ext` tagged `etag`, in place of any older
     /// image of the job in that format, and drops the least recently used images beyond the
     /// limit. An image larger than the limit is not kept.
-    pub fn put(&mut self, job: &str, ext: &'static str, etag: String, bytes: Bytes) {
+    pub fn put(&mut self, job: &str, ext: &'static str, etag: String, bytes: Bytes, dropped: u64) {
         self.remove(|e| e.job == job && e.ext == ext);
         if bytes.len() > self.limit {
             return;
@@ -73,6 +75,7 @@ impl ImageCache {
             ext,
             etag,
             bytes,
+            dropped,
         });
         while self.held > self.limit {
             let Some(e) = self.entries.pop_front() else {
@@ -274,26 +277,26 @@ mod tests {
     fn the_cache_keeps_the_newest_image_of_each_job_and_format_within_its_limit() {
         let b = |n: usize| Bytes::from(vec![0u8; n]);
         let mut c = ImageCache::new(100);
-        c.put("j1", "png", "\"a\"".into(), b(40));
-        c.put("j1", "exr", "\"b\"".into(), b(40));
+        c.put("j1", "png", "\"a\"".into(), b(40), 0);
+        c.put("j1", "exr", "\"b\"".into(), b(40), 0);
         assert_eq!(c.held(), 80);
-        assert_eq!(c.get("j1", "\"a\"").map(|x| x.len()), Some(40));
+        assert_eq!(c.get("j1", "\"a\"").map(|x| x.0.len()), Some(40));
         // A newer png of j1 replaces the older one.
-        c.put("j1", "png", "\"c\"".into(), b(30));
+        c.put("j1", "png", "\"c\"".into(), b(30), 0);
         assert!(c.get("j1", "\"a\"").is_none());
         assert_eq!(c.held(), 70);
         // Over the limit: the least recently used goes (the exr, not read since).
-        c.put("j2", "png", "\"d\"".into(), b(50));
+        c.put("j2", "png", "\"d\"".into(), b(50), 0);
         assert!(c.get("j1", "\"b\"").is_none());
         assert!(c.get("j1", "\"c\"").is_some() && c.get("j2", "\"d\"").is_some());
         assert_eq!(c.held(), 80);
         // Larger than the whole cache: not kept, and the older image of its kind is gone.
-        c.put("j2", "png", "\"e\"".into(), b(101));
+        c.put("j2", "png", "\"e\"".into(), b(101), 0);
         assert!(c.get("j2", "\"e\"").is_none() && c.get("j2", "\"d\"").is_none());
         c.forget("j1");
         assert_eq!(c.held(), 0);
         let mut none = ImageCache::new(0);
-        none.put("j", "png", "\"a\"".into(), b(1));
+        none.put("j", "png", "\"a\"".into(), b(1), 0);
         assert!(none.get("j", "\"a\"").is_none());
     }
 }

@@ -250,8 +250,8 @@ pub fn document() -> Value {
                     {"name": "If-None-Match", "in": "header", "schema": {"type": "string"}, "description": "ETags of copies the client holds: 304 if one is current"},
                     {"name": "Range", "in": "header", "schema": {"type": "string"}, "description": "One byte range (bytes=a-b, bytes=a-, bytes=-n): 206 with those bytes; anything else is answered with the whole image"},
                     {"name": "If-Range", "in": "header", "schema": {"type": "string"}, "description": "Serve the Range only if this is the current ETag, else the whole image"}]), params,
-                json!({"200": {"description": "Image (with ETag, Cache-Control: no-cache and Accept-Ranges: bytes)", "content": {"image/png": {"schema": {"type": "string", "format": "binary"}}, "image/x-exr": {"schema": {"type": "string", "format": "binary"}}, "image/vnd.radiance": {"schema": {"type": "string", "format": "binary"}}}},
-                    "206": {"description": "The requested bytes of the image (Content-Range)", "content": {"image/png": {"schema": {"type": "string", "format": "binary"}}, "image/x-exr": {"schema": {"type": "string", "format": "binary"}}, "image/vnd.radiance": {"schema": {"type": "string", "format": "binary"}}}},
+                json!({"200": {"description": "Image (with ETag, Cache-Control: no-cache and Accept-Ranges: bytes)", "headers": dropped_header(), "content": {"image/png": {"schema": {"type": "string", "format": "binary"}}, "image/x-exr": {"schema": {"type": "string", "format": "binary"}}, "image/vnd.radiance": {"schema": {"type": "string", "format": "binary"}}}},
+                    "206": {"description": "The requested bytes of the image (Content-Range)", "headers": dropped_header(), "content": {"image/png": {"schema": {"type": "string", "format": "binary"}}, "image/x-exr": {"schema": {"type": "string", "format": "binary"}}, "image/vnd.radiance": {"schema": {"type": "string", "format": "binary"}}}},
                     "304": {"description": "The copy named in If-None-Match is current; no body"},
                     "404": err("Unknown job"), "416": err("The range starts past the end of the image (Content-Range: bytes */LENGTH; code range_not_satisfiable, field Range)"), "422": err("Unknown format"),
                     "503": err("Every image slot stayed busy (code busy; a few images are made at once, see --image-encodes): retry after Retry-After seconds")}))},
@@ -294,4 +294,11 @@ pub fn document() -> Value {
                 json!({"204": {"description": "Re-queued (or ignored for a stale lease)"}}))}
         }
     })
+}
+
+/// The image answers' header that counts the samples their frame dropped.
+fn dropped_header() -> Value {
+    json!({"X-Raytile-Dropped-Samples": {
+        "description": "Samples the frame's results dropped as NaN, infinite or above 1.6e32 (not in the image; a pixel all of whose samples were dropped is black). Sent with every GET and with a HEAD of an image made already",
+        "schema": {"type": "integer", "minimum": 0}}})
 }

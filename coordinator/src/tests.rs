@@ -1538,6 +1538,16 @@ async fn lease_and_upload_4x2(
     job: &str,
     pixels: Vec<[f32; 4]>,
 ) -> (StatusCode, serde_json::Value) {
+    lease_and_upload_4x2_dropping(st, job, pixels, 0).await
+}
+
+/// The same, with `bad_samples` samples dropped as NaN or infinite.
+async fn lease_and_upload_4x2_dropping(
+    st: &AppState,
+    job: &str,
+    pixels: Vec<[f32; 4]>,
+    bad_samples: u64,
+) -> (StatusCode, serde_json::Value) {
     let (_, w) = register_worker(st).await;
     let worker = w["worker_id"].as_str().unwrap();
     let (_, lease) = call(st, post(&format!("/v1/workers/{worker}/lease"), "")).await;
@@ -1546,7 +1556,7 @@ async fn lease_and_upload_4x2(
         lease["task"],
         lease["lease_id"].as_str().unwrap()
     ))
-    .body(Body::from(result_4x2(pixels, 0)))
+    .body(Body::from(result_4x2(pixels, bad_samples)))
     .unwrap();
     call(st, upload).await
 }
@@ -2272,11 +2282,18 @@ async fn images_are_named_kept_revalidated_and_served_by_the_range() {
     assert_eq!(h["etag"].to_str().unwrap(), tag);
     drop(held);
 
-    // A result stored: a new name, a new image.
-    let (code, _) = lease_and_upload_4x2(&st, &job, vec![[0.5, 0.25, 1.0, 1.0]; 8]).await;
+    // A result stored: a new name, a new image, which says the samples its result dropped.
+    let dropped =
+        |h: &axum::http::HeaderMap| h[crate::api::DROPPED_SAMPLES].to_str().unwrap().to_string();
+    assert_eq!(dropped(&h), "0");
+    let (code, _) =
+        lease_and_upload_4x2_dropping(&st, &job, vec![[0.5, 0.25, 1.0, 1.0]; 8], 2).await;
     assert_eq!(code, StatusCode::OK);
     let (code, h, second) = send(&st, with(&[("if-none-match", &tag)])).await;
     assert_eq!(code, StatusCode::OK, "the old name is not current");
+    assert_eq!(dropped(&h), "2");
+    // Kept, it still says so.
+    assert_eq!(dropped(&send(&st, with(&[])).await.1), "2");
     let tag2 = h["etag"].to_str().unwrap().to_string();
     assert_ne!(tag2, tag);
     assert_ne!(second, first);

@@ -90,6 +90,20 @@ fn chain(e: &reqwest::Error) -> String {
     message
 }
 
+/// A job's frame as `GET /v1/jobs/{id}/image` answers it.
+#[derive(Clone, Debug)]
+pub struct JobImage {
+    /// The encoded image.
+    pub bytes: Bytes,
+    /// Its `ETag`: `None` when the frame is not one state of the job's stored results (a
+    /// result arrived while it was made, or a stored tile was missing or damaged and is left
+    /// out).
+    pub etag: Option<String>,
+    /// The samples its frame's results dropped as NaN, infinite or too large (the
+    /// `X-Raytile-Dropped-Samples` header; `None` from a coordinator that does not say).
+    pub dropped: Option<u64>,
+}
+
 /// A client of one coordinator. Cheap to clone (the connection pool is shared).
 #[derive(Clone, Debug)]
 pub struct Client {
@@ -308,17 +322,11 @@ impl Client {
     /// `GET /v1/jobs/{id}/image?format=`: the frame so far, encoded as `format` (`png`, `exr`,
     /// `hdr`: the tracer's `ImageFormat::name`).
     pub async fn job_image(&self, id: &str, format: &str) -> Result<Bytes, ClientError> {
-        Ok(self.job_image_tagged(id, format).await?.0)
+        Ok(self.job_image_tagged(id, format).await?.bytes)
     }
 
-    /// The same, with the image's `ETag`: `None` when the frame is not one state of the job's
-    /// stored results (a result arrived while it was made, or a stored tile was missing or
-    /// damaged and is left out).
-    pub async fn job_image_tagged(
-        &self,
-        id: &str,
-        format: &str,
-    ) -> Result<(Bytes, Option<String>), ClientError> {
+    /// The same, with the image's `ETag` and the samples its frame dropped.
+    pub async fn job_image_tagged(&self, id: &str, format: &str) -> Result<JobImage, ClientError> {
         let path = format!("/v1/jobs/{id}/image");
         let resp = self
             .send(
@@ -331,11 +339,20 @@ impl Client {
             .get(reqwest::header::ETAG)
             .and_then(|v| v.to_str().ok())
             .map(String::from);
+        let dropped = resp
+            .headers()
+            .get("x-raytile-dropped-samples")
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.parse().ok());
         let bytes = resp
             .bytes()
             .await
             .map_err(|e| ClientError::Body(chain(&e)))?;
-        Ok((bytes, etag))
+        Ok(JobImage {
+            bytes,
+            etag,
+            dropped,
+        })
     }
 
     /// `GET /v1/workers`.
