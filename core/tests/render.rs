@@ -135,6 +135,19 @@ fn furnace_rough_ggx() {
     check_furnace(&pbr, IntegratorKind::Path, 128, 1.0, 0.06);
 }
 
+/// `scene` rendered by `integrator` at `size` × `size` pixels and `spp` samples.
+fn debug_image(scene: &Scene, size: u32, spp: u32, integrator: IntegratorKind) -> Vec<[f32; 3]> {
+    let settings = RenderSettings {
+        width: size,
+        height: size,
+        spp,
+        integrator,
+        ..Default::default()
+    };
+    let job = RenderJob::new(scene, &settings).unwrap();
+    render(scene, &job, &()).resolve()
+}
+
 #[test]
 fn debug_integrators_give_known_values() {
     let desc = furnace(BsdfDesc::Diffuse {
@@ -142,17 +155,7 @@ fn debug_integrators_give_known_values() {
         texture: None,
     });
     let scene = Scene::build(&desc).unwrap();
-    let image = |integrator| {
-        let settings = RenderSettings {
-            width: 16,
-            height: 16,
-            spp: 4,
-            integrator,
-            ..Default::default()
-        };
-        let job = RenderJob::new(&scene, &settings).unwrap();
-        render(&scene, &job, &()).resolve()
-    };
+    let image = |integrator| debug_image(&scene, 16, 4, integrator);
     let centre = 8 * 16 + 8;
     // The centre pixel sees the sphere: its albedo.
     let c = image(IntegratorKind::Albedo)[centre];
@@ -203,17 +206,7 @@ fn denoiser_buffers_keep_their_ranges() {
     )
     .unwrap();
     let scene = Scene::build(&desc).unwrap();
-    let image = |integrator| {
-        let settings = RenderSettings {
-            width: 9,
-            height: 9,
-            spp: 1,
-            integrator,
-            ..Default::default()
-        };
-        let job = RenderJob::new(&scene, &settings).unwrap();
-        render(&scene, &job, &()).resolve()
-    };
+    let image = |integrator| debug_image(&scene, 9, 1, integrator);
     let (centre, corner) = (4 * 9 + 4, 0);
     let albedo = image(IntegratorKind::Albedo);
     assert_eq!(albedo[centre], [1.0, 0.5, 0.0]);
