@@ -3,8 +3,8 @@
 //! subpath, t of the camera subpath — each weighted by multiple importance sampling (the
 //! balance heuristic, computed with pbrt's walk over remapped densities). Strategies with
 //! t = 1 join a light subpath vertex straight to the camera: they land in whatever pixel the
-//! vertex projects to and are returned as *splats*, in fixed point so that their sum does not
-//! depend on the order in which tiles are added.
+//! vertex projects to and are returned as *splats*, rounded to fixed point ([`coalesce`]) so
+//! that their sum does not depend on the order in which tiles are added.
 //!
 //! Random numbers: the camera subpath draws from the pixel's [`Sampler`] for (pixel, sample
 //! index, seed), the light subpath from a second sampler of the same (pixel, sample index)
@@ -32,6 +32,11 @@ pub use crate::film::SPLAT_SCALE;
 /// One splat: a pixel (row-major index in the frame) and its fixed-point RGB.
 pub type Splat = (u32, [i128; 3]);
 
+/// One splat as a sample makes it: a pixel and its RGB, before [`coalesce`] rounds it to fixed
+/// point (a quarter of a [`Splat`]'s size: a tile keeps every one of its samples' splats until
+/// it is done).
+pub type RawSplat = (u32, [f32; 3]);
+
 /// A number in [0, 1) from 24 bits of a hash.
 #[inline]
 fn unit(h: u32) -> f32 {
@@ -53,12 +58,14 @@ pub fn add_fixed(a: &mut [i128; 3], b: [i128; 3]) {
     }
 }
 
-/// Sorts splats by pixel and sums those of one pixel: the result depends only on the set of
-/// splats, not on their order.
-pub fn coalesce(mut splats: Vec<Splat>) -> Vec<Splat> {
+/// Sorts splats by pixel, rounds each to fixed point and sums those of one pixel: the result
+/// depends only on the set of splats, not on their order.
+pub fn coalesce(mut splats: Vec<RawSplat>) -> Vec<Splat> {
     splats.sort_unstable_by_key(|s| s.0);
-    let mut out: Vec<Splat> = Vec::with_capacity(splats.len());
-    for (i, v) in splats {
+    // Grown as needed: a tile's samples often splat onto far fewer pixels than they make.
+    let mut out: Vec<Splat> = Vec::new();
+    for (i, c) in splats {
+        let v = c.map(to_fixed);
         match out.last_mut() {
             Some(last) if last.0 == i => add_fixed(&mut last.1, v),
             _ => out.push((i, v)),
@@ -909,7 +916,7 @@ fn mis_weight(
 }
 
 /// Radiance of one camera sample along `ray` by every strategy with t ≥ 2; the strategies
-/// with t = 1 are pushed to `splats` (pixel index, fixed point, not yet divided by the sample
+/// with t = 1 are pushed to `splats` (pixel index and RGB, not yet divided by the sample
 /// count). `light_sampler` is this sample's own light-subpath sampler.
 pub fn li(
     scene: &Scene,
@@ -917,7 +924,7 @@ pub fn li(
     ray: Ray,
     sampler: &mut Sampler,
     light_sampler: &mut Sampler,
-    splats: &mut Vec<Splat>,
+    splats: &mut Vec<RawSplat>,
 ) -> Vec3A {
     let (center, radius) = scene_sphere(scene);
     let ctx = Ctx {
@@ -973,7 +980,7 @@ pub fn li(
                         let x = (r.x as u32).min(w - 1);
                         let y = (r.y as u32).min(h - 1);
                         if c.is_finite() && c != Vec3A::ZERO {
-                            splats.push((y * w + x, [to_fixed(c.x), to_fixed(c.y), to_fixed(c.z)]));
+                            splats.push((y * w + x, [c.x, c.y, c.z]));
                         }
                     }
                 } else {

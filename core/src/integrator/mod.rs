@@ -113,7 +113,7 @@ pub fn render_tile(
     let w = tile.width() as usize;
     let mut pixels = vec![[0.0f32; 4]; tile.pixel_count()];
     let bidirectional = job.settings.integrator == IntegratorKind::Bdpt;
-    let rows: Option<Vec<(u64, Vec<bdpt::Splat>)>> = pixels
+    let rows: Option<Vec<(u64, Vec<bdpt::RawSplat>)>> = pixels
         .par_chunks_mut(w.max(1))
         .enumerate()
         .map(|(row, out)| {
