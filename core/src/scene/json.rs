@@ -774,8 +774,10 @@ fn parse_text(
         {
             // Text that is not JSON: its place, and the value it was in where that is known
             // (serde_path_to_error writes `?` for a part it does not know, `.` for the root).
+            // (A path of more than 200 bytes, as nesting deeper than serde_json reads makes,
+            // is left out.)
             let known = path.split('?').next().unwrap_or("").trim_end_matches('.');
-            let within = if known.is_empty() {
+            let within = if known.is_empty() || known.len() > 200 {
                 String::new()
             } else {
                 format!(", in {known}")
@@ -865,7 +867,17 @@ fn open_edges(positions: &[[f32; 3]], indices: &[[u32; 3]]) -> usize {
 /// outside count positive) is negative by more than rounding. A mirroring transform does not
 /// change this: the renderer flips the front face of a mirrored object.
 fn wound_inward(positions: &[[f32; 3]], indices: &[[u32; 3]]) -> bool {
-    let corner = |i: u32| positions.get(i as usize).map(|p| p.map(f64::from));
+    // About one of the mesh's own corners, so that a mesh far from the origin is judged as
+    // well as one at it.
+    let origin = indices
+        .first()
+        .and_then(|t| positions.get(t[0] as usize))
+        .map_or([0.0; 3], |p| p.map(f64::from));
+    let corner = |i: u32| {
+        positions
+            .get(i as usize)
+            .map(|p| [0, 1, 2].map(|k| f64::from(p[k]) - origin[k]))
+    };
     let mut volume = 0.0;
     let mut scale = 0.0f64;
     for t in indices {
@@ -3485,6 +3497,13 @@ mod tests {
         );
         assert!(inward(&inside_out));
         assert!(!inward(&closed) && !inward(&unwelded));
+        // As well 100 km from the origin.
+        let far = ["[1e5,0,0]", "[100001,0,0]", "[1e5,1,0]", "[1e5,0,1]"];
+        let far_inside_out = format!(
+            r#"{{"type": "mesh", "positions": [{}], "indices": {reversed:?}}}"#,
+            far.join(",")
+        );
+        assert!(inward(&far_inside_out));
     }
 
     #[test]
