@@ -839,8 +839,21 @@ function jobPage(main, id) {
   // final. One asked for earlier may have been taken while `job` still held an answer that
   // predates the last result.
   let finalShown = false;
+  // A finished job sends no more events: a preview of it that failed (a busy coordinator, a
+  // network fault) is asked for again, a few times.
+  let finalRetries = 0;
   const refreshPreview = throttle(async () => {
     if (!job || gone) return;
+    try {
+      await showPreview();
+    } catch (e) {
+      if (isFinal(job.state) && !finalShown && finalRetries++ < 5) {
+        setTimeout(refreshPreview, 2000);
+      }
+      throw e;
+    }
+  }, () => Math.max(400, 4 * previewMs));
+  const showPreview = async () => {
     const began = performance.now();
     const before = { tasks_done: job.tasks_done, tasks_total: job.tasks_total, state: job.state };
     const r = await api("/v1/jobs/" + enc + "/image?format=png", { raw: true });
@@ -858,7 +871,7 @@ function jobPage(main, id) {
     window.raytile.previews.push(before);
     if (isFinal(before.state)) finalShown = true;
     previewMs = performance.now() - began;
-  }, () => Math.max(400, 4 * previewMs));
+  };
 
   // Task events that arrive while the tile list is being fetched are kept, and those the
   // list does not include yet (a larger id than its event_id) are applied to it after.
