@@ -329,7 +329,7 @@ pub(crate) fn scene_in_folder(dir: &Path) -> anyhow::Result<PathBuf> {
             dir.display()
         ),
         many => bail!(
-            "{}: several scene files ({}): name the one to submit",
+            "{}: several scene files ({}): name the one to use",
             dir.display(),
             many.iter()
                 .filter_map(|p| p.file_name())

@@ -567,8 +567,6 @@ fn submit_refuses_a_scene_naming_files_outside_its_folder() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
-/// `raytile submit` packs exactly the files the scene uses (a link inside the folder under the
-/// name the scene gives it), says what it packed, and the farm renders it.
 /// `render` takes a scene folder as `submit` does: the one scene file at its top, the same
 /// image as the file gives; a folder without one, or with several, is refused by name.
 #[test]
@@ -595,15 +593,16 @@ fn render_takes_a_scene_folder() {
     let empty = dir.join("empty");
     std::fs::create_dir_all(&empty).unwrap();
     let empty = empty.display().to_string();
+    let png = dir.join("x.png").display().to_string();
     refused_at_once(
-        &["render", &empty, "-o", "x.png"],
+        &["render", &empty, "-o", &png],
         1,
         &["no .gltf, .glb or .json"],
     );
     std::fs::write(d.join("other.json"), "{}").unwrap();
     let two = d.display().to_string();
     refused_at_once(
-        &["render", &two, "-o", "x.png"],
+        &["render", &two, "-o", &png],
         1,
         &["other.json, scene.json"],
     );
@@ -668,6 +667,8 @@ fn dropped_samples_are_said_by_the_farm_as_by_render() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// `raytile submit` packs exactly the files the scene uses (a link inside the folder under the
+/// name the scene gives it), says what it packed, and the farm renders it.
 #[test]
 fn submit_packs_exactly_the_files_the_scene_uses() {
     let dir = std::env::temp_dir().join(format!("raytile-cli-pack-{}", std::process::id()));

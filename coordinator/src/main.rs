@@ -43,7 +43,7 @@ struct Args {
     #[arg(long, default_value_t = Limits::default().max_upload_bytes)]
     max_upload_bytes: u64,
     /// Largest tile result in bytes (a `bdpt` job whose tile results could be larger, with a
-    /// splat for every pixel of its frame, is refused: 2 GiB allows 76 M pixels).
+    /// splat for every pixel of its frame, is refused: 2 GiB allows 41 M pixels).
     #[arg(long, default_value_t = Limits::default().max_result_bytes)]
     max_result_bytes: u64,
     /// Most unfinished jobs at once (more: 429).

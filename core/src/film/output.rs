@@ -132,7 +132,8 @@ fn write_flat_hdr(
         }
         // m = f · 2^e with f in [0.5, 1), read from the bits; each channel is stored as
         // trunc(256 · v / 2^e), and the exponent as e + 128.
-        let e = ((m.to_bits() >> 23) & 0xff) as i32 - 126;
+        // (At most 127: pixels are finite and far below 2^127.)
+        let e = (((m.to_bits() >> 23) & 0xff) as i32 - 126).min(127);
         let scale = 2f64.powi(8 - e);
         let c = p.0.map(|v| ((v as f64 * scale) as u32).min(255) as u8);
         bytes.extend_from_slice(&[c[0], c[1], c[2], (e + 128) as u8]);
