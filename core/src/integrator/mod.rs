@@ -185,11 +185,17 @@ pub fn render_tile(
 const LIGHT_SUBPATH_SEED: u32 = 0x5bd1_e995;
 
 /// Renders the whole frame of `job` on the current rayon pool, pass by pass: every tile of
-/// pass 0, then every tile of pass 1, and so on; each pass's tile sums are added into the film
-/// in pass order.
+/// pass 0, then every tile of pass 1, and so on, passes added into the film in pass order.
+///
+/// Within a pass each tile is added as soon as it is done, in whatever order the tiles end:
+/// the pass's tiles cover each pixel once (each pixel's sum is the previous passes' plus its
+/// tile's, whatever the order), and splats, dropped samples and sample counts are integers
+/// (counts below 2^53 in the f64 of [`Film::samples`]), so the bits are the same. Only the
+/// tiles being rendered are held, not the whole pass's results (with `bdpt`'s splats, up to a
+/// frame's worth each).
 pub fn render(scene: &Scene, job: &RenderJob, progress: &dyn RenderProgress) -> Film {
     let settings = &job.settings;
-    let mut film = Film::new(settings.width, settings.height);
+    let film = std::sync::Mutex::new(Film::new(settings.width, settings.height));
     let tiles = settings.tiles();
     let never = Cancel::new();
     for pass in settings.pass_ranges() {
@@ -198,19 +204,18 @@ pub fn render(scene: &Scene, job: &RenderJob, progress: &dyn RenderProgress) -> 
             let a = render_tile(scene, job, t, pass.clone(), &never)
                 .expect("nobody cancels this render");
             progress.tile_done(n * t.pixel_count() as u64);
-            a
+            film.lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .add_tile(&a)
+                .expect("render_tile gives every tile of the frame its own pixels");
         };
         // sppm's tiles share the job's photon maps: one tile at a time (each parallel inside)
         // traces each map once rather than once per tile that asks for it at the same time.
-        let accums: Vec<TileAccum> = if settings.integrator == IntegratorKind::Sppm {
-            tiles.iter().map(one).collect()
+        if settings.integrator == IntegratorKind::Sppm {
+            tiles.iter().for_each(one);
         } else {
-            tiles.par_iter().map(one).collect()
-        };
-        for a in &accums {
-            film.add_tile(a)
-                .expect("render_tile gives every tile of the frame its own pixels");
+            tiles.par_iter().for_each(one);
         }
     }
-    film
+    film.into_inner().unwrap_or_else(|e| e.into_inner())
 }
