@@ -649,6 +649,10 @@ async fn job_image(
     let ext = format.name();
     let version = state.sched().results_version(&id);
     let etag = images::entity_tag(&version.ok_or_else(|| no_job(&id))?, ext);
+    // A frame of black alone is no image: a client that saved it would take it for the render.
+    if let Some(why) = state.sched().no_image(&id) {
+        return Err(AppError::Conflict(why));
+    }
     if images::not_modified(&headers, &etag) {
         return Ok(image_response(
             StatusCode::NOT_MODIFIED,

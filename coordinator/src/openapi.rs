@@ -253,7 +253,7 @@ pub fn document() -> Value {
                 json!({"200": {"description": "Image (with ETag, Cache-Control: no-cache and Accept-Ranges: bytes)", "headers": dropped_header(), "content": {"image/png": {"schema": {"type": "string", "format": "binary"}}, "image/x-exr": {"schema": {"type": "string", "format": "binary"}}, "image/vnd.radiance": {"schema": {"type": "string", "format": "binary"}}}},
                     "206": {"description": "The requested bytes of the image (Content-Range)", "headers": dropped_header(), "content": {"image/png": {"schema": {"type": "string", "format": "binary"}}, "image/x-exr": {"schema": {"type": "string", "format": "binary"}}, "image/vnd.radiance": {"schema": {"type": "string", "format": "binary"}}}},
                     "304": {"description": "The copy named in If-None-Match is current; no body"},
-                    "404": err("Unknown job"), "416": err("The range starts past the end of the image (Content-Range: bytes */LENGTH; code range_not_satisfiable, field Range)"), "422": err("Unknown format"),
+                    "404": err("Unknown job"), "409": err("The job failed or was cancelled before any tile was finished: it has no image"), "416": err("The range starts past the end of the image (Content-Range: bytes */LENGTH; code range_not_satisfiable, field Range)"), "422": err("Unknown format"),
                     "503": err("Every image slot stayed busy (code busy; a few images are made at once, see --image-encodes): retry after Retry-After seconds")}))},
             "/v1/jobs/{id}/tiles": {"get": op("Each tile of the job: passes done and the workers rendering it", json!([job_id]), params,
                 json!({"200": ok_json("Tiles", "TileList"), "404": err("Unknown job")}))},

@@ -2032,6 +2032,15 @@ async fn failed_and_cancelled_jobs_are_retried_with_the_tiles_they_have() {
     assert_eq!(code, StatusCode::NO_CONTENT);
     let (_, status) = call(&st, get(&format!("/v1/jobs/{job}"))).await;
     assert_eq!(status["state"], "failed", "{status}");
+    // With no tile done it has no image: not a black frame a client could save as the render.
+    let image = |j: &str| get(&format!("/v1/jobs/{j}/image?format=exr"));
+    let (code, body) = call(&st, image(&job)).await;
+    assert_eq!(code, StatusCode::CONFLICT, "{body}");
+    let message = body["error"]["message"].as_str().unwrap();
+    assert!(
+        message.contains("failed before any tile") && message.contains("out of memory"),
+        "{message}"
+    );
 
     let (code, body) = call(&st, retry(&job)).await;
     assert_eq!(code, StatusCode::OK, "{body}");
@@ -2058,6 +2067,7 @@ async fn failed_and_cancelled_jobs_are_retried_with_the_tiles_they_have() {
     assert_eq!((code, &body["accepted"]), (StatusCode::OK, &true.into()));
     let (_, status) = call(&st, get(&format!("/v1/jobs/{job}"))).await;
     assert_eq!(status["state"], "done");
+    assert_eq!(call(&st, image(&job)).await.0, StatusCode::OK);
     let (code, body) = call(&st, retry(&job)).await;
     assert_eq!(
         (code, &body["error"]["code"]),
@@ -2072,8 +2082,12 @@ async fn failed_and_cancelled_jobs_are_retried_with_the_tiles_they_have() {
         .body(Body::empty())
         .unwrap();
     assert_eq!(call(&st, del).await.1["state"], "cancelled");
+    let (code, body) = call(&st, image(&other)).await;
+    assert_eq!(code, StatusCode::CONFLICT, "{body}");
     let (code, body) = call(&st, retry(&other)).await;
     assert_eq!((code, &body["state"]), (StatusCode::OK, &"queued".into()));
+    // Queued, its frame is a preview of nothing yet.
+    assert_eq!(call(&st, image(&other)).await.0, StatusCode::OK);
     assert_eq!(call(&st, retry("j-none")).await.0, StatusCode::NOT_FOUND);
 
     // At the queue's limit, a retry is refused as a new job would be.

@@ -55,6 +55,12 @@ function isFinal(state) {
   return state === "done" || state === "failed" || state === "cancelled";
 }
 
+// A job that failed or was cancelled before any tile was done has no image (the coordinator
+// answers 409): nothing to preview or download.
+function hasNoImage(job) {
+  return (job.state === "failed" || job.state === "cancelled") && job.tasks_done === 0;
+}
+
 // Runs `fn` at most once every `ms` milliseconds (a number, or a function giving it), and once
 // more after the last call.
 function throttle(fn, ms) {
@@ -735,7 +741,7 @@ function jobPage(main, id) {
           h("span", {}, h("span", { class: "swatch waiting" }), "no pass yet"),
           h("span", {}, h("span", { class: "swatch leased" }), "rendering (worker)"),
           h("span", {}, h("span", { class: "swatch done" }), "refining")),
-        h("div", { class: "downloads" }, "Download:",
+        h("div", { class: "downloads", id: "job-downloads" }, "Download:",
           ["png", "exr", "hdr"].map((f) => h("a", { class: "button", href: "/v1/jobs/" + enc +
             "/image?format=" + f, download: id + "." + f, onclick: download }, f.toUpperCase())))),
       h("section", { "aria-label": "Details" },
@@ -759,6 +765,7 @@ function jobPage(main, id) {
       actions.replaceChildren(jobActions(job, () => refreshJob()));
     }
     errorBox.textContent = job.error || "";
+    document.getElementById("job-downloads").hidden = hasNoImage(job);
     const t = timing(job);
     progress.replaceChildren(...progressCell(job),
       h("p", { class: "muted" }, "Submitted " + fmtTime(job.created_ms) + " · elapsed " +
@@ -843,7 +850,7 @@ function jobPage(main, id) {
   // network fault) is asked for again, a few times.
   let finalRetries = 0;
   const refreshPreview = throttle(async () => {
-    if (!job || gone) return;
+    if (!job || gone || hasNoImage(job)) return;
     try {
       await showPreview();
     } catch (e) {

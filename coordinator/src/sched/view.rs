@@ -130,6 +130,29 @@ impl Sched {
         ))
     }
 
+    /// Why job `id` has no frame to show: it ended, failed or cancelled, before any task was
+    /// done, so every pixel of its image would be black. `None` for an unknown job, and for
+    /// one whose frame has something (or may yet have: a queued or running job's frame is a
+    /// preview).
+    pub fn no_image(&self, id: &str) -> Option<String> {
+        let job = self.jobs.get(id)?;
+        let life = job.life();
+        if job.tasks_done() > 0 {
+            return None;
+        }
+        let why = match life.state {
+            JobState::Failed => format!(
+                "job '{id}' failed before any tile was finished, so it has no image ({})",
+                life.error.as_deref().unwrap_or("no reason recorded")
+            ),
+            JobState::Cancelled => {
+                format!("job '{id}' was cancelled before any tile was finished, so it has no image")
+            }
+            _ => return None,
+        };
+        Some(why)
+    }
+
     /// The task layout of job `id` (to compose its frame outside the lock), or `None`.
     pub fn layout(&self, id: &str) -> Option<Arc<TaskLayout>> {
         self.jobs.get(id).map(|j| j.layout.clone())
