@@ -570,7 +570,12 @@ pub async fn timeout_checker(state: AppState) {
             );
             continue;
         }
-        let res = state.sched().expire(now);
+        let res = {
+            let mut s = state.sched();
+            // Purged jobs' pages go back to the file system a few MB at a time.
+            s.shrink_store();
+            s.expire(now)
+        };
         match res {
             Ok(0) => {}
             Ok(_) => state.notify.notify_waiters(),

@@ -17,8 +17,12 @@ use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
-/// Schema, applied on open (idempotent).
+/// Free pages a purge gives back at once (of 4 KiB: 64 MB); [`Store::shrink`].
+pub const PURGE_SHRINK_PAGES: u32 = 16384;
+
+/// Schema, applied on open (idempotent). `auto_vacuum` takes effect only on a new database.
 const SCHEMA: &str = "
+PRAGMA auto_vacuum = INCREMENTAL;
 PRAGMA journal_mode = WAL;
 PRAGMA synchronous = NORMAL;
 CREATE TABLE IF NOT EXISTS jobs (
@@ -642,12 +646,46 @@ impl Store {
             // purge's, not under the caller's lock.
             std::thread::spawn(move || remove_files(&dropped));
         }
+        let mut purged = false;
         for w in writes {
             if let Write::DeleteJob(job) = *w {
                 self.remove_job_files(job);
+                purged = true;
             }
         }
+        if purged {
+            self.shrink(PURGE_SHRINK_PAGES);
+        }
         Ok(())
+    }
+
+    /// Gives back to the file system up to `pages` of the database's free pages (those the
+    /// rows of purged jobs held; tiles stored in the database are most of its size), so that
+    /// the file shrinks after purges rather than staying at its largest. A database made by a
+    /// release before this one has no room for it (SQLite's `auto_vacuum` is fixed when the
+    /// first table is made) and keeps its size: `VACUUM` it offline once (docs/farm.md).
+    /// Bounded, since the caller holds the scheduler's lock: what is left is given back by
+    /// the next calls. A failure only leaves the file larger.
+    pub fn shrink(&self, pages: u32) {
+        // Each step of the statement gives back one page: stepped to its end.
+        let run = || -> rusqlite::Result<()> {
+            let mut stmt = self
+                .conn
+                .prepare(&format!("PRAGMA incremental_vacuum({pages})"))?;
+            let mut rows = stmt.query([])?;
+            while rows.next()?.is_some() {}
+            Ok(())
+        };
+        if let Err(e) = run() {
+            tracing::warn!("the database could not give back its free pages: {e}");
+        }
+    }
+
+    /// Free pages the database holds (SQLite's `freelist_count`), 0 if it cannot tell.
+    pub fn free_pages(&self) -> u64 {
+        self.conn
+            .query_row("PRAGMA freelist_count", [], |r| r.get(0))
+            .unwrap_or(0)
     }
 
     /// Removes a purged job's result files: its folder is renamed aside at once (a name no
@@ -1310,6 +1348,52 @@ mod tests {
             state: StoredTask::Done { worker: "w".into() },
             failures: 0,
         }
+    }
+
+    /// The pages of a purged job's tiles go back to the file system: the database file
+    /// shrinks to about its size before the job, by the purge's own step and then by the
+    /// periodic ones.
+    #[test]
+    fn a_purge_gives_the_pages_of_its_tiles_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut store = Store::open(dir.path()).unwrap();
+        let size = |store: &Store| {
+            store
+                .conn
+                .execute_batch("PRAGMA wal_checkpoint(TRUNCATE);")
+                .unwrap();
+            std::fs::metadata(&store.path).unwrap().len()
+        };
+        store
+            .insert_job(&job_row("j", 0, JobState::Running))
+            .unwrap();
+        let empty = size(&store);
+        // 96 MB of tiles: more than one purge gives back at once.
+        let data = vec![7u8; 1 << 20];
+        for idx in 0..96 {
+            let row = done(idx);
+            let write = Write::Result {
+                job: "j",
+                row: &row,
+                data: &data,
+                file: None,
+            };
+            store.write(&[write]).unwrap();
+        }
+        let full = size(&store);
+        assert!(full > 96 << 20, "{full}");
+        store.write(&[Write::DeleteJob("j")]).unwrap();
+        let purged = size(&store);
+        assert!(
+            purged <= full - (u64::from(PURGE_SHRINK_PAGES) * 4096) + (1 << 20),
+            "{full} → {purged}"
+        );
+        assert!(store.free_pages() > 0);
+        while store.free_pages() > 0 {
+            store.shrink(1024);
+        }
+        let shrunk = size(&store);
+        assert!(shrunk < empty + (1 << 20), "{empty} → {full} → {shrunk}");
     }
 
     /// A database of a release before result files (no `file` column) opens, and its results

@@ -1225,6 +1225,14 @@ impl Sched {
         Ok(Some(job.status()))
     }
 
+    /// Gives back a few more of the database's free pages, if it holds any (what the purges'
+    /// own [`Store::shrink`](crate::store::Store::shrink) left): called now and then.
+    pub fn shrink_store(&self) {
+        if self.store.free_pages() > 0 {
+            self.store.shrink(1024);
+        }
+    }
+
     /// Sets the priority of job `job_id`. Returns its status, or `None` if unknown.
     pub fn set_priority(
         &mut self,
