@@ -550,7 +550,10 @@ impl Worker {
             target,
             bytes,
             self.cfg.stats.clone(),
-            self.cfg.max_backoff,
+            Retry {
+                max_backoff: self.cfg.max_backoff,
+                heartbeat: self.heartbeat,
+            },
         ));
         if stopping {
             Flow::Exit
@@ -577,21 +580,73 @@ fn without_local_paths(error: &str, cache_dir: &std::path::Path, scene: &str) ->
 /// Server errors (5xx) after which a result upload is given up.
 const UPLOAD_SERVER_ERRORS: u32 = 5;
 
+/// How a result upload waits: its longest backoff, and how often it renews its lease.
+#[derive(Clone, Copy)]
+struct Retry {
+    max_backoff: Duration,
+    heartbeat: Duration,
+}
+
 /// Uploads one tile result. While the coordinator cannot be reached, or answers 503 (it could
-/// not write its database, or it is shutting down: nothing was stored, the same request may
+/// not write its store, or it is shutting down: nothing was stored, the same request may
 /// succeed later), it retries with backoff for as long as it takes: a result is never thrown
 /// away for a fault the coordinator recovers from. A refusal (4xx) is dropped at once (the
 /// task is someone else's by now, or the job is gone), and another server error (500) after
 /// [`UPLOAD_SERVER_ERRORS`] attempts, so that one result the coordinator cannot take never
 /// wedges the worker: its lease expires and the tile is rendered again.
+///
+/// The lease is renewed by heartbeats until the upload ends, as while the tile rendered: a
+/// coordinator that cannot write its store still renews leases (they live in memory), so the
+/// tile is not given to another worker to render again while this one waits to deliver it.
+/// A heartbeat that says the task is no longer this worker's (the job was cancelled, or the
+/// lease expired during a longer outage) ends the retries.
 async fn upload_result(
     client: Client,
     to: ResultTarget,
     bytes: Vec<u8>,
     stats: Arc<Stats>,
-    max_backoff: Duration,
+    retry: Retry,
 ) {
-    let mut backoff = Backoff::new(max_backoff);
+    let unwanted = std::sync::atomic::AtomicBool::new(false);
+    let told = tokio::sync::Notify::new();
+    let beats = async {
+        loop {
+            tokio::time::sleep(retry.heartbeat).await;
+            let timeout = retry.heartbeat.max(Duration::from_secs(2));
+            match client.heartbeat(&to.lease, timeout).await {
+                Ok(reply) if reply.cancelled => {
+                    tracing::info!(
+                        job = %to.job, task = to.task,
+                        reason = reply.reason.as_deref().unwrap_or(""),
+                        "the result is no longer wanted"
+                    );
+                    unwanted.store(true, Ordering::Relaxed);
+                    told.notify_one();
+                    return std::future::pending::<()>().await;
+                }
+                _ => {}
+            }
+        }
+    };
+    let upload = upload_with_retries(&client, &to, bytes, &stats, retry, &unwanted, &told);
+    tokio::select! {
+        () = upload => {}
+        () = beats => {}
+    }
+}
+
+/// [`upload_result`]'s attempts, until one is answered, or `unwanted` is set while it waits
+/// to try again (`told` wakes it then).
+async fn upload_with_retries(
+    client: &Client,
+    to: &ResultTarget,
+    bytes: Vec<u8>,
+    stats: &Stats,
+    retry: Retry,
+    unwanted: &std::sync::atomic::AtomicBool,
+    told: &tokio::sync::Notify,
+) {
+    let mut backoff = Backoff::new(retry.max_backoff);
     let mut server_errors = 0;
     let what = format!("job {} task {}", to.job, to.task);
     loop {
@@ -632,7 +687,14 @@ async fn upload_result(
                     "result upload failed ({e}); retrying in {:.1} s",
                     d.as_secs_f64()
                 );
-                tokio::time::sleep(d).await;
+                tokio::select! {
+                    () = tokio::time::sleep(d) => {}
+                    () = told.notified() => {}
+                }
+                if unwanted.load(Ordering::Relaxed) {
+                    tracing::warn!("result dropped ({what}): the task is no longer this worker's");
+                    return;
+                }
             }
         }
     }
@@ -708,15 +770,21 @@ mod tests {
         );
     }
 
-    /// Serves `answers` in order, one per connection, reading each request to its end;
-    /// returns the base URL and a counter of requests served.
-    async fn serve(answers: Vec<(u16, &'static str)>) -> (String, Arc<AtomicU64>) {
+    /// Serves `answers` in order, one per connection, reading each request to its end, and
+    /// answers every heartbeat `beat`; returns the base URL and counters of the requests
+    /// served from `answers` and of the heartbeats.
+    async fn serve_beating(
+        answers: Vec<(u16, &'static str)>,
+        beat: &'static str,
+    ) -> (String, Arc<AtomicU64>, Arc<AtomicU64>) {
         let l = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
         let base = format!("http://{}", l.local_addr().unwrap());
         let served = Arc::new(AtomicU64::new(0));
-        let count = served.clone();
+        let beats = Arc::new(AtomicU64::new(0));
+        let (count, beat_count) = (served.clone(), beats.clone());
         tokio::spawn(async move {
-            for (status, body) in answers {
+            let mut answers = answers.into_iter();
+            loop {
                 let (mut s, _) = l.accept().await.unwrap();
                 let mut req = Vec::new();
                 let mut buf = [0u8; 65536];
@@ -739,7 +807,14 @@ mod tests {
                         break;
                     }
                 }
-                count.fetch_add(1, Ordering::SeqCst);
+                let (status, body) = if req.starts_with(b"POST /v1/leases/") {
+                    beat_count.fetch_add(1, Ordering::SeqCst);
+                    (200, beat)
+                } else {
+                    let Some(answer) = answers.next() else { break };
+                    count.fetch_add(1, Ordering::SeqCst);
+                    answer
+                };
                 let resp = format!(
                     "HTTP/1.1 {status} X\r\ncontent-type: application/json\r\ncontent-length: {}\r\nconnection: close\r\n\r\n{body}",
                     body.len()
@@ -747,7 +822,68 @@ mod tests {
                 s.write_all(resp.as_bytes()).await.unwrap();
             }
         });
+        (base, served, beats)
+    }
+
+    /// [`serve_beating`] whose heartbeats are all answered "carry on".
+    async fn serve(answers: Vec<(u16, &'static str)>) -> (String, Arc<AtomicU64>) {
+        let (base, served, _) = serve_beating(answers, r#"{"cancelled": false}"#).await;
         (base, served)
+    }
+
+    fn target() -> ResultTarget {
+        ResultTarget {
+            job: "j".into(),
+            task: 0,
+            worker: "w".into(),
+            lease: "l".into(),
+        }
+    }
+
+    const RETRY: Retry = Retry {
+        max_backoff: Duration::from_millis(5),
+        heartbeat: Duration::from_secs(3600),
+    };
+
+    /// While its upload is retried, the lease is renewed, so that the tile is not rendered
+    /// again elsewhere; a heartbeat saying the task is no longer the worker's ends the retries.
+    #[tokio::test]
+    async fn a_result_waiting_to_be_taken_keeps_its_lease() {
+        let busy = r#"{"error": {"code": "store_unavailable", "message": "retry later", "retryable": true}}"#;
+        let retry = Retry {
+            max_backoff: Duration::from_millis(40),
+            heartbeat: Duration::from_millis(10),
+        };
+        let mut answers = vec![(503, busy); 12];
+        answers.push((
+            200,
+            r#"{"accepted": true, "duplicate": false, "job_finished": false}"#,
+        ));
+        let (base, served, beats) = serve_beating(answers, r#"{"cancelled": false}"#).await;
+        let stats = Arc::new(Stats::default());
+        let client = Client::new(&base, None).unwrap();
+        let upload = upload_result(client, target(), vec![0; 64], stats.clone(), retry);
+        tokio::time::timeout(Duration::from_secs(20), upload)
+            .await
+            .expect("the upload gave up or hung");
+        assert_eq!(stats.accepted.load(Ordering::SeqCst), 1);
+        assert_eq!(served.load(Ordering::SeqCst), 13);
+        assert!(
+            beats.load(Ordering::SeqCst) >= 3,
+            "heartbeats while it waited"
+        );
+
+        let cancelled = r#"{"cancelled": true, "reason": "lease expired"}"#;
+        let (base, served, beats) = serve_beating(vec![(503, busy); 1000], cancelled).await;
+        let client = Client::new(&base, None).unwrap();
+        let stats = Arc::new(Stats::default());
+        let upload = upload_result(client, target(), vec![0; 64], stats.clone(), retry);
+        tokio::time::timeout(Duration::from_secs(20), upload)
+            .await
+            .expect("the upload went on retrying for a task no longer the worker's");
+        assert_eq!(stats.accepted.load(Ordering::SeqCst), 0);
+        assert!(served.load(Ordering::SeqCst) < 1000);
+        assert_eq!(beats.load(Ordering::SeqCst), 1);
     }
 
     /// A coordinator that cannot write its database answers 503 for a while: the worker keeps
@@ -762,20 +898,8 @@ mod tests {
         ));
         let (base, served) = serve(answers).await;
         let stats = Arc::new(Stats::default());
-        let to = ResultTarget {
-            job: "j".into(),
-            task: 0,
-            worker: "w".into(),
-            lease: "l".into(),
-        };
         let client = Client::new(&base, None).unwrap();
-        let upload = upload_result(
-            client,
-            to,
-            vec![0; 64],
-            stats.clone(),
-            Duration::from_millis(5),
-        );
+        let upload = upload_result(client, target(), vec![0; 64], stats.clone(), RETRY);
         tokio::time::timeout(Duration::from_secs(20), upload)
             .await
             .expect("the upload gave up or hung");
@@ -793,20 +917,8 @@ mod tests {
         let err = r#"{"error": {"code": "internal", "message": "internal error"}}"#;
         let (base, served) = serve(vec![(500, err); UPLOAD_SERVER_ERRORS as usize]).await;
         let stats = Arc::new(Stats::default());
-        let to = ResultTarget {
-            job: "j".into(),
-            task: 0,
-            worker: "w".into(),
-            lease: "l".into(),
-        };
         let client = Client::new(&base, None).unwrap();
-        let upload = upload_result(
-            client,
-            to,
-            vec![0; 64],
-            stats.clone(),
-            Duration::from_millis(5),
-        );
+        let upload = upload_result(client, target(), vec![0; 64], stats.clone(), RETRY);
         tokio::time::timeout(Duration::from_secs(20), upload)
             .await
             .expect("the upload hung");
