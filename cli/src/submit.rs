@@ -410,6 +410,40 @@ fn transient(e: &ClientError) -> bool {
     }
 }
 
+/// `call`, made again while the coordinator answers it 503 (it cannot write its store at the
+/// moment, or is shutting down: nothing was changed, and it says the request may be retried),
+/// with backoff, for up to [`OUTAGE`]; the user is told once, naming `what` was being done.
+async fn while_busy<T, F, Fut>(what: &str, mut call: F) -> anyhow::Result<T>
+where
+    F: FnMut() -> Fut,
+    Fut: std::future::Future<Output = anyhow::Result<T>>,
+{
+    let start = std::time::Instant::now();
+    let mut delay = Duration::from_millis(250);
+    let mut told = false;
+    loop {
+        match call().await {
+            Err(e)
+                if start.elapsed() < OUTAGE
+                    && e.downcast_ref::<ClientError>()
+                        .and_then(ClientError::status)
+                        == Some(reqwest::StatusCode::SERVICE_UNAVAILABLE) =>
+            {
+                if !told {
+                    eprintln!(
+                        "raytile: {what}: {e}; trying again for up to {} minutes",
+                        OUTAGE.as_secs() / 60
+                    );
+                    told = true;
+                }
+                tokio::time::sleep(delay).await;
+                delay = (delay * 2).min(Duration::from_secs(5));
+            }
+            r => return r,
+        }
+    }
+}
+
 /// `call` for job `id`, made again while its failure is [`transient`], with backoff, for up
 /// to [`OUTAGE`]; `say` tells the user once that the coordinator does not answer, and again
 /// when it does.
@@ -467,11 +501,18 @@ pub async fn submit_and_follow(
         let name = pack.add_environment(Path::new(map))?;
         job.overrides.environment = Some(EnvironmentChoice::Map(name));
     }
-    let created = pack.upload(c).await.context("uploading the scene")?;
-    let mut status = c
-        .create_job(&job.request(created.id))
+    let created = while_busy("uploading the scene", || pack.upload(c))
         .await
-        .map_err(job_error)?;
+        .context("uploading the scene")?;
+    let request = job.request(created.id);
+    let mut status = while_busy("submitting the job", || async {
+        c.create_job(&request).await.map_err(anyhow::Error::new)
+    })
+    .await
+    .map_err(|e| match e.downcast::<ClientError>() {
+        Ok(e) => job_error(e),
+        Err(e) => e,
+    })?;
     // What the farm's loader said about the scene, as `raytile render` says it: the default
     // light's warning names what lights this job in its place.
     for w in &created.warnings {
@@ -633,6 +674,40 @@ mod tests {
             base: "https://farm".into(),
             message: "client error (Connect): invalid peer certificate: UnknownIssuer".into(),
         }));
+    }
+
+    /// An upload or a submission the coordinator answers 503 (it could not write its store:
+    /// nothing changed) is made again until it is taken; any other error ends it at once.
+    #[tokio::test]
+    async fn uploads_and_submissions_wait_out_a_coordinator_that_cannot_write() {
+        let status = |status| ClientError::Status {
+            status,
+            code: None,
+            field: None,
+            message: "retry later".into(),
+        };
+        let mut calls = 0;
+        let got = while_busy("uploading the scene", || {
+            calls += 1;
+            let n = calls;
+            async move {
+                match n {
+                    1 | 2 => Err(status(reqwest::StatusCode::SERVICE_UNAVAILABLE).into()),
+                    _ => Ok(7),
+                }
+            }
+        })
+        .await
+        .unwrap();
+        assert_eq!((got, calls), (7, 3));
+        let mut calls = 0;
+        let e = while_busy("submitting the job", || {
+            calls += 1;
+            async { Err::<(), _>(status(reqwest::StatusCode::INTERNAL_SERVER_ERROR).into()) }
+        })
+        .await
+        .unwrap_err();
+        assert_eq!(calls, 1, "{e:#}");
     }
 
     /// A coordinator in this process, with uploads limited to `max_upload` bytes.
