@@ -66,7 +66,7 @@ pub enum AppError {
     /// 503: the store could not be written (disk full, read-only...): nothing changed, and
     /// the same request may succeed later. Logged in full, answered briefly.
     #[error(
-        "the coordinator cannot write its database at the moment; nothing was changed: retry later"
+        "the coordinator cannot write its store (its database or result files) at the moment; nothing was changed: retry later"
     )]
     StoreUnavailable(#[source] rusqlite::Error),
     /// 503: a file in the data directory could not be written (disk full, read-only, a

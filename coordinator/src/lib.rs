@@ -317,10 +317,10 @@ pub struct Inner {
     /// ([`Config::max_parallel_large_results`]).
     pub large_result_slots: Arc<tokio::sync::Semaphore>,
     shutdown_tx: watch::Sender<bool>,
-    /// The data directory's `lock` file, locked while the coordinator runs (see
+    /// The data directory and its `lock` file, locked while the coordinator runs (see
     /// [`lock_data_dir`]); given up when [`run`] ends, even while a clone of the state lives on
     /// in a task being torn down.
-    lock: Mutex<Option<std::fs::File>>,
+    lock: Mutex<Vec<std::fs::File>>,
 }
 
 impl std::ops::Deref for AppState {
@@ -378,15 +378,24 @@ impl AppState {
         // what a killed coordinator left there is no use to anyone (the lock above says no
         // other coordinator is writing it).
         clear_dir(&cfg.data_dir.join("tmp"));
-        let store = store::Store::open(&cfg.data_dir).with_context(|| {
-            // SQLite says "disk I/O error" for a full disk, among others: say what is left.
-            match free_bytes(&cfg.data_dir) {
+        let store = store::Store::open(&cfg.data_dir).map_err(|e| {
+            let db = cfg.data_dir.join("raytile.sqlite3");
+            // SQLite says "disk I/O error" for a full disk, among others: say what is left. It
+            // names no file, and says "readonly database" for one the user may not write.
+            let why = match free_bytes(&cfg.data_dir) {
                 Some(free) if free < 1 << 20 => format!(
-                    "opening the database (the file system of {} has {free} bytes free)",
+                    "opening the database {} (the file system of {} has {free} bytes free)",
+                    db.display(),
                     cfg.data_dir.display()
                 ),
-                _ => "opening the database".to_string(),
-            }
+                _ if e.sqlite_error_code() == Some(rusqlite::ErrorCode::ReadOnly) => format!(
+                    "opening the database {} (the coordinator's user must be able to write it, \
+                     and its folder, on a file system mounted read-write)",
+                    db.display()
+                ),
+                _ => format!("opening the database {}", db.display()),
+            };
+            anyhow::Error::new(e).context(why)
         })?;
         let now = (cfg.clock)();
         let grace = cfg.startup_grace.max(cfg.lease_timeout);
@@ -457,11 +466,32 @@ impl AppState {
     }
 }
 
-/// Locks `dir`'s `lock` file for as long as the returned file is open: a second coordinator on
-/// the same data directory would resume the same jobs and hand out their tasks too, and
-/// each would overwrite the other's state (a job one cancelled, the other finished). A file
-/// system without locks (some network ones) is used unlocked, with a warning.
-fn lock_data_dir(dir: &std::path::Path) -> anyhow::Result<Option<std::fs::File>> {
+/// Locks the data directory `dir` for as long as the returned files are open: a second
+/// coordinator on the same data directory would resume the same jobs and hand out their tasks
+/// too, and each would overwrite the other's state (a job one cancelled, the other finished).
+/// Both the folder itself and its `lock` file are locked: the folder's lock cannot be deleted
+/// from under a running coordinator (an operator removing a "stale" `lock` file), and the
+/// file's is the one coordinators of earlier releases take. A file system without locks (some
+/// network ones) is used unlocked, with a warning.
+fn lock_data_dir(dir: &std::path::Path) -> anyhow::Result<Vec<std::fs::File>> {
+    let in_use = |what: &std::path::Path| {
+        anyhow::anyhow!(
+            "{} is in use by another coordinator (which holds a lock on {}): give each \
+             coordinator a --data-dir of its own",
+            dir.display(),
+            what.display()
+        )
+    };
+    let mut held = Vec::new();
+    // A folder that cannot be opened or locked (some network file systems lock only files
+    // open for writing) leaves the lock file alone to keep a second coordinator out.
+    if let Ok(folder) = std::fs::File::open(dir) {
+        match try_lock(&folder) {
+            Ok(true) => held.push(folder),
+            Ok(false) => return Err(in_use(dir)),
+            Err(_) => {}
+        }
+    }
     let path = dir.join("lock");
     let file = std::fs::OpenOptions::new()
         .create(true)
@@ -470,21 +500,17 @@ fn lock_data_dir(dir: &std::path::Path) -> anyhow::Result<Option<std::fs::File>>
         .open(&path)
         .with_context(|| format!("creating {}", path.display()))?;
     match try_lock(&file) {
-        Ok(true) => Ok(Some(file)),
-        Ok(false) => anyhow::bail!(
-            "{} is in use by another coordinator (which holds {}): give each coordinator a \
-             --data-dir of its own",
-            dir.display(),
-            path.display()
-        ),
+        Ok(true) => held.push(file),
+        Ok(false) => return Err(in_use(&path)),
         Err(e) => {
             tracing::warn!(
                 "cannot lock {}: {e}; nothing stops a second coordinator on this data directory",
                 path.display()
             );
-            Ok(None)
+            return Ok(Vec::new());
         }
     }
+    Ok(held)
 }
 
 /// Takes an exclusive advisory lock (flock) on `file` without waiting: whether it got it.
@@ -619,6 +645,8 @@ pub async fn run(
     checker.abort();
     let _ = checker.await;
     // A coordinator restarted in the same process may open the data directory at once.
-    drop(state.lock.lock().unwrap_or_else(|e| e.into_inner()).take());
+    drop(std::mem::take(
+        &mut *state.lock.lock().unwrap_or_else(|e| e.into_inner()),
+    ));
     res
 }

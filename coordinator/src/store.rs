@@ -234,10 +234,11 @@ impl Store {
     }
 
     /// A database that never served (new: the file was deleted or emptied) beside a
-    /// `results/` that holds the results of jobs is not the database they belong to: starting
-    /// on it would set them aside as results of unknown jobs and begin an empty farm. Refused,
-    /// so that the right one can be put back. Folders of purges that a stop interrupted
-    /// (`.purged-*`) and results set aside before (`.orphaned/`) do not count.
+    /// `results/` that holds the results of jobs, or a `scenes/` that holds uploaded scenes, is
+    /// not the database they belong to: starting on it would set the results aside as results
+    /// of unknown jobs and begin an empty farm, every job forgotten. Refused, so that the right
+    /// one can be put back. Folders of purges that a stop interrupted (`.purged-*`) and results
+    /// set aside before (`.orphaned/`) do not count.
     fn check_results_belong(&self) -> rusqlite::Result<()> {
         let used: bool = self.conn.query_row(
             "SELECT EXISTS (SELECT 1 FROM meta WHERE key = 'id_epoch')
@@ -248,24 +249,31 @@ impl Store {
         if used {
             return Ok(());
         }
-        let held = std::fs::read_dir(&self.results)
-            .into_iter()
-            .flatten()
-            .flatten()
-            .filter(|e| !e.file_name().to_string_lossy().starts_with('.'))
-            .filter(|e| e.file_type().is_ok_and(|t| t.is_dir()))
-            .filter(|e| std::fs::read_dir(e.path()).is_ok_and(|mut d| d.next().is_some()))
-            .count();
-        if held == 0 {
-            return Ok(());
-        }
+        // Folders that hold something, but for those whose names begin with a dot.
+        let held = |dir: &Path| {
+            std::fs::read_dir(dir)
+                .into_iter()
+                .flatten()
+                .flatten()
+                .filter(|e| !e.file_name().to_string_lossy().starts_with('.'))
+                .filter(|e| e.file_type().is_ok_and(|t| t.is_dir()))
+                .filter(|e| std::fs::read_dir(e.path()).is_ok_and(|mut d| d.next().is_some()))
+                .count()
+        };
+        let scenes = self.path.with_file_name("scenes");
+        let (results, uploads) = (held(&self.results), held(&scenes));
+        let (what, folder) = match (results, uploads) {
+            (0, 0) => return Ok(()),
+            (0, n) => (format!("the {n} scene(s) uploaded to it"), &scenes),
+            (n, _) => (format!("the stored results of {n} job(s)"), &self.results),
+        };
         let message = format!(
-            "{} is a new database, but {} holds the stored results of {held} job(s): this is \
-             not their database (it was deleted or emptied). Put the database back from a \
-             backup, or move {} aside to start an empty farm",
+            "{} is a new database, but {} holds {what}: this is not their database (it was \
+             deleted or emptied). Put the database back from a backup, or move {} aside to \
+             start an empty farm",
             self.path.display(),
-            self.results.display(),
-            self.results.display()
+            folder.display(),
+            folder.display()
         );
         Err(rusqlite::Error::SqliteFailure(
             rusqlite::ffi::Error::new(rusqlite::ffi::SQLITE_CANTOPEN),
@@ -608,7 +616,7 @@ impl Store {
             {
                 if let Err(e) = self.place(job, row.idx, staged, &mut placed) {
                     remove_files(&placed);
-                    return Err(io_error(e));
+                    return Err(e);
                 }
             }
         }
@@ -723,14 +731,18 @@ impl Store {
         idx: u32,
         staged: &Staged,
         placed: &mut Vec<PathBuf>,
-    ) -> std::io::Result<()> {
+    ) -> rusqlite::Result<()> {
         let dir = self.results.join(job);
-        std::fs::create_dir_all(&dir)?;
+        std::fs::create_dir_all(&dir).map_err(|e| io_error_at(&dir, e))?;
         let path = self.results.join(result_file_name(job, idx, staged));
-        std::fs::rename(&staged.path, &path)?;
+        std::fs::rename(&staged.path, &path).map_err(|e| {
+            let to = format!("{} → {}", staged.path.display(), path.display());
+            io_error_at(Path::new(&to), e)
+        })?;
         placed.push(path);
         for d in [&dir, &self.results] {
-            std::fs::File::open(d)?.sync_all()?;
+            let synced = std::fs::File::open(d).and_then(|f| f.sync_all());
+            synced.map_err(|e| io_error_at(d, e))?;
         }
         Ok(())
     }
@@ -1098,7 +1110,7 @@ pub fn for_each_result(
     Ok(damaged)
 }
 
-/// A result written to a file in the data directory's `tmp/` and synced, before the
+/// A result written to a file in `results/.staging/` and synced, before the
 /// scheduler's lock is taken; a [`Write::Result`] naming it moves it into `results/`.
 /// Dropped unused, it removes its file.
 #[derive(Debug)]
@@ -1111,8 +1123,11 @@ pub struct Staged {
 }
 
 impl Staged {
-    /// Writes `bytes` to a new file in `data_dir/tmp/` and syncs it to disk. Blocks: call it
-    /// off the async runtime's threads.
+    /// Writes `bytes` to a new file in `data_dir/results/.staging/` and syncs it to disk.
+    /// Blocks: call it off the async runtime's threads. Staged inside `results/`, so that the
+    /// rename that puts it in place never crosses file systems (`results/` may be a volume of
+    /// its own, or a link to another disk). What a stop leaves there, the next start removes
+    /// ([`Store::remove_unnamed_files`]).
     pub fn write(data_dir: &Path, bytes: &[u8]) -> rusqlite::Result<Staged> {
         static NEXT: AtomicU64 = AtomicU64::new(0);
         let name = format!(
@@ -1120,7 +1135,7 @@ impl Staged {
             std::process::id(),
             NEXT.fetch_add(1, Ordering::Relaxed)
         );
-        let tmp = data_dir.join("tmp");
+        let tmp = data_dir.join("results").join(STAGING);
         let staged = Staged {
             path: tmp.join(format!("result-{name}")),
             name,
@@ -1198,6 +1213,9 @@ fn remove_files(paths: &[PathBuf]) {
 
 /// The folder under `results/` that holds the results of jobs the database does not know.
 const ORPHANED: &str = ".orphaned";
+
+/// The folder of `results/` where large results are written before they are moved into place.
+const STAGING: &str = ".staging";
 
 /// A file error as the store's error: a full disk reads as SQLite's own, so it is answered
 /// the same way (503, retryable).
@@ -1410,7 +1428,6 @@ mod tests {
         .unwrap();
         drop(old);
         let mut store = Store::open(dir.path()).unwrap();
-        std::fs::create_dir_all(dir.path().join("tmp")).unwrap();
         let staged = Staged::write(dir.path(), &[7, 8, 9]).unwrap();
         let row = done(1);
         store
@@ -1429,9 +1446,11 @@ mod tests {
     #[test]
     fn a_failed_write_leaves_no_result_file() {
         let dir = tempfile::tempdir().unwrap();
-        std::fs::create_dir_all(dir.path().join("tmp")).unwrap();
         let mut store = Store::open(dir.path()).unwrap();
         let staged = Staged::write(dir.path(), &[1; 64]).unwrap();
+        // Staged on the file system of `results/`, which may be a volume of its own: the
+        // rename that places it cannot cross file systems.
+        assert!(staged.path.starts_with(dir.path().join("results")));
         let row = done(0);
         let write = Write::Result {
             job: "j",
@@ -1448,7 +1467,9 @@ mod tests {
         assert!(results(&store, "j").is_empty());
         drop(staged);
         assert_eq!(
-            std::fs::read_dir(dir.path().join("tmp")).unwrap().count(),
+            std::fs::read_dir(dir.path().join("results").join(STAGING))
+                .unwrap()
+                .count(),
             0
         );
     }
@@ -1458,7 +1479,6 @@ mod tests {
     #[test]
     fn a_missing_result_file_queues_its_task_again() {
         let dir = tempfile::tempdir().unwrap();
-        std::fs::create_dir_all(dir.path().join("tmp")).unwrap();
         let mut store = Store::open(dir.path()).unwrap();
         // A running job; done jobs whose tiles this renderer, an older one and an unknown one
         // made; a cancelled job.
@@ -1537,7 +1557,6 @@ mod tests {
     #[test]
     fn result_files_named_beside_no_results_folder_are_refused() {
         let dir = tempfile::tempdir().unwrap();
-        std::fs::create_dir_all(dir.path().join("tmp")).unwrap();
         let mut store = Store::open(dir.path()).unwrap();
         store
             .insert_job(&job_row("j", 0, JobState::Running))
@@ -1571,7 +1590,6 @@ mod tests {
     #[test]
     fn a_damaged_result_is_named_not_read() {
         let dir = tempfile::tempdir().unwrap();
-        std::fs::create_dir_all(dir.path().join("tmp")).unwrap();
         let mut store = Store::open(dir.path()).unwrap();
         store
             .insert_job(&job_row("j", 0, JobState::Running))
@@ -1658,8 +1676,8 @@ mod tests {
 
     /// A database lost or emptied beside the result files of its jobs is refused at start,
     /// naming both, rather than those files deleted as named by no row; moved aside, the
-    /// results no longer stop a start, and an interrupted purge's folder never did. A `tmp/`
-    /// removed while the coordinator runs is made again by the next result.
+    /// results no longer stop a start, and an interrupted purge's folder never did. A
+    /// `results/.staging/` removed while the coordinator runs is made again by the next result.
     #[test]
     fn results_without_their_database_are_refused_not_deleted() {
         let dir = tempfile::tempdir().unwrap();
@@ -1667,7 +1685,7 @@ mod tests {
         store
             .insert_job(&job_row("j", 0, JobState::Running))
             .unwrap();
-        assert!(!dir.path().join("tmp").exists());
+        assert!(!dir.path().join("results").join(STAGING).exists());
         let staged = Staged::write(dir.path(), &[5; 8]).unwrap();
         let row = done(0);
         store
@@ -1712,6 +1730,15 @@ mod tests {
         // Set aside (or an interrupted purge's leftovers): a new database starts.
         std::fs::remove_file(&db).unwrap();
         Store::open(dir.path()).unwrap();
+        // Jobs whose results all live in the database leave none in `results/`: uploaded
+        // scenes beside a new database say it was lost as well.
+        let scene = dir.path().join("scenes").join("s-1");
+        std::fs::create_dir_all(&scene).unwrap();
+        std::fs::write(scene.join("meta.json"), "{}").unwrap();
+        std::fs::remove_file(&db).unwrap();
+        let _ = std::fs::remove_file(dir.path().join("raytile.sqlite3-wal"));
+        let e = Store::open(dir.path()).err().expect("refused").to_string();
+        assert!(e.contains("the 1 scene(s) uploaded to it"), "{e}");
     }
 
     /// A full disk while a result is staged or placed reads as SQLite's own full disk, which

@@ -1822,6 +1822,12 @@ async fn a_data_directory_serves_one_coordinator_at_a_time() {
         e.contains("in use by another coordinator") && e.contains("--data-dir"),
         "{e}"
     );
+    // The folder itself is locked: removing a "stale" lock file lets no second one in.
+    std::fs::remove_file(dir.path().join("lock")).unwrap();
+    let e = AppState::open(Config::new(dir.path()))
+        .err()
+        .expect("a second coordinator once the lock file was removed");
+    assert!(format!("{e:#}").contains("in use by another coordinator"));
     // Once the first has stopped, the directory is free again (a restart).
     drop(first);
     assert!(AppState::open(Config::new(dir.path())).is_ok());
