@@ -327,6 +327,11 @@ async fn metrics(State(state): State<AppState>) -> Response {
             c.duplicates,
         ),
         ("raytile_samples_total", "Samples accepted.", c.samples),
+        (
+            "raytile_store_failures_total",
+            "Requests answered 503 because the store (database or files) could not be written: a full or read-only disk.",
+            crate::error::STORE_FAILURES.load(std::sync::atomic::Ordering::Relaxed),
+        ),
     ] {
         let _ = writeln!(
             out,

@@ -175,15 +175,22 @@ impl AppError {
     }
 }
 
+/// Requests this process answered 503 because the store (the database, a result file or a
+/// scene upload's file) could not be written: `/metrics`' `raytile_store_failures_total`, so
+/// that monitoring sees a full or read-only disk while `/healthz` still answers.
+pub static STORE_FAILURES: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
 impl IntoResponse for AppError {
     fn into_response(self) -> Response {
         let (status, code, field) = self.parts();
         match &self {
             AppError::Internal(e) => tracing::error!("internal error: {e:#}"),
             AppError::StoreUnavailable(e) => {
+                STORE_FAILURES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                 tracing::error!("store write failed, answered 503: {e}")
             }
             AppError::DiskUnavailable { what, error } => {
+                STORE_FAILURES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                 tracing::error!("writing {what} failed, answered 503: {error}")
             }
             _ => {}

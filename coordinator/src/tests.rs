@@ -822,12 +822,21 @@ async fn a_store_fault_is_a_retryable_503_and_the_retry_succeeds() {
     let st = test_state(dir.path(), None);
     let (_, scene) = call(&st, post("/v1/scenes", r#"{"objects": []}"#)).await;
     let body = format!(r#"{{"scene": "{}"}}"#, scene["id"].as_str().unwrap());
+    let failures = || crate::error::STORE_FAILURES.load(std::sync::atomic::Ordering::Relaxed);
+    let before = failures();
     st.sched().store_faults().fail_next(1);
     let resp = app(st.clone())
         .oneshot(post("/v1/jobs", body.clone()))
         .await
         .unwrap();
     assert_eq!(resp.status(), StatusCode::SERVICE_UNAVAILABLE);
+    // Counted for monitoring (other tests of this process may count theirs too).
+    assert!(failures() > before);
+    let metrics = app(st.clone()).oneshot(get("/metrics")).await.unwrap();
+    let metrics = axum::body::to_bytes(metrics.into_body(), usize::MAX)
+        .await
+        .unwrap();
+    assert!(String::from_utf8_lossy(&metrics).contains("raytile_store_failures_total "));
     assert_eq!(resp.headers()["retry-after"], "1");
     let b = axum::body::to_bytes(resp.into_body(), usize::MAX)
         .await
