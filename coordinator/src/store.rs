@@ -149,7 +149,11 @@ impl StoredTask {
             },
             (TASK_FAILED, ..) => StoredTask::Failed,
             (TASK_LEASED, Some(worker), Some(lease)) => StoredTask::Leased { worker, lease },
-            _ => StoredTask::Queued,
+            (TASK_LEASED | TASK_QUEUED, ..) => StoredTask::Queued,
+            (other, ..) => {
+                tracing::warn!("a task stored in the unknown state '{other}' is queued again");
+                StoredTask::Queued
+            }
         }
     }
 }
@@ -170,7 +174,10 @@ fn parse_job_state(name: &str) -> JobState {
     JobState::ALL
         .into_iter()
         .find(|&s| job_state_name(s) == name)
-        .unwrap_or(JobState::Queued)
+        .unwrap_or_else(|| {
+            tracing::warn!("a job stored in the unknown state '{name}' is queued again");
+            JobState::Queued
+        })
 }
 
 /// A row of the `tasks` table.

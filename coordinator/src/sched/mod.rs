@@ -312,6 +312,31 @@ impl Sched {
                 .into_iter()
                 .map(|(lease, idx)| (lease, (job.id.clone(), idx)))
                 .collect();
+            // A stored state its tasks contradict (a row edited by hand, or damaged): a done
+            // job lacking tasks renders them (unless another renderer made its tiles: its
+            // frame stays as it is), an unfinished one with every task done is done.
+            let (done, total) = (job.tasks_done(), job.layout.task_count());
+            let repair = match job.life().state {
+                JobState::Done
+                    if done < total && job.render_version == Some(raytile_core::RENDER_VERSION) =>
+                {
+                    Some(JobEvent::Reopen)
+                }
+                JobState::Queued | JobState::Running if total > 0 && done == total => {
+                    Some(JobEvent::Finish)
+                }
+                _ => None,
+            };
+            if let Some(life) = repair.and_then(|ev| job.next_life(ev, now.wall_ms)) {
+                tracing::warn!(
+                    job = %job.id,
+                    "stored as {} with {done} of {total} tasks done: now {}",
+                    job.life().state.name(),
+                    life.state.name()
+                );
+                s.store.write(&[life_write(&job.id, &life)])?;
+                job.set_life(life);
+            }
             if job.is_final() {
                 // A final job holds no leases; a database written before that was so may
                 // still have some: they end now, and are stored as ended.

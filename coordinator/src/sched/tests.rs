@@ -514,6 +514,41 @@ fn restart_resumes_without_redoing_finished_tasks() {
     assert_eq!(state_of(&s, &job), JobState::Done);
 }
 
+/// Stored states that contradict the stored tasks (a row edited by hand, or damaged) are
+/// mended at a start: a done job lacking a task renders it, a running one whose tasks are all
+/// done is done; unknown state names read as queued.
+#[test]
+fn a_restart_mends_job_states_their_tasks_contradict() {
+    let dir = tempfile::tempdir().unwrap();
+    let t0 = t0();
+    let (job, total) = {
+        let mut s = open(dir.path(), t0);
+        let w = s.register("w", 1, t0).unwrap();
+        let job = s.new_job("s".into(), small(1), 0, t0).unwrap().id;
+        while finish(&mut s, &w, t0).is_some() {}
+        assert_eq!(state_of(&s, &job), JobState::Done);
+        let total = s.job_status(&job).unwrap().tasks_total;
+        (job, total)
+    };
+    let edit = |sql: &str| {
+        let db = rusqlite::Connection::open(dir.path().join("raytile.sqlite3")).unwrap();
+        db.execute_batch(sql).unwrap();
+    };
+    edit("UPDATE tasks SET state = 'bogus' WHERE idx = 1");
+    let t1 = t0.after(secs(100));
+    let mut s = open(dir.path(), t1);
+    let st = s.job_status(&job).unwrap();
+    assert_eq!((st.state, st.tasks_done), (JobState::Running, total - 1));
+    let w = s.register("w2", 1, t1).unwrap();
+    let g = finish(&mut s, &w, t1).expect("the task queued again");
+    assert_eq!(g.task, 1);
+    assert_eq!(state_of(&s, &job), JobState::Done);
+    drop(s);
+    edit("UPDATE jobs SET state = 'exploded'");
+    let s = open(dir.path(), t1.after(secs(100)));
+    assert_eq!(state_of(&s, &job), JobState::Done);
+}
+
 #[test]
 fn a_lease_out_at_a_restart_expires_after_the_grace() {
     let dir = tempfile::tempdir().unwrap();
