@@ -598,8 +598,9 @@ pub async fn timeout_checker(state: AppState) {
         }
         let res = {
             let mut s = state.sched();
-            // Purged jobs' pages go back to the file system a few MB at a time.
-            s.shrink_store();
+            // Purged jobs' pages go back to the file system a few MB at a time; a database
+            // file removed from under the coordinator is reported.
+            s.tend_store();
             s.expire(now)
         };
         match res {

@@ -197,8 +197,26 @@ pub struct Store {
     path: PathBuf,
     /// Where results stored as files live (`results/` beside the database).
     results: PathBuf,
+    /// The database file's identity (device, inode) when it was opened, and whether its loss
+    /// was reported ([`Store::check_file`]).
+    file_id: Option<(u64, u64)>,
+    file_lost: std::cell::Cell<bool>,
     #[cfg(test)]
     faults: Faults,
+}
+
+/// A file's (device, inode), where the platform has them.
+fn file_id(path: &Path) -> Option<(u64, u64)> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        std::fs::metadata(path).ok().map(|m| (m.dev(), m.ino()))
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = path;
+        None
+    }
 }
 
 impl Store {
@@ -222,6 +240,8 @@ impl Store {
         std::fs::create_dir_all(&results).map_err(|e| io_error_at(&results, e))?;
         let mut store = Store {
             conn,
+            file_id: file_id(&path),
+            file_lost: std::cell::Cell::new(false),
             path,
             results,
             #[cfg(test)]
@@ -694,6 +714,26 @@ impl Store {
         if let Err(e) = run() {
             tracing::warn!("the database could not give back its free pages: {e}");
         }
+    }
+
+    /// Whether the database file is still the one this store opened: removed or replaced
+    /// while the coordinator runs (a clean-up, a restore done too early), everything it writes
+    /// goes to a file no one will open again, and the next start would begin without it.
+    /// Said once, as an error in the log; called now and then.
+    pub fn check_file(&self) -> bool {
+        let Some(opened) = self.file_id else {
+            return true;
+        };
+        let same = file_id(&self.path) == Some(opened);
+        if !same && !self.file_lost.replace(true) {
+            tracing::error!(
+                path = %self.path.display(),
+                "the database file was removed or replaced while the coordinator runs: what \
+                 it stores from now on is lost when it stops: stop it, and put the database \
+                 back from a backup"
+            );
+        }
+        same
     }
 
     /// Free pages the database holds (SQLite's `freelist_count`), 0 if it cannot tell.
@@ -1373,6 +1413,19 @@ mod tests {
             state: StoredTask::Done { worker: "w".into() },
             failures: 0,
         }
+    }
+
+    /// A database file removed or replaced while the store is open is noticed.
+    #[test]
+    fn a_database_file_removed_from_under_the_store_is_noticed() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = Store::open(dir.path()).unwrap();
+        assert!(store.check_file());
+        std::fs::remove_file(dir.path().join("raytile.sqlite3")).unwrap();
+        assert!(!store.check_file());
+        // Replaced by another file of the same name: not the one open either.
+        std::fs::write(dir.path().join("raytile.sqlite3"), b"").unwrap();
+        assert!(!store.check_file());
     }
 
     /// The pages of a purged job's tiles go back to the file system: the database file

@@ -1250,9 +1250,12 @@ impl Sched {
         Ok(Some(job.status()))
     }
 
-    /// Gives back a few more of the database's free pages, if it holds any (what the purges'
-    /// own [`Store::shrink`](crate::store::Store::shrink) left): called now and then.
-    pub fn shrink_store(&self) {
+    /// Called now and then: checks that the database file is still there
+    /// ([`Store::check_file`](crate::store::Store::check_file)), and gives back a few more of
+    /// its free pages, if it holds any (what the purges' own
+    /// [`Store::shrink`](crate::store::Store::shrink) left).
+    pub fn tend_store(&self) {
+        self.store.check_file();
         if self.store.free_pages() > 0 {
             self.store.shrink(1024);
         }
