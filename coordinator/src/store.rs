@@ -20,11 +20,14 @@ use std::sync::atomic::{AtomicU64, Ordering};
 /// Free pages a purge gives back at once (of 4 KiB: 64 MB); [`Store::shrink`].
 pub const PURGE_SHRINK_PAGES: u32 = 16384;
 
-/// Schema, applied on open (idempotent). `auto_vacuum` takes effect only on a new database.
+/// Schema, applied on open (idempotent). `auto_vacuum` takes effect only on a new database;
+/// `journal_size_limit` truncates the write-ahead log to 64 MB at each checkpoint, where it
+/// would otherwise keep the size of its largest burst of writes.
 const SCHEMA: &str = "
 PRAGMA auto_vacuum = INCREMENTAL;
 PRAGMA journal_mode = WAL;
 PRAGMA synchronous = NORMAL;
+PRAGMA journal_size_limit = 67108864;
 CREATE TABLE IF NOT EXISTS jobs (
     id TEXT PRIMARY KEY,
     seq INTEGER NOT NULL,
