@@ -599,7 +599,9 @@ struct Retry {
 /// coordinator that cannot write its store still renews leases (they live in memory), so the
 /// tile is not given to another worker to render again while this one waits to deliver it.
 /// A heartbeat that says the task is no longer this worker's (the job was cancelled, or the
-/// lease expired during a longer outage) ends the retries.
+/// lease expired during a longer outage) ends the heartbeats, not the upload: the coordinator
+/// still takes a late result of a task not done yet, and answers one it no longer wants at
+/// once.
 async fn upload_result(
     client: Client,
     to: ResultTarget,
@@ -607,8 +609,6 @@ async fn upload_result(
     stats: Arc<Stats>,
     retry: Retry,
 ) {
-    let unwanted = std::sync::atomic::AtomicBool::new(false);
-    let told = tokio::sync::Notify::new();
     let beats = async {
         loop {
             tokio::time::sleep(retry.heartbeat).await;
@@ -618,33 +618,28 @@ async fn upload_result(
                     tracing::info!(
                         job = %to.job, task = to.task,
                         reason = reply.reason.as_deref().unwrap_or(""),
-                        "the result is no longer wanted"
+                        "the lease of a result being uploaded ended"
                     );
-                    unwanted.store(true, Ordering::Relaxed);
-                    told.notify_one();
                     return std::future::pending::<()>().await;
                 }
                 _ => {}
             }
         }
     };
-    let upload = upload_with_retries(&client, &to, bytes, &stats, retry, &unwanted, &told);
+    let upload = upload_with_retries(&client, &to, bytes, &stats, retry);
     tokio::select! {
         () = upload => {}
         () = beats => {}
     }
 }
 
-/// [`upload_result`]'s attempts, until one is answered, or `unwanted` is set while it waits
-/// to try again (`told` wakes it then).
+/// [`upload_result`]'s attempts, until one is answered.
 async fn upload_with_retries(
     client: &Client,
     to: &ResultTarget,
     bytes: Vec<u8>,
     stats: &Stats,
     retry: Retry,
-    unwanted: &std::sync::atomic::AtomicBool,
-    told: &tokio::sync::Notify,
 ) {
     let mut backoff = Backoff::new(retry.max_backoff);
     let mut server_errors = 0;
@@ -687,14 +682,7 @@ async fn upload_with_retries(
                     "result upload failed ({e}); retrying in {:.1} s",
                     d.as_secs_f64()
                 );
-                tokio::select! {
-                    () = tokio::time::sleep(d) => {}
-                    () = told.notified() => {}
-                }
-                if unwanted.load(Ordering::Relaxed) {
-                    tracing::warn!("result dropped ({what}): the task is no longer this worker's");
-                    return;
-                }
+                tokio::time::sleep(d).await;
             }
         }
     }
@@ -846,7 +834,8 @@ mod tests {
     };
 
     /// While its upload is retried, the lease is renewed, so that the tile is not rendered
-    /// again elsewhere; a heartbeat saying the task is no longer the worker's ends the retries.
+    /// again elsewhere; a heartbeat saying the task is no longer the worker's ends the
+    /// heartbeats, and the coordinator's answer to the upload has the last word.
     #[tokio::test]
     async fn a_result_waiting_to_be_taken_keeps_its_lease() {
         let busy = r#"{"error": {"code": "store_unavailable", "message": "retry later", "retryable": true}}"#;
@@ -873,17 +862,27 @@ mod tests {
             "heartbeats while it waited"
         );
 
+        // A late result is still the coordinator's to take or refuse.
         let cancelled = r#"{"cancelled": true, "reason": "lease expired"}"#;
-        let (base, served, beats) = serve_beating(vec![(503, busy); 1000], cancelled).await;
+        let mut answers = vec![(503, busy); 12];
+        answers.push((
+            200,
+            r#"{"accepted": true, "duplicate": false, "job_finished": false}"#,
+        ));
+        let (base, served, beats) = serve_beating(answers, cancelled).await;
         let client = Client::new(&base, None).unwrap();
         let stats = Arc::new(Stats::default());
         let upload = upload_result(client, target(), vec![0; 64], stats.clone(), retry);
         tokio::time::timeout(Duration::from_secs(20), upload)
             .await
-            .expect("the upload went on retrying for a task no longer the worker's");
-        assert_eq!(stats.accepted.load(Ordering::SeqCst), 0);
-        assert!(served.load(Ordering::SeqCst) < 1000);
-        assert_eq!(beats.load(Ordering::SeqCst), 1);
+            .expect("the upload gave up or hung");
+        assert_eq!(stats.accepted.load(Ordering::SeqCst), 1);
+        assert_eq!(served.load(Ordering::SeqCst), 13);
+        assert_eq!(
+            beats.load(Ordering::SeqCst),
+            1,
+            "no heartbeats after the first 'no'"
+        );
     }
 
     /// A coordinator that cannot write its database answers 503 for a while: the worker keeps
