@@ -410,9 +410,11 @@ fn transient(e: &ClientError) -> bool {
     }
 }
 
-/// `call`, made again while the coordinator answers it 503 (it cannot write its store at the
-/// moment, or is shutting down: nothing was changed, and it says the request may be retried),
-/// with backoff, for up to [`OUTAGE`]; the user is told once, naming `what` was being done.
+/// `call`, made again while the coordinator answers it 503 with one of its own error bodies (it
+/// cannot write its store at the moment, or is shutting down: nothing was changed), with
+/// backoff, for up to [`OUTAGE`]; the user is told once, naming `what` was being done. A 503
+/// without the coordinator's error body (a proxy's) is not asked again: the proxy may have
+/// passed the request on, and a job would be submitted twice.
 async fn while_busy<T, F, Fut>(what: &str, mut call: F) -> anyhow::Result<T>
 where
     F: FnMut() -> Fut,
@@ -423,12 +425,7 @@ where
     let mut told = false;
     loop {
         match call().await {
-            Err(e)
-                if start.elapsed() < OUTAGE
-                    && e.downcast_ref::<ClientError>()
-                        .and_then(ClientError::status)
-                        == Some(reqwest::StatusCode::SERVICE_UNAVAILABLE) =>
-            {
+            Err(e) if start.elapsed() < OUTAGE && unchanged(&e) => {
                 if !told {
                     eprintln!(
                         "raytile: {what}: {e}; trying again for up to {} minutes",
@@ -442,6 +439,16 @@ where
             r => return r,
         }
     }
+}
+
+/// Whether `e` is the coordinator's own 503, which says nothing was changed.
+fn unchanged(e: &anyhow::Error) -> bool {
+    matches!(
+        e.downcast_ref::<ClientError>(),
+        Some(ClientError::Status { status, code: Some(code), .. })
+            if *status == reqwest::StatusCode::SERVICE_UNAVAILABLE
+                && matches!(code.as_str(), "store_unavailable" | "unavailable" | "busy")
+    )
 }
 
 /// `call` for job `id`, made again while its failure is [`transient`], with backoff, for up
@@ -680,19 +687,20 @@ mod tests {
     /// nothing changed) is made again until it is taken; any other error ends it at once.
     #[tokio::test]
     async fn uploads_and_submissions_wait_out_a_coordinator_that_cannot_write() {
-        let status = |status| ClientError::Status {
+        let status = |status, code: Option<&str>| ClientError::Status {
             status,
-            code: None,
+            code: code.map(String::from),
             field: None,
             message: "retry later".into(),
         };
+        let busy = reqwest::StatusCode::SERVICE_UNAVAILABLE;
         let mut calls = 0;
         let got = while_busy("uploading the scene", || {
             calls += 1;
             let n = calls;
             async move {
                 match n {
-                    1 | 2 => Err(status(reqwest::StatusCode::SERVICE_UNAVAILABLE).into()),
+                    1 | 2 => Err(status(busy, Some("store_unavailable")).into()),
                     _ => Ok(7),
                 }
             }
@@ -700,14 +708,21 @@ mod tests {
         .await
         .unwrap();
         assert_eq!((got, calls), (7, 3));
-        let mut calls = 0;
-        let e = while_busy("submitting the job", || {
-            calls += 1;
-            async { Err::<(), _>(status(reqwest::StatusCode::INTERNAL_SERVER_ERROR).into()) }
-        })
-        .await
-        .unwrap_err();
-        assert_eq!(calls, 1, "{e:#}");
+        // A 500, and a 503 that is not the coordinator's (a proxy's, which may have passed
+        // the job on): not asked again.
+        for (code, body) in [
+            (reqwest::StatusCode::INTERNAL_SERVER_ERROR, Some("internal")),
+            (busy, None),
+        ] {
+            let mut calls = 0;
+            let e = while_busy("submitting the job", || {
+                calls += 1;
+                async move { Err::<(), _>(status(code, body).into()) }
+            })
+            .await
+            .unwrap_err();
+            assert_eq!(calls, 1, "{e:#}");
+        }
     }
 
     /// A coordinator in this process, with uploads limited to `max_upload` bytes.
