@@ -502,13 +502,16 @@ fn lock_data_dir(dir: &std::path::Path) -> anyhow::Result<Vec<std::fs::File>> {
     match try_lock(&file) {
         Ok(true) => held.push(file),
         Ok(false) => return Err(in_use(&path)),
-        Err(e) => {
-            tracing::warn!(
-                "cannot lock {}: {e}; nothing stops a second coordinator on this data directory",
-                path.display()
-            );
-            return Ok(Vec::new());
-        }
+        // The folder's lock, if it was taken, still keeps coordinators of this release out.
+        Err(e) if held.is_empty() => tracing::warn!(
+            "cannot lock {}: {e}; nothing stops a second coordinator on this data directory",
+            path.display()
+        ),
+        Err(e) => tracing::warn!(
+            "cannot lock {}: {e}; only the folder's lock keeps a second coordinator out (one \
+             of an earlier release, which looks at the file alone, is not)",
+            path.display()
+        ),
     }
     Ok(held)
 }

@@ -17,8 +17,9 @@ use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
-/// Free pages a purge gives back at once (of 4 KiB: 64 MB); [`Store::shrink`].
-pub const PURGE_SHRINK_PAGES: u32 = 16384;
+/// Free pages a purge, and then each tick of the lease checker, gives back (of 4 KiB: 8 MB);
+/// [`Store::shrink`]. Both hold the scheduler's lock meanwhile: a step is some milliseconds.
+pub const SHRINK_PAGES: u32 = 2048;
 
 /// Schema, applied on open (idempotent). `auto_vacuum` takes effect only on a new database;
 /// `journal_size_limit` truncates the write-ahead log to 64 MB at each checkpoint, where it
@@ -204,6 +205,10 @@ pub struct Store {
     /// was reported ([`Store::check_file`]).
     file_id: Option<(u64, u64)>,
     file_lost: std::cell::Cell<bool>,
+    /// Whether the database gives free pages back (`auto_vacuum = INCREMENTAL`: made by this
+    /// release or a later one), and whether the last attempt failed (said once until one works).
+    shrinks: bool,
+    shrink_failing: std::cell::Cell<bool>,
     #[cfg(test)]
     faults: Faults,
 }
@@ -241,10 +246,14 @@ impl Store {
             check_no_files_named(&conn, &results)?;
         }
         std::fs::create_dir_all(&results).map_err(|e| io_error_at(&results, e))?;
+        // SQLite's code for incremental auto-vacuum.
+        let shrinks = conn.query_row("PRAGMA auto_vacuum", [], |r| r.get::<_, i64>(0))? == 2;
         let mut store = Store {
             conn,
             file_id: file_id(&path),
             file_lost: std::cell::Cell::new(false),
+            shrinks,
+            shrink_failing: std::cell::Cell::new(false),
             path,
             results,
             #[cfg(test)]
@@ -692,7 +701,7 @@ impl Store {
             }
         }
         if purged {
-            self.shrink(PURGE_SHRINK_PAGES);
+            self.shrink(SHRINK_PAGES);
         }
         Ok(())
     }
@@ -703,8 +712,12 @@ impl Store {
     /// release before this one has no room for it (SQLite's `auto_vacuum` is fixed when the
     /// first table is made) and keeps its size: `VACUUM` it offline once (docs/farm.md).
     /// Bounded, since the caller holds the scheduler's lock: what is left is given back by
-    /// the next calls. A failure only leaves the file larger.
+    /// the next calls. A failure (a full or read-only disk) only leaves the file larger, and
+    /// is said once until a later call succeeds.
     pub fn shrink(&self, pages: u32) {
+        if !self.shrinks || self.free_pages() == 0 {
+            return;
+        }
         // Each step of the statement gives back one page: stepped to its end.
         let run = || -> rusqlite::Result<()> {
             let mut stmt = self
@@ -714,8 +727,13 @@ impl Store {
             while rows.next()?.is_some() {}
             Ok(())
         };
-        if let Err(e) = run() {
-            tracing::warn!("the database could not give back its free pages: {e}");
+        match run() {
+            Ok(()) => self.shrink_failing.set(false),
+            Err(e) => {
+                if !self.shrink_failing.replace(true) {
+                    tracing::warn!("the database could not give back its free pages: {e}");
+                }
+            }
         }
     }
 
@@ -1449,9 +1467,9 @@ mod tests {
             .insert_job(&job_row("j", 0, JobState::Running))
             .unwrap();
         let empty = size(&store);
-        // 96 MB of tiles: more than one purge gives back at once.
+        // 24 MB of tiles: more than one purge gives back at once.
         let data = vec![7u8; 1 << 20];
-        for idx in 0..96 {
+        for idx in 0..24 {
             let row = done(idx);
             let write = Write::Result {
                 job: "j",
@@ -1462,16 +1480,16 @@ mod tests {
             store.write(&[write]).unwrap();
         }
         let full = size(&store);
-        assert!(full > 96 << 20, "{full}");
+        assert!(full > 24 << 20, "{full}");
         store.write(&[Write::DeleteJob("j")]).unwrap();
         let purged = size(&store);
         assert!(
-            purged <= full - (u64::from(PURGE_SHRINK_PAGES) * 4096) + (1 << 20),
+            purged <= full - (u64::from(SHRINK_PAGES) * 4096) + (1 << 20),
             "{full} → {purged}"
         );
         assert!(store.free_pages() > 0);
         while store.free_pages() > 0 {
-            store.shrink(1024);
+            store.shrink(SHRINK_PAGES);
         }
         let shrunk = size(&store);
         assert!(shrunk < empty + (1 << 20), "{empty} → {full} → {shrunk}");

@@ -1979,7 +1979,7 @@ async fn results_stored_as_files_make_the_same_frame_and_go_with_their_job() {
     assert_eq!(stored.len(), 1, "{stored:?}");
     assert!(stored[0].starts_with(&format!("{job}/0-")), "{stored:?}");
     assert!(
-        files(&dir.path().join("tmp")).is_empty(),
+        files(&results.join(".staging")).is_empty(),
         "the staged file moved"
     );
 

@@ -334,7 +334,17 @@ impl Sched {
                     job.life().state.name(),
                     life.state.name()
                 );
-                s.store.write(&[life_write(&job.id, &life)])?;
+                let mut writes = vec![life_write(&job.id, &life)];
+                let reopened = !life.state.is_final();
+                if reopened {
+                    // As any done job reopened: no worker blocked from it, since those blocked
+                    // may be all that is left.
+                    writes.push(Write::ClearBlocked(&job.id));
+                }
+                s.store.write(&writes)?;
+                if reopened {
+                    job.worker_failures.clear();
+                }
                 job.set_life(life);
             }
             if job.is_final() {
@@ -1256,9 +1266,7 @@ impl Sched {
     /// [`Store::shrink`](crate::store::Store::shrink) left).
     pub fn tend_store(&self) {
         self.store.check_file();
-        if self.store.free_pages() > 0 {
-            self.store.shrink(1024);
-        }
+        self.store.shrink(crate::store::SHRINK_PAGES);
     }
 
     /// Sets the priority of job `job_id`. Returns its status, or `None` if unknown.
