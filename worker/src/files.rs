@@ -56,6 +56,42 @@ pub fn verify(dir: &Path, sha256: &str) -> bool {
         && manifest(&dir.join("root")).is_ok_and(|m| m == recorded)
 }
 
+/// Checks at start that the cache folder `cache` can be written (a read-only one would fail
+/// every task the worker takes, and with them the jobs), and removes the folders that workers
+/// no longer running left half unpacked or half removed there (a kill in the middle): several
+/// workers may share the folder, so only those of processes that are gone (Linux, which tells
+/// by `/proc`; elsewhere they stay).
+pub fn prepare_cache(cache: &Path) -> anyhow::Result<()> {
+    std::fs::create_dir_all(cache).with_context(|| format!("creating {}", cache.display()))?;
+    let probe = cache.join(format!(".write-check-{}", std::process::id()));
+    std::fs::write(&probe, b"")
+        .and_then(|()| std::fs::remove_file(&probe))
+        .with_context(|| {
+            format!(
+                "the cache folder {} cannot be written (the worker keeps there the scenes it \
+                 renders: give it one it may write, --cache-dir)",
+                cache.display()
+            )
+        })?;
+    if cfg!(target_os = "linux") {
+        for e in std::fs::read_dir(cache).into_iter().flatten().flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let owner = ["partial", "discarded"].iter().find_map(|what| {
+                let (_, rest) = name.split_once(&format!(".{what}-"))?;
+                rest.split('-').next()?.parse::<u32>().ok()
+            });
+            let gone = owner.is_some_and(|pid| {
+                pid != std::process::id() && !Path::new("/proc").join(pid.to_string()).exists()
+            });
+            if gone {
+                tracing::info!(path = %e.path().display(), "removing a folder a stopped worker left");
+                let _ = std::fs::remove_dir_all(e.path());
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Moves `dir` aside (one rename, so no process sees it half removed) and removes it. Nothing
 /// happens when it does not exist.
 pub fn discard(dir: &Path) {
@@ -78,7 +114,8 @@ pub fn install(
     let result = (|| -> anyhow::Result<()> {
         std::fs::create_dir_all(tmp.join("root"))
             .with_context(|| format!("creating {}", tmp.display()))?;
-        std::fs::write(tmp.join("blob"), bytes)?;
+        std::fs::write(tmp.join("blob"), bytes)
+            .with_context(|| format!("writing the scene to {}", tmp.display()))?;
         let entry = format.is_archive().then_some(entry);
         pkg::unpack(
             &tmp.join("blob"),
@@ -141,6 +178,34 @@ mod tests {
         install(&dir, &bytes, pkg::SceneFormat::Json, "scene.json").unwrap();
         std::fs::write(dir.join("ok"), b"").unwrap();
         assert!(!verify(&dir, &sha));
+    }
+
+    /// The cache is checked writable at start, and what stopped workers left half done there
+    /// goes; what a running one (this process) has in hand stays.
+    #[test]
+    fn a_cache_is_checked_and_tidied_at_start() {
+        let cache = tempfile::tempdir().unwrap();
+        let (bytes, sha) = json_scene();
+        let dir = cache.path().join(&sha);
+        install(&dir, &bytes, pkg::SceneFormat::Json, "scene.json").unwrap();
+        // A pid no process has (above Linux's largest).
+        let stale = cache.path().join(format!("{sha}.partial-4294967295-0"));
+        let mine = own_name(&dir, "partial");
+        for d in [&stale, &mine] {
+            std::fs::create_dir_all(d.join("root")).unwrap();
+        }
+        prepare_cache(cache.path()).unwrap();
+        assert!(verify(&dir, &sha), "the installed scene stays");
+        assert!(mine.exists(), "this process's own stays");
+        assert_eq!(!stale.exists(), cfg!(target_os = "linux"));
+        // A cache folder that is a file cannot be written.
+        let file = cache.path().join("a-file");
+        std::fs::write(&file, b"").unwrap();
+        let e = prepare_cache(&file).unwrap_err();
+        assert!(
+            format!("{e:#}").contains(&file.display().to_string()),
+            "{e:#}"
+        );
     }
 
     #[test]

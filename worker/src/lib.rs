@@ -17,7 +17,7 @@ use anyhow::{anyhow, Context};
 use raytile_core::{RenderJob, Scene, TileAccum};
 use raytile_proto::client::{Client, ClientError, StatusCode};
 use raytile_proto::{self as proto, scene as pkg};
-use std::collections::{HashMap, HashSet};
+use std::collections::HashMap;
 use std::future::Future;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -180,8 +180,7 @@ pub async fn run(config: Config, shutdown: impl Future<Output = ()> + Send) -> a
             .build()
             .context("creating the render thread pool")?,
     );
-    std::fs::create_dir_all(&config.cache_dir)
-        .with_context(|| format!("creating {}", config.cache_dir.display()))?;
+    files::prepare_cache(&config.cache_dir)?;
     if let Some(problem) = raytile_proto::client::cert_store_problem() {
         tracing::warn!("{problem}: https:// coordinators are checked against the public CAs only");
     }
@@ -204,7 +203,6 @@ pub async fn run(config: Config, shutdown: impl Future<Output = ()> + Send) -> a
         worker_id: None,
         heartbeat: Duration::from_secs(5),
         jobs: HashMap::new(),
-        verified: HashSet::new(),
         backoff: Backoff::new(Duration::from_secs(30)),
         uploads: tokio::task::JoinSet::new(),
     };
@@ -247,7 +245,6 @@ struct Worker {
     heartbeat: Duration,
     /// What each recent job adds to its scene (camera, lights), by job id.
     jobs: HashMap<String, Arc<RenderJob>>,
-    verified: HashSet<String>,
     backoff: Backoff,
     /// The result being uploaded while the next task renders (at most one). Dropping the
     /// worker aborts it, as killing the process would.
@@ -345,15 +342,13 @@ impl Worker {
         }
         let dir = self.cfg.cache_dir.join(&lease.scene);
         let entry = dir.join("root").join(&lease.scene_entry);
-        if self.verified.contains(&lease.scene) && dir.join("ok").exists() {
-            return Ok(entry);
-        }
-        // Once per process and scene: the blob and every unpacked file checked against what
-        // was recorded (see the `files` module).
+        // Whenever the files are to be read (a build; a scene in the memory cache reads
+        // none): the blob and every unpacked file checked against what was recorded (see the
+        // `files` module), so that a file edited or rotted since the last build is fetched
+        // again rather than rendered. Hashing costs a fraction of what building costs.
         if dir.exists() {
             let (d, sha) = (dir.clone(), lease.scene_sha256.clone());
             if tokio::task::spawn_blocking(move || files::verify(&d, &sha)).await? {
-                self.verified.insert(lease.scene.clone());
                 return Ok(entry);
             }
             tracing::warn!(scene = %lease.scene, "cached scene is incomplete or corrupt; downloading again");
@@ -381,7 +376,6 @@ impl Worker {
         let d = dir.clone();
         tokio::task::spawn_blocking(move || files::install(&d, &bytes, format, &scene_entry))
             .await??;
-        self.verified.insert(lease.scene.clone());
         Ok(entry)
     }
 
@@ -420,10 +414,16 @@ impl Worker {
         shutdown: &mut (impl Future<Output = ()> + Unpin),
     ) -> Flow {
         tracing::debug!(job = %lease.job, task = lease.task, "leased");
+        // The lease is renewed while the scene is fetched and built, which can take longer
+        // than the lease timeout (a large scene, a slow link).
+        let client = self.client.clone();
+        let renewing = renew_lease(&client, &lease.lease_id, self.heartbeat);
         let scene = tokio::select! {
             biased;
             _ = &mut *shutdown => None,
             s = self.scene(&lease) => Some(s),
+            // Never: it does not complete.
+            () = renewing => None,
         };
         let scene = match scene {
             None => {
@@ -609,27 +609,30 @@ async fn upload_result(
     stats: Arc<Stats>,
     retry: Retry,
 ) {
-    let beats = async {
-        loop {
-            tokio::time::sleep(retry.heartbeat).await;
-            let timeout = retry.heartbeat.max(Duration::from_secs(2));
-            match client.heartbeat(&to.lease, timeout).await {
-                Ok(reply) if reply.cancelled => {
-                    tracing::info!(
-                        job = %to.job, task = to.task,
-                        reason = reply.reason.as_deref().unwrap_or(""),
-                        "the lease of a result being uploaded ended"
-                    );
-                    return std::future::pending::<()>().await;
-                }
-                _ => {}
-            }
-        }
-    };
     let upload = upload_with_retries(&client, &to, bytes, &stats, retry);
     tokio::select! {
         () = upload => {}
-        () = beats => {}
+        () = renew_lease(&client, &to.lease, retry.heartbeat) => {}
+    }
+}
+
+/// Renews lease `lease` every `every` for as long as it is polled, until the coordinator says
+/// the lease is over (then it waits for ever: the caller's other work, which the coordinator
+/// answers itself, decides). Never completes.
+async fn renew_lease(client: &Client, lease: &str, every: Duration) {
+    loop {
+        tokio::time::sleep(every).await;
+        let timeout = every.max(Duration::from_secs(2));
+        if let Ok(reply) = client.heartbeat(lease, timeout).await {
+            if reply.cancelled {
+                tracing::info!(
+                    lease,
+                    reason = reply.reason.as_deref().unwrap_or(""),
+                    "the lease ended"
+                );
+                return std::future::pending::<()>().await;
+            }
+        }
     }
 }
 
