@@ -69,6 +69,16 @@ pub struct SchedConfig {
     pub block_worker_after: u32,
 }
 
+impl SchedConfig {
+    /// Expired leases of one task that fail its job: workers that die on a tile (out of
+    /// memory, a crash the worker cannot report) would otherwise take it, and die, for ever.
+    /// More than the failures a worker reports, since a network cut or a stopped machine
+    /// expires leases too: `max_task_failures` + 2, and at least 5.
+    pub fn max_task_expiries(&self) -> u32 {
+        (self.max_task_failures + 2).max(5)
+    }
+}
+
 /// A task given to a worker.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Grant {
@@ -1014,9 +1024,24 @@ impl Sched {
                 reason: format!("{n} leases expired"),
             });
         }
+        // Jobs with a task whose leases expired too often: the first such task of each.
+        let mut expiring: HashMap<String, String> = HashMap::new();
+        let limit = self.cfg.max_task_expiries();
         for (job_id, i, lease, task) in expired {
             self.leases.remove(&lease);
             if let Some(job) = self.jobs.get_mut(&job_id) {
+                if let Some(work) = job.work(i).filter(|_| task.expiries >= limit) {
+                    let t = work.tile;
+                    expiring.entry(job_id.clone()).or_insert_with(|| {
+                        format!(
+                            "tile [{}, {}) × [{}, {}) pass {}: its lease expired {} times, \
+                             the workers that took it having stopped answering (killed, \
+                             crashed, out of memory, or cut off from the coordinator): see \
+                             their logs",
+                            t.x0, t.x1, t.y0, t.y1, work.pass, task.expiries
+                        )
+                    });
+                }
                 job.set_task(i, task);
                 if let Some(work) = job.work(i).filter(|_| n <= events::RESYNC_OVER) {
                     self.events.emit(|| Event::TaskQueued {
@@ -1031,6 +1056,7 @@ impl Sched {
             tracing::info!(job = %job_id, task = i, "lease expired; task re-queued");
         }
         self.counters.expired += n as u64;
+
         // Leases of jobs that ended or were purged stop nothing any more: forget them (memory
         // only), keeping why for a heartbeat on one.
         let jobs = &self.jobs;
@@ -1051,22 +1077,41 @@ impl Sched {
         }
         // Jobs every live worker is blocked from (the last one blocked may have gone since).
         let block = self.cfg.block_worker_after;
-        let error = format!(
-            "every live worker failed this job {block} times, so none may take it any more"
-        );
+        let error = |j: &Job| {
+            let mut error = format!(
+                "every live worker failed this job {block} times, so none may take it any more"
+            );
+            // The cause, as the failure at a lease says it (the failures may be the memory's
+            // only: a restart keeps the counts, not the messages).
+            if let Some(f) = j.recent_failures.back() {
+                let t = f.tile;
+                error.push_str(&format!(
+                    "; last error, from worker {} on tile [{}, {}) × [{}, {}) pass {}: {}",
+                    f.worker, t.x0, t.x1, t.y0, t.y1, f.pass, f.error
+                ));
+            }
+            error
+        };
         #[allow(clippy::type_complexity)]
         let stuck: Vec<(String, JobLife, Vec<(usize, state::Task)>)> = self
             .jobs
             .values()
-            .filter(|j| !j.is_final() && !j.worker_failures.is_empty())
-            .filter(|j| {
-                self.workers
-                    .all_live_blocked(&j.worker_failures, block, now.wall_ms)
-            })
+            .filter(|j| !j.is_final())
             .filter_map(|j| {
-                let ev = JobEvent::Fail {
-                    error: error.clone(),
+                let error = match expiring.get(&j.id) {
+                    Some(e) => e.clone(),
+                    None if !j.worker_failures.is_empty()
+                        && self.workers.all_live_blocked(
+                            &j.worker_failures,
+                            block,
+                            now.wall_ms,
+                        ) =>
+                    {
+                        error(j)
+                    }
+                    None => return None,
                 };
+                let ev = JobEvent::Fail { error };
                 let life = j.next_life(ev, now.wall_ms)?;
                 Some((
                     j.id.clone(),
@@ -1087,7 +1132,7 @@ impl Sched {
         writes.extend(rows.iter().map(|(job, row)| Write::Task { job, row }));
         self.store.write(&writes)?;
         for (id, life, ended) in stuck {
-            tracing::warn!(job = %id, "failed: every live worker is blocked from it");
+            tracing::warn!(job = %id, error = life.error.as_deref().unwrap_or(""), "failed");
             self.events.emit(|| job_state_event(&id, &life));
             if let Some(job) = self.jobs.get_mut(&id) {
                 job.set_life(life);

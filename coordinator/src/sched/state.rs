@@ -39,6 +39,9 @@ pub struct Task {
     /// The worker that failed it last, while it waits for another (kept in memory only: after
     /// a restart any worker may take it).
     pub failed_by: Option<String>,
+    /// Leases of it that expired (their workers stopped answering: killed, crashed, cut off),
+    /// in memory only; too many fail the job (see `Sched::expire`).
+    pub expiries: u32,
 }
 
 impl Task {
@@ -48,6 +51,7 @@ impl Task {
             state: TaskState::Queued,
             failures: 0,
             failed_by: None,
+            expiries: 0,
         }
     }
 }
@@ -120,17 +124,22 @@ pub fn transition(task: &mut Task, ev: TaskEvent) -> Outcome {
         (Failed, TaskEvent::Retry) => {
             task.failures = 0;
             task.failed_by = None;
+            task.expiries = 0;
             Queued
         }
-        (Queued, TaskEvent::Retry) if task.failures > 0 || task.failed_by.is_some() => {
+        (Queued, TaskEvent::Retry)
+            if task.failures > 0 || task.failed_by.is_some() || task.expiries > 0 =>
+        {
             task.failures = 0;
             task.failed_by = None;
+            task.expiries = 0;
             Queued
         }
         (Done { .. }, TaskEvent::Lost) => {
             // A new start: the failures before its result are not held against it.
             task.failures = 0;
             task.failed_by = None;
+            task.expiries = 0;
             Queued
         }
         (Done { .. } | Failed, _) => return Outcome::Ignored,
@@ -164,7 +173,10 @@ pub fn transition(task: &mut Task, ev: TaskEvent) -> Outcome {
             }
         }
         (Leased { lease, .. }, TaskEvent::Release { lease: l }) if *lease == l => Queued,
-        (Leased { deadline, .. }, TaskEvent::Expire { now }) if *deadline <= now => Queued,
+        (Leased { deadline, .. }, TaskEvent::Expire { now }) if *deadline <= now => {
+            task.expiries += 1;
+            Queued
+        }
         _ => return Outcome::Ignored,
     };
     task.state = next;
@@ -382,6 +394,7 @@ mod tests {
             state: TaskState::Done { worker: "w".into() },
             failures: 2,
             failed_by: Some("v".into()),
+            expiries: 1,
         };
         assert_eq!(transition(&mut t, TaskEvent::Lost), Outcome::Changed);
         assert_eq!(t, Task::queued());
@@ -415,6 +428,7 @@ mod tests {
             state: TaskState::Failed,
             failures: 3,
             failed_by: Some("w".into()),
+            expiries: 2,
         };
         assert_eq!(transition(&mut t, TaskEvent::Retry), Outcome::Changed);
         assert_eq!(t, Task::queued());

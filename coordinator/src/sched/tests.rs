@@ -387,7 +387,13 @@ fn a_job_every_live_worker_is_blocked_from_fails_instead_of_waiting() {
     s.expire(later).unwrap();
     let j2 = s.job_status(&job2).unwrap();
     assert_eq!(j2.state, JobState::Failed);
-    assert!(j2.error.as_deref().unwrap().contains("every live worker"));
+    let err = j2.error.as_deref().unwrap();
+    assert!(err.contains("every live worker"), "{err}");
+    // With the cause, as a failure at a lease says it.
+    assert!(
+        err.contains("last error") && err.contains("no GPU"),
+        "{err}"
+    );
     // With no live worker at all, nothing is failed: workers may come back. Here a and b
     // are blocked while c may take the job; then nobody calls in for an hour.
     s.register("c", 1, later).unwrap();
@@ -547,6 +553,41 @@ fn a_restart_mends_job_states_their_tasks_contradict() {
     edit("UPDATE jobs SET state = 'exploded'");
     let s = open(dir.path(), t1.after(secs(100)));
     assert_eq!(state_of(&s, &job), JobState::Done);
+}
+
+/// A task whose workers keep vanishing while they hold it (killed or out of memory on its
+/// scene, where a worker cannot report a failure) fails its job after a few expiries, naming
+/// the tile, instead of being handed out for ever.
+#[test]
+fn a_task_whose_workers_keep_vanishing_fails_its_job() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut now = t0();
+    let mut s = open(dir.path(), now);
+    let job = s.new_job("s".into(), small(1), 0, now).unwrap().id;
+    let limit = cfg().max_task_expiries();
+    assert_eq!(limit, 5);
+    for n in 1..=limit {
+        let w = s.register(&format!("w{n}"), 1, now).unwrap();
+        let g = s.lease(&w, now).unwrap().unwrap();
+        assert_eq!(g.task, 0, "the task queued again is handed out first");
+        now = now.after(secs(100));
+        assert_eq!(s.expire(now).unwrap(), 1);
+        let want = if n < limit {
+            JobState::Running
+        } else {
+            JobState::Failed
+        };
+        assert_eq!(state_of(&s, &job), want, "after {n} expiries");
+    }
+    let err = s.job_status(&job).unwrap().error.unwrap();
+    assert!(err.contains("its lease expired 5 times"), "{err}");
+    // Retried, it starts over with no expiry held against it.
+    s.retry(&job, now).unwrap();
+    let w = s.register("again", 1, now).unwrap();
+    s.lease(&w, now).unwrap().unwrap();
+    now = now.after(secs(100));
+    s.expire(now).unwrap();
+    assert_eq!(state_of(&s, &job), JobState::Running);
 }
 
 #[test]
