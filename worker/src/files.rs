@@ -58,12 +58,14 @@ pub fn verify(dir: &Path, sha256: &str) -> bool {
 
 /// Checks at start that the cache folder `cache` can be written (a read-only one would fail
 /// every task the worker takes, and with them the jobs), and removes the folders that workers
-/// no longer running left half unpacked or half removed there (a kill in the middle): several
-/// workers may share the folder, so only those of processes that are gone (Linux, which tells
-/// by `/proc`; elsewhere they stay).
+/// left half unpacked or half removed there (a kill in the middle). Several workers may share
+/// the folder, on this host or (a network file system, containers) on others: only a folder
+/// of this naming, untouched for a day, whose process is not running here (Linux, where
+/// `/proc` tells) goes.
 pub fn prepare_cache(cache: &Path) -> anyhow::Result<()> {
     std::fs::create_dir_all(cache).with_context(|| format!("creating {}", cache.display()))?;
-    let probe = cache.join(format!(".write-check-{}", std::process::id()));
+    // Unique among workers sharing the folder (in containers every one may be process 1).
+    let probe = own_name(&cache.join(".write-check"), &format!("{:x}", nanos()));
     std::fs::write(&probe, b"")
         .and_then(|()| std::fs::remove_file(&probe))
         .with_context(|| {
@@ -73,23 +75,44 @@ pub fn prepare_cache(cache: &Path) -> anyhow::Result<()> {
                 cache.display()
             )
         })?;
-    if cfg!(target_os = "linux") {
-        for e in std::fs::read_dir(cache).into_iter().flatten().flatten() {
-            let name = e.file_name().to_string_lossy().into_owned();
-            let owner = ["partial", "discarded"].iter().find_map(|what| {
-                let (_, rest) = name.split_once(&format!(".{what}-"))?;
-                rest.split('-').next()?.parse::<u32>().ok()
-            });
-            let gone = owner.is_some_and(|pid| {
-                pid != std::process::id() && !Path::new("/proc").join(pid.to_string()).exists()
-            });
-            if gone {
-                tracing::info!(path = %e.path().display(), "removing a folder a stopped worker left");
-                let _ = std::fs::remove_dir_all(e.path());
-            }
+    if !(cfg!(target_os = "linux") && Path::new("/proc/self").exists()) {
+        return Ok(());
+    }
+    let day = std::time::Duration::from_secs(24 * 3600);
+    for e in std::fs::read_dir(cache).into_iter().flatten().flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let Some(pid) = left_by(&name) else { continue };
+        let old = e
+            .metadata()
+            .and_then(|m| m.modified())
+            .is_ok_and(|t| t.elapsed().is_ok_and(|age| age > day));
+        let running =
+            pid == std::process::id() || Path::new("/proc").join(pid.to_string()).exists();
+        if old && !running {
+            tracing::info!(path = %e.path().display(), "removing a folder a stopped worker left");
+            let _ = std::fs::remove_dir_all(e.path());
         }
     }
     Ok(())
+}
+
+/// The process that named a folder `SCENE.partial-PID-N` or `SCENE.discarded-PID-N`
+/// ([`own_name`]), where `SCENE` is a scene id.
+fn left_by(name: &str) -> Option<u32> {
+    let (scene, rest) = name.split_once('.')?;
+    let rest = rest
+        .strip_prefix("partial-")
+        .or_else(|| rest.strip_prefix("discarded-"))?;
+    let (pid, n) = rest.split_once('-')?;
+    let digits = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
+    (pkg::is_scene_id(scene) && digits(n)).then(|| pid.parse().ok())?
+}
+
+/// Nanoseconds of the system clock, to tell names apart.
+fn nanos() -> u128 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos())
 }
 
 /// Moves `dir` aside (one rename, so no process sees it half removed) and removes it. Nothing
@@ -188,16 +211,28 @@ mod tests {
         let (bytes, sha) = json_scene();
         let dir = cache.path().join(&sha);
         install(&dir, &bytes, pkg::SceneFormat::Json, "scene.json").unwrap();
-        // A pid no process has (above Linux's largest).
+        // A pid no process has (above Linux's largest), a day old: it goes; a day old but of
+        // this process, or new, or not named as a worker names them: they stay.
         let stale = cache.path().join(format!("{sha}.partial-4294967295-0"));
+        let fresh = cache.path().join(format!("{sha}.discarded-4294967295-1"));
         let mine = own_name(&dir, "partial");
-        for d in [&stale, &mine] {
+        let other = cache.path().join("notes.partial-4294967295-0");
+        let day_ago = std::time::SystemTime::now() - std::time::Duration::from_secs(25 * 3600);
+        for d in [&stale, &fresh, &mine, &other] {
             std::fs::create_dir_all(d.join("root")).unwrap();
+            if *d != fresh {
+                std::fs::File::open(d)
+                    .unwrap()
+                    .set_modified(day_ago)
+                    .unwrap();
+            }
         }
         prepare_cache(cache.path()).unwrap();
         assert!(verify(&dir, &sha), "the installed scene stays");
-        assert!(mine.exists(), "this process's own stays");
+        assert!(mine.exists() && fresh.exists() && other.exists());
         assert_eq!(!stale.exists(), cfg!(target_os = "linux"));
+        assert_eq!(left_by(&format!("{sha}.partial-12-3")), Some(12));
+        assert_eq!(left_by(&format!("{sha}.partial-12-")), None);
         // A cache folder that is a file cannot be written.
         let file = cache.path().join("a-file");
         std::fs::write(&file, b"").unwrap();

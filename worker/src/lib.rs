@@ -355,11 +355,21 @@ impl Worker {
             let d = dir.clone();
             tokio::task::spawn_blocking(move || files::discard(&d)).await?;
         }
+        // A coordinator out of reach is waited for; a download that keeps breaking (a proxy
+        // that cuts large answers) fails the task after a few tries, as a lease renewed
+        // meanwhile would otherwise hold the task for ever.
+        let mut broken = 0;
         let bytes = loop {
             match self.client.download_scene(&lease.scene).await {
                 Ok(b) => break b,
                 Err(e) if e.status().is_some() => return Err(anyhow!("scene download: {e}")),
-                Err(e) => self.pause(&format!("scene download: {e}")).await,
+                Err(e) if matches!(e, ClientError::Body(_)) && broken >= 4 => {
+                    return Err(anyhow!("scene download broke off 5 times: {e}"))
+                }
+                Err(e) => {
+                    broken += usize::from(matches!(e, ClientError::Body(_)));
+                    self.pause(&format!("scene download: {e}")).await
+                }
             }
         };
         let sha = pkg::sha256_hex(&bytes);
@@ -414,24 +424,43 @@ impl Worker {
         shutdown: &mut (impl Future<Output = ()> + Unpin),
     ) -> Flow {
         tracing::debug!(job = %lease.job, task = lease.task, "leased");
-        // The lease is renewed while the scene is fetched and built, which can take longer
-        // than the lease timeout (a large scene, a slow link).
+        let job = self.jobs.get(&lease.job).cloned();
+        // The scene, and the scene file whose folder a job's environment map is read from
+        // (like the scene's own files) when the job is new here.
+        let needs_map = job.is_none()
+            && matches!(
+                lease.settings.environment,
+                Some(raytile_core::EnvironmentChoice::Map(_))
+            );
         let client = self.client.clone();
-        let renewing = renew_lease(&client, &lease.lease_id, self.heartbeat);
-        let scene = tokio::select! {
-            biased;
-            _ = &mut *shutdown => None,
-            s = self.scene(&lease) => Some(s),
-            // Never: it does not complete.
-            () = renewing => None,
+        let heartbeat = self.heartbeat;
+        let load = async {
+            let scene = self.scene(&lease).await?;
+            let map_base = match needs_map {
+                true => Some(self.scene_file(&lease).await?),
+                false => None,
+            };
+            Ok::<_, anyhow::Error>((scene, map_base))
         };
-        let scene = match scene {
-            None => {
+        // The lease is renewed while the scene is fetched, checked and built, which can take
+        // longer than the lease timeout (a large scene, a slow link).
+        let renewing = renew_lease(&client, &lease.lease_id, heartbeat);
+        let loaded = tokio::select! {
+            biased;
+            _ = &mut *shutdown => {
                 self.release(&lease).await;
                 return Flow::Exit;
             }
-            Some(Ok(s)) => s,
-            Some(Err(e)) => {
+            r = load => r,
+            () = renewing => {
+                // The job was cancelled, or the task is another worker's now.
+                self.cfg.stats.cancelled.fetch_add(1, Ordering::Relaxed);
+                return Flow::Continue;
+            }
+        };
+        let (scene, map_base) = match loaded {
+            Ok(l) => l,
+            Err(e) => {
                 self.report_failure(&lease, format!("{e:#}")).await;
                 return Flow::Continue;
             }
@@ -442,20 +471,6 @@ impl Worker {
             lease.tile,
             lease.sample_start..lease.sample_end,
         );
-        let job = self.jobs.get(&lease.job).cloned();
-        // A job's environment map is a file of the scene's folder, read like the scene's own.
-        let map_base = match (&job, &settings.environment) {
-            (None, Some(raytile_core::EnvironmentChoice::Map(_))) => {
-                match self.scene_file(&lease).await {
-                    Ok(file) => Some(file),
-                    Err(e) => {
-                        self.report_failure(&lease, format!("{e:#}")).await;
-                        return Flow::Continue;
-                    }
-                }
-            }
-            _ => None,
-        };
         let limits = self.cfg.scene_limits;
         // Set when the coordinator says stop: the render returns within a fraction of a
         // second instead of keeping the render threads busy to the end of the tile.
@@ -610,15 +625,19 @@ async fn upload_result(
     retry: Retry,
 ) {
     let upload = upload_with_retries(&client, &to, bytes, &stats, retry);
+    // A lease that ended ends the heartbeats, not the upload.
+    let renewing = async {
+        renew_lease(&client, &to.lease, retry.heartbeat).await;
+        std::future::pending::<()>().await
+    };
     tokio::select! {
         () = upload => {}
-        () = renew_lease(&client, &to.lease, retry.heartbeat) => {}
+        () = renewing => {}
     }
 }
 
-/// Renews lease `lease` every `every` for as long as it is polled, until the coordinator says
-/// the lease is over (then it waits for ever: the caller's other work, which the coordinator
-/// answers itself, decides). Never completes.
+/// Renews lease `lease` every `every` for as long as it is polled; ends when the coordinator
+/// says the lease is over (the job was cancelled, or the task is another worker's now).
 async fn renew_lease(client: &Client, lease: &str, every: Duration) {
     loop {
         tokio::time::sleep(every).await;
@@ -630,7 +649,7 @@ async fn renew_lease(client: &Client, lease: &str, every: Duration) {
                     reason = reply.reason.as_deref().unwrap_or(""),
                     "the lease ended"
                 );
-                return std::future::pending::<()>().await;
+                return;
             }
         }
     }
