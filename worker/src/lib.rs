@@ -850,6 +850,17 @@ mod tests {
         }
     }
 
+    /// `n` answers of a coordinator that cannot write its store, then one taking the result.
+    fn busy_then_accepted(n: usize) -> Vec<(u16, &'static str)> {
+        let busy = r#"{"error": {"code": "store_unavailable", "message": "retry later", "retryable": true}}"#;
+        let mut answers = vec![(503, busy); n];
+        answers.push((
+            200,
+            r#"{"accepted": true, "duplicate": false, "job_finished": false}"#,
+        ));
+        answers
+    }
+
     const RETRY: Retry = Retry {
         max_backoff: Duration::from_millis(5),
         heartbeat: Duration::from_secs(3600),
@@ -860,16 +871,11 @@ mod tests {
     /// heartbeats, and the coordinator's answer to the upload has the last word.
     #[tokio::test]
     async fn a_result_waiting_to_be_taken_keeps_its_lease() {
-        let busy = r#"{"error": {"code": "store_unavailable", "message": "retry later", "retryable": true}}"#;
         let retry = Retry {
             max_backoff: Duration::from_millis(40),
             heartbeat: Duration::from_millis(10),
         };
-        let mut answers = vec![(503, busy); 12];
-        answers.push((
-            200,
-            r#"{"accepted": true, "duplicate": false, "job_finished": false}"#,
-        ));
+        let answers = busy_then_accepted(12);
         let (base, served, beats) = serve_beating(answers, r#"{"cancelled": false}"#).await;
         let stats = Arc::new(Stats::default());
         let client = Client::new(&base, None).unwrap();
@@ -886,11 +892,7 @@ mod tests {
 
         // A late result is still the coordinator's to take or refuse.
         let cancelled = r#"{"cancelled": true, "reason": "lease expired"}"#;
-        let mut answers = vec![(503, busy); 12];
-        answers.push((
-            200,
-            r#"{"accepted": true, "duplicate": false, "job_finished": false}"#,
-        ));
+        let answers = busy_then_accepted(12);
         let (base, served, beats) = serve_beating(answers, cancelled).await;
         let client = Client::new(&base, None).unwrap();
         let stats = Arc::new(Stats::default());
@@ -911,12 +913,7 @@ mod tests {
     /// the result and retries, past the cap on other server errors, until it is accepted.
     #[tokio::test]
     async fn result_uploads_outlast_a_coordinator_answering_503() {
-        let busy = r#"{"error": {"code": "store_unavailable", "message": "retry later", "retryable": true}}"#;
-        let mut answers = vec![(503, busy); UPLOAD_SERVER_ERRORS as usize + 2];
-        answers.push((
-            200,
-            r#"{"accepted": true, "duplicate": false, "job_finished": false}"#,
-        ));
+        let answers = busy_then_accepted(UPLOAD_SERVER_ERRORS as usize + 2);
         let (base, served) = serve(answers).await;
         let stats = Arc::new(Stats::default());
         let client = Client::new(&base, None).unwrap();
