@@ -875,38 +875,31 @@ mod tests {
             max_backoff: Duration::from_millis(40),
             heartbeat: Duration::from_millis(10),
         };
-        let answers = busy_then_accepted(12);
-        let (base, served, beats) = serve_beating(answers, r#"{"cancelled": false}"#).await;
-        let stats = Arc::new(Stats::default());
-        let client = Client::new(&base, None).unwrap();
-        let upload = upload_result(client, target(), vec![0; 64], stats.clone(), retry);
-        tokio::time::timeout(Duration::from_secs(20), upload)
-            .await
-            .expect("the upload gave up or hung");
-        assert_eq!(stats.accepted.load(Ordering::SeqCst), 1);
-        assert_eq!(served.load(Ordering::SeqCst), 13);
-        assert!(
-            beats.load(Ordering::SeqCst) >= 3,
-            "heartbeats while it waited"
-        );
+        // 12 answers of "cannot write", then the result taken, with heartbeats answered
+        // `beat`: (results accepted, uploads served, heartbeats).
+        let run = |beat: &'static str| async move {
+            let (base, served, beats) = serve_beating(busy_then_accepted(12), beat).await;
+            let stats = Arc::new(Stats::default());
+            let client = Client::new(&base, None).unwrap();
+            let upload = upload_result(client, target(), vec![0; 64], stats.clone(), retry);
+            tokio::time::timeout(Duration::from_secs(20), upload)
+                .await
+                .expect("the upload gave up or hung");
+            (
+                stats.accepted.load(Ordering::SeqCst),
+                served.load(Ordering::SeqCst),
+                beats.load(Ordering::SeqCst),
+            )
+        };
+        let (accepted, served, beats) = run(r#"{"cancelled": false}"#).await;
+        assert_eq!((accepted, served), (1, 13));
+        assert!(beats >= 3, "heartbeats while it waited");
 
         // A late result is still the coordinator's to take or refuse.
-        let cancelled = r#"{"cancelled": true, "reason": "lease expired"}"#;
-        let answers = busy_then_accepted(12);
-        let (base, served, beats) = serve_beating(answers, cancelled).await;
-        let client = Client::new(&base, None).unwrap();
-        let stats = Arc::new(Stats::default());
-        let upload = upload_result(client, target(), vec![0; 64], stats.clone(), retry);
-        tokio::time::timeout(Duration::from_secs(20), upload)
-            .await
-            .expect("the upload gave up or hung");
-        assert_eq!(stats.accepted.load(Ordering::SeqCst), 1);
-        assert_eq!(served.load(Ordering::SeqCst), 13);
-        assert_eq!(
-            beats.load(Ordering::SeqCst),
-            1,
-            "no heartbeats after the first 'no'"
-        );
+        let (accepted, served, beats) =
+            run(r#"{"cancelled": true, "reason": "lease expired"}"#).await;
+        assert_eq!((accepted, served), (1, 13));
+        assert_eq!(beats, 1, "no heartbeats after the first 'no'");
     }
 
     /// A coordinator that cannot write its database answers 503 for a while: the worker keeps
