@@ -8,11 +8,27 @@
 //! what was recorded (bit rot, an edit, an unpack that did not finish) is moved aside, then
 //! removed, and the scene fetched again: the files a frame is rendered from are always the
 //! package's.
+//!
+//! The cache is bounded (`--cache-max-mb`): after a scene is installed, the scenes used least
+//! recently go until the folder holds no more than the bound ([`trim`]). A scene's last use is
+//! the modification time of its `ok` file, set whenever a build reads it ([`mark_used`]), so
+//! processes sharing the folder see each other's uses. Scenes used in the last
+//! [`IN_USE`] stay whatever the bound (another process may be reading them), as does the
+//! scene just installed, however large.
 
 use anyhow::Context;
 use raytile_proto::scene as pkg;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, SystemTime};
+
+/// The disk cache's default bound (`--cache-max-mb`): 20 GiB.
+pub const DEFAULT_CACHE_MAX_BYTES: u64 = 20 << 30;
+
+/// A scene used this recently is not removed to make room: a worker sharing the folder may be
+/// building from it (a build reads its files for seconds to minutes; the built scene needs
+/// them no more).
+pub const IN_USE: Duration = Duration::from_secs(15 * 60);
 
 /// A name no other process or call uses, beside `dir`: `dir` with `what`, the process id and
 /// a counter as its extension.
@@ -113,6 +129,125 @@ fn nanos() -> u128 {
     std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_nanos())
+}
+
+/// Records that the scene folder `dir` was used now (its `ok` file's modification time), for
+/// [`trim`]'s order. Best effort: a folder that cannot be touched is only removed sooner.
+pub fn mark_used(dir: &Path) {
+    if let Ok(f) = std::fs::File::options().write(true).open(dir.join("ok")) {
+        let _ = f.set_modified(SystemTime::now());
+    }
+}
+
+/// A scene folder of the cache: its bytes on disk and when it was last used.
+struct Held {
+    dir: PathBuf,
+    bytes: u64,
+    used: SystemTime,
+}
+
+/// The bytes of the files under `path` (a file's own length when it is one; symbolic links are
+/// not followed).
+fn tree_bytes(path: &Path) -> u64 {
+    let mut total = 0;
+    let mut todo = vec![path.to_path_buf()];
+    while let Some(p) = todo.pop() {
+        let Ok(meta) = std::fs::symlink_metadata(&p) else {
+            continue;
+        };
+        if meta.is_dir() {
+            todo.extend(
+                std::fs::read_dir(&p)
+                    .into_iter()
+                    .flatten()
+                    .flatten()
+                    .map(|e| e.path()),
+            );
+        } else {
+            total += meta.len();
+        }
+    }
+    total
+}
+
+/// The scene folders in `cache` (named by a scene id), each with its size and last use.
+fn held(cache: &Path) -> Vec<Held> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(cache).into_iter().flatten().flatten() {
+        let name = e.file_name();
+        let is_scene = name.to_str().is_some_and(pkg::is_scene_id);
+        if !is_scene || !e.file_type().is_ok_and(|t| t.is_dir()) {
+            continue;
+        }
+        let dir = e.path();
+        let used = std::fs::metadata(dir.join("ok"))
+            .or_else(|_| std::fs::metadata(&dir))
+            .and_then(|m| m.modified())
+            .unwrap_or(SystemTime::UNIX_EPOCH);
+        out.push(Held {
+            bytes: tree_bytes(&dir),
+            dir,
+            used,
+        });
+    }
+    out
+}
+
+/// What [`trim`] did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Trimmed {
+    /// Scene folders removed.
+    pub removed: usize,
+    /// Their bytes.
+    pub freed: u64,
+    /// The bytes the scene folders hold after it.
+    pub held: u64,
+}
+
+/// Removes the least recently used scenes from `cache` until its scene folders hold at most
+/// `max_bytes`, sparing `keep` (the scene just installed) and scenes used within [`IN_USE`]:
+/// the bound may be exceeded while those alone exceed it.
+pub fn trim(cache: &Path, max_bytes: u64, keep: Option<&Path>) -> Trimmed {
+    let mut scenes = held(cache);
+    scenes.sort_by_key(|h| h.used);
+    let mut out = Trimmed {
+        held: scenes.iter().map(|h| h.bytes).sum(),
+        ..Trimmed::default()
+    };
+    let now = SystemTime::now();
+    for h in scenes {
+        if out.held <= max_bytes {
+            break;
+        }
+        let recent = now.duration_since(h.used).map_or(true, |age| age < IN_USE);
+        if recent || keep == Some(h.dir.as_path()) {
+            continue;
+        }
+        tracing::info!(
+            path = %h.dir.display(),
+            mib = h.bytes >> 20,
+            "removing the least recently used scene from the disk cache"
+        );
+        discard(&h.dir);
+        out.removed += 1;
+        out.freed += h.bytes;
+        out.held -= h.bytes;
+    }
+    out
+}
+
+/// Whether `e` comes from a full disk (or a full quota).
+pub fn disk_full(e: &anyhow::Error) -> bool {
+    let full = |io: &std::io::Error| {
+        matches!(
+            io.kind(),
+            std::io::ErrorKind::StorageFull | std::io::ErrorKind::QuotaExceeded
+        )
+    };
+    e.chain().any(|c| {
+        c.downcast_ref::<std::io::Error>().is_some_and(full)
+            || matches!(c.downcast_ref::<pkg::PackageError>(), Some(pkg::PackageError::Io(io)) if full(io))
+    })
 }
 
 /// Moves `dir` aside (one rename, so no process sees it half removed) and removes it. Nothing
@@ -241,6 +376,77 @@ mod tests {
             format!("{e:#}").contains(&file.display().to_string()),
             "{e:#}"
         );
+    }
+
+    /// The least recently used scenes go first, down to the bound; the scene just installed
+    /// and scenes used lately stay whatever the bound.
+    #[test]
+    fn the_cache_keeps_to_its_bound_least_recently_used_first() {
+        let cache = tempfile::tempdir().unwrap();
+        let hours_ago = |h: u64| SystemTime::now() - Duration::from_secs(h * 3600);
+        let scene = |n: usize, used: SystemTime| {
+            // Scenes of one size: the same length of JSON, another number.
+            let bytes = format!(r#"{{"objects": [], "n": {n:04}}}"#).into_bytes();
+            let dir = cache.path().join(pkg::sha256_hex(&bytes));
+            install(&dir, &bytes, pkg::SceneFormat::Json, "scene.json").unwrap();
+            std::fs::File::options()
+                .write(true)
+                .open(dir.join("ok"))
+                .unwrap()
+                .set_modified(used)
+                .unwrap();
+            dir
+        };
+        let (oldest, older, lately) = (
+            scene(1, hours_ago(3)),
+            scene(2, hours_ago(2)),
+            scene(3, hours_ago(0)),
+        );
+        let one = tree_bytes(&oldest);
+        assert!(one > 0);
+        assert_eq!(
+            tree_bytes(cache.path()),
+            3 * one,
+            "three scenes of one size"
+        );
+        // Room for two: the oldest goes.
+        let t = trim(cache.path(), 2 * one, None);
+        assert_eq!((t.removed, t.freed, t.held), (1, one, 2 * one));
+        assert!(!oldest.exists() && older.exists() && lately.exists());
+        // A use moves a scene to the back of the queue.
+        mark_used(&older);
+        let newest = scene(4, hours_ago(1));
+        let t = trim(cache.path(), one, Some(&newest));
+        // `newest` is kept as just installed, `older` and `lately` as used lately: over the
+        // bound, nothing to remove.
+        assert_eq!((t.removed, t.held), (0, 3 * one));
+        let t = trim(cache.path(), 0, None);
+        assert_eq!(
+            (t.removed, t.held),
+            (1, 2 * one),
+            "only the one not used lately"
+        );
+        assert!(!newest.exists() && older.exists() && lately.exists());
+        assert!(verify(&older, older.file_name().unwrap().to_str().unwrap()));
+        // Folders that are not scenes are neither counted nor removed.
+        std::fs::write(cache.path().join("notes.txt"), vec![0u8; 4 * one as usize]).unwrap();
+        assert_eq!(trim(cache.path(), 0, None).held, 2 * one);
+        assert!(cache.path().join("notes.txt").exists());
+    }
+
+    #[test]
+    fn a_full_disk_is_told_apart_from_other_failures() {
+        let full = std::io::Error::from(std::io::ErrorKind::StorageFull);
+        let e = anyhow::Error::from(full).context("writing the scene");
+        assert!(disk_full(&e));
+        let e = anyhow::Error::from(pkg::PackageError::Io(std::io::Error::from(
+            std::io::ErrorKind::QuotaExceeded,
+        )))
+        .context("unpacking");
+        assert!(disk_full(&e));
+        let e = anyhow::Error::from(std::io::Error::from(std::io::ErrorKind::PermissionDenied));
+        assert!(!disk_full(&e));
+        assert!(!disk_full(&anyhow::anyhow!("no space left on device")));
     }
 
     #[test]

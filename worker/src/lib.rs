@@ -12,6 +12,7 @@ mod cache;
 mod files;
 
 pub use cache::{SceneCache, DEFAULT_BUDGET as DEFAULT_SCENE_CACHE};
+pub use files::DEFAULT_CACHE_MAX_BYTES;
 
 use anyhow::{anyhow, Context};
 use raytile_core::{RenderJob, Scene, TileAccum};
@@ -59,6 +60,9 @@ pub struct Config {
     pub name: String,
     /// Where downloaded scenes are kept, by id.
     pub cache_dir: PathBuf,
+    /// Most bytes the scenes in `cache_dir` may hold (the least recently used go first; see
+    /// [`files::trim`]); `None`: no bound.
+    pub cache_max_bytes: Option<u64>,
     /// Built scenes kept between jobs; workers in one process may share one.
     pub scene_cache: Arc<SceneCache>,
     /// Bounds on loading a leased scene, which reads only files in its own folder.
@@ -80,6 +84,7 @@ impl Config {
             threads: 0,
             name: default_name(),
             cache_dir: std::env::temp_dir().join("raytile-worker-cache"),
+            cache_max_bytes: Some(files::DEFAULT_CACHE_MAX_BYTES),
             scene_cache: Arc::new(SceneCache::default()),
             scene_limits: SceneLoadLimits::default(),
             long_poll: Duration::from_secs(20),
@@ -181,6 +186,15 @@ pub async fn run(config: Config, shutdown: impl Future<Output = ()> + Send) -> a
             .context("creating the render thread pool")?,
     );
     files::prepare_cache(&config.cache_dir)?;
+    if let Some(max) = config.cache_max_bytes {
+        let t = files::trim(&config.cache_dir, max, None);
+        tracing::info!(
+            "disk cache {}: {} MiB of scenes (bound {} MiB)",
+            config.cache_dir.display(),
+            t.held >> 20,
+            max >> 20
+        );
+    }
     if let Some(problem) = raytile_proto::client::cert_store_problem() {
         tracing::warn!("{problem}: https:// coordinators are checked against the public CAs only");
     }
@@ -348,7 +362,15 @@ impl Worker {
         // again rather than rendered. Hashing costs a fraction of what building costs.
         if dir.exists() {
             let (d, sha) = (dir.clone(), lease.scene_sha256.clone());
-            if tokio::task::spawn_blocking(move || files::verify(&d, &sha)).await? {
+            let ok = tokio::task::spawn_blocking(move || {
+                let ok = files::verify(&d, &sha);
+                if ok {
+                    files::mark_used(&d);
+                }
+                ok
+            })
+            .await?;
+            if ok {
                 return Ok(entry);
             }
             tracing::warn!(scene = %lease.scene, "cached scene is incomplete or corrupt; downloading again");
@@ -383,9 +405,42 @@ impl Worker {
         let format = pkg::SceneFormat::from_name(&lease.scene_format)
             .ok_or_else(|| anyhow!("unknown scene format '{}'", lease.scene_format))?;
         let scene_entry = lease.scene_entry.clone();
-        let d = dir.clone();
-        tokio::task::spawn_blocking(move || files::install(&d, &bytes, format, &scene_entry))
-            .await??;
+        let (d, cache, max) = (
+            dir.clone(),
+            self.cfg.cache_dir.clone(),
+            self.cfg.cache_max_bytes,
+        );
+        tokio::task::spawn_blocking(move || {
+            let mut installed = files::install(&d, &bytes, format, &scene_entry);
+            // A full disk: the scenes not used lately make room, and the unpack is tried once
+            // more (a full disk is this machine's trouble, not the scene's).
+            if installed.as_ref().is_err_and(files::disk_full) {
+                let t = files::trim(&cache, 0, None);
+                if t.removed > 0 {
+                    tracing::warn!(
+                        "the cache disk is full: removed {} scenes ({} MiB) not used lately",
+                        t.removed,
+                        t.freed >> 20
+                    );
+                    installed = files::install(&d, &bytes, format, &scene_entry);
+                }
+            }
+            installed.map_err(|e| {
+                if files::disk_full(&e) {
+                    e.context(format!(
+                        "the worker's cache disk is full ({}); no scene there is old enough to remove",
+                        cache.display()
+                    ))
+                } else {
+                    e
+                }
+            })?;
+            if let Some(max) = max {
+                files::trim(&cache, max, Some(&d));
+            }
+            anyhow::Ok(())
+        })
+        .await??;
         Ok(entry)
     }
 

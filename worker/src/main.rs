@@ -31,6 +31,11 @@ struct Args {
     /// Scene cache folder.
     #[arg(long, env = "RAYTILE_CACHE_DIR")]
     cache_dir: Option<PathBuf>,
+    /// Most disk space the scene cache folder may take, in MiB: beyond it the scenes used
+    /// least recently are removed (those used in the last 15 minutes, by any worker sharing
+    /// the folder, stay). 0: no bound.
+    #[arg(long, env = "RAYTILE_CACHE_MAX_MB", default_value_t = raytile_worker::DEFAULT_CACHE_MAX_BYTES >> 20)]
+    cache_max_mb: u64,
     /// Memory for built scenes kept between jobs, in MiB: a second job on a scene starts at
     /// once. Beyond it, the least recently used scenes are dropped (the scene in use is kept,
     /// however large).
@@ -71,6 +76,7 @@ async fn main() {
     if let Some(d) = a.cache_dir {
         cfg.cache_dir = d;
     }
+    cfg.cache_max_bytes = (a.cache_max_mb > 0).then(|| a.cache_max_mb.saturating_mul(1 << 20));
     let budget = usize::try_from(a.scene_cache_mb.saturating_mul(1 << 20)).unwrap_or(usize::MAX);
     cfg.scene_cache = std::sync::Arc::new(raytile_worker::SceneCache::new(budget));
     cfg.scene_limits.max_memory = a.scene_memory_mb.saturating_mul(1 << 20);
