@@ -168,6 +168,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
             exposure: args.exposure,
             tonemap: args.tonemap,
         },
+        &film::Metadata::of_render(&settings, &film),
     )?;
     if film.bad_samples > 0 {
         eprintln!(

@@ -949,10 +949,10 @@ fn what_would_fail_after_the_render_is_refused_before_it() {
 fn cluster_removes_its_temporary_folder_on_sigterm() {
     let tmp = std::env::temp_dir().join(format!("raytile-cli-term-{}", std::process::id()));
     std::fs::create_dir_all(&tmp).unwrap();
-    let port = 20_000 + std::process::id() % 20_000;
+    // Any free port: a fixed one may be another program's.
     let mut child = raytile()
         .args(["cluster", "--workers", "1", "--threads", "1", "--listen"])
-        .arg(format!("127.0.0.1:{port}"))
+        .arg("127.0.0.1:0")
         .env("TMPDIR", &tmp)
         .env_remove("RAYTILE_TOKEN")
         .stderr(std::process::Stdio::null())

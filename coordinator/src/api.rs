@@ -689,14 +689,16 @@ async fn job_image(
         )
     })
     .await?;
-    let (layout, conn, results, etag) = {
+    let (layout, settings, conn, results, etag) = {
         let s = state.sched();
         // Looked up again: the job may have been purged, or have results more, since.
         let version = s.results_version(&id).ok_or_else(|| no_job(&id))?;
         let layout = s.layout(&id).ok_or_else(|| no_job(&id))?;
+        let settings = s.settings(&id).ok_or_else(|| no_job(&id))?;
         let conn = s.reader().map_err(AppError::internal)?;
         (
             layout,
+            settings,
             conn,
             s.results_dir(),
             images::entity_tag(&version, ext),
@@ -727,7 +729,7 @@ async fn job_image(
         lost.extend(refused);
         // The store's connection is not needed while the image is encoded.
         drop(conn);
-        let mut bytes = compose::encode(&film, format).map_err(AppError::internal)?;
+        let mut bytes = compose::encode(&film, format, &settings).map_err(AppError::internal)?;
         // Kept, the buffer should hold what is counted.
         bytes.shrink_to_fit();
         Ok((bytes, lost, film.bad_samples))

@@ -158,6 +158,11 @@ impl Sched {
         self.jobs.get(id).map(|j| j.layout.clone())
     }
 
+    /// The settings of job `id`.
+    pub fn settings(&self, id: &str) -> Option<raytile_proto::settings::RenderSettings> {
+        self.jobs.get(id).map(|j| j.settings.clone())
+    }
+
     /// Every registered worker at `now`, in registration order.
     pub fn worker_list(&self, now: Now) -> Vec<WorkerInfo> {
         let mut current: HashMap<&str, Vec<CurrentTask>> = HashMap::new();

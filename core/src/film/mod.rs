@@ -8,7 +8,10 @@ pub mod filter;
 pub mod output;
 
 pub use filter::FilterSampler;
-pub use output::{check_writable, encode, save, FilmError, ImageFormat, OutputOptions, ToneMap};
+pub use output::{
+    check_writable, encode, encode_with, save, FilmError, ImageFormat, Metadata, OutputOptions,
+    ToneMap,
+};
 
 /// Per-pixel sums of one tile over one range of samples (what a worker uploads, so the type is
 /// the wire crate's).

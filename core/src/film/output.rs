@@ -1,8 +1,8 @@
-//! Image output: linear OpenEXR and Radiance HDR, and tone-mapped 8-bit sRGB PNG.
+//! Image output: linear OpenEXR and Radiance HDR, and tone-mapped 8-bit sRGB PNG, each with
+//! what made it ([`Metadata`]) in its header.
 
 use super::Film;
 use crate::texture::linear_to_srgb;
-use image::{ExtendedColorType, ImageEncoder};
 use std::io::Cursor;
 use std::path::Path;
 
@@ -100,6 +100,79 @@ pub struct OutputOptions {
     pub tonemap: ToneMap,
 }
 
+/// How an image was made, written into its file beside the pixels: the software, and a JSON
+/// object under the key `raytile` (OpenEXR header attributes `software` and `raytile`; PNG
+/// `iTXt` chunks `Software` and `raytile`; Radiance header lines `SOFTWARE=` and `raytile=`).
+/// Made from the job alone (no date, no host), so one job's file has the same bytes whichever
+/// machines rendered it. One key, not several: the OpenEXR writer keeps other attributes in a
+/// hash map, whose order (and so the file's bytes) would change from one process to the next.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Metadata {
+    /// The software that made the image.
+    pub software: String,
+    /// The `raytile` JSON object (one line).
+    pub raytile: String,
+}
+
+impl Metadata {
+    /// What raytile writes with a render of `settings` summed in `film`: the program and
+    /// renderer version (`software`), and as JSON the renderer version (`render_version`), the
+    /// settings that decide the pixels (`settings`: the job's, after the scene's and the user's
+    /// were merged), the samples per pixel the film holds (`samples_per_pixel`: fewer than the
+    /// settings' in a preview of a job under way) and the samples dropped as NaN, infinite or
+    /// too large (`dropped_samples`).
+    ///
+    /// Left out, so that a job's file has the same bytes from `raytile render` and from any
+    /// farm: the tile size (scheduling only) and the folders of an environment map (its file
+    /// name stays: a farm names the map inside the scene's package, `raytile render` where it
+    /// lies).
+    pub fn of_render(settings: &crate::RenderSettings, film: &Film) -> Self {
+        use crate::settings::EnvironmentChoice;
+        let mut s = settings.clone();
+        if let Some(EnvironmentChoice::Map(path)) = &s.environment {
+            let name = path.rsplit(['/', '\\']).next().unwrap_or(path);
+            s.environment = Some(EnvironmentChoice::Map(name.to_string()));
+        }
+        let mut settings = serde_json::to_value(&s).unwrap_or_default();
+        if let Some(map) = settings.as_object_mut() {
+            map.remove("tile_size");
+        }
+        let pixels = (film.width as f64 * film.height as f64).max(1.0);
+        let raytile = serde_json::json!({
+            "render_version": crate::RENDER_VERSION,
+            "settings": settings,
+            "samples_per_pixel": film.samples / pixels,
+            "dropped_samples": film.bad_samples,
+        });
+        Metadata {
+            software: format!(
+                "raytile {} (render version {})",
+                env!("CARGO_PKG_VERSION"),
+                crate::RENDER_VERSION
+            ),
+            raytile: raytile.to_string(),
+        }
+    }
+
+    /// Whether there is nothing to write.
+    pub fn is_empty(&self) -> bool {
+        self.software.is_empty() && self.raytile.is_empty()
+    }
+
+    /// The Radiance header lines of the metadata (newlines in values as spaces).
+    fn hdr_lines(&self) -> String {
+        let line = |v: &str| v.replace(['\n', '\r'], " ");
+        let mut out = String::new();
+        if !self.software.is_empty() {
+            out += &format!("SOFTWARE={}\n", line(&self.software));
+        }
+        if !self.raytile.is_empty() {
+            out += &format!("raytile={}\n", line(&self.raytile));
+        }
+        out
+    }
+}
+
 /// Narkowicz's fit of the ACES film curve. Values above 10⁹ (where the curve has long been
 /// flat at one) are taken as 10⁹, so that x² cannot overflow to ∞/∞ = NaN and a very bright
 /// pixel comes out white, not black.
@@ -141,11 +214,21 @@ fn write_flat_hdr(
     out.write_all(&bytes)
 }
 
-/// Encodes the film in `format`.
+/// Encodes the film in `format`, without metadata.
 pub fn encode(
     film: &Film,
     format: ImageFormat,
     opts: &OutputOptions,
+) -> Result<Vec<u8>, FilmError> {
+    encode_with(film, format, opts, &Metadata::default())
+}
+
+/// Encodes the film in `format`, with `meta` in the file's header (none where it is empty).
+pub fn encode_with(
+    film: &Film,
+    format: ImageFormat,
+    opts: &OutputOptions,
+    meta: &Metadata,
 ) -> Result<Vec<u8>, FilmError> {
     let px = film.resolve();
     let (w, h) = (film.width, film.height);
@@ -163,8 +246,8 @@ pub fn encode(
             // from one encoding to the next. The same compression and tiles, in increasing
             // order (the exr crate sorts what its threads compress), are the same bytes always.
             use exr::prelude::{
-                Blocks, Compression, Encoding, Image, LineOrder, SpecificChannels, Vec2,
-                WritableImage,
+                AttributeValue, Blocks, Compression, Encoding, Image, Layer, LayerAttributes,
+                LineOrder, SpecificChannels, Text, Vec2, WritableImage,
             };
             let encoding = Encoding {
                 compression: Compression::RLE,
@@ -176,7 +259,19 @@ pub fn encode(
                 let [r, g, b] = px[at.y() * width + at.x()];
                 (r, g, b)
             });
-            Image::from_encoded_channels((width, h as usize), encoding, channels)
+            // OpenEXR's text is bytes; UTF-8 is what readers take it for.
+            let text = |v: &str| Text::from_slice_unchecked(v.as_bytes());
+            let mut attributes = LayerAttributes::default();
+            if !meta.software.is_empty() {
+                attributes.software_name = Some(text(&meta.software));
+            }
+            if !meta.raytile.is_empty() {
+                attributes
+                    .other
+                    .insert(text("raytile"), AttributeValue::Text(text(&meta.raytile)));
+            }
+            let layer = Layer::new((width, h as usize), attributes, encoding, channels);
+            Image::from_layer(layer)
                 .write()
                 .to_buffered(&mut out)
                 .map_err(|e| FilmError::Encode {
@@ -209,6 +304,13 @@ pub fn encode(
                     .encode(&data, w as usize, h as usize)
                     .map_err(err("HDR"))?;
             }
+            if !meta.is_empty() {
+                // Header lines go after the first (`#?RADIANCE`), before the blank line.
+                let mut bytes = out.into_inner();
+                let first = bytes.iter().position(|&b| b == b'\n').map_or(0, |i| i + 1);
+                bytes.splice(first..first, meta.hdr_lines().into_bytes());
+                out = Cursor::new(bytes);
+            }
         }
         ImageFormat::Png => {
             let scale = opts.exposure.exp2();
@@ -224,12 +326,37 @@ pub fn encode(
                     (linear_to_srgb(v) * 255.0 + 0.5) as u8
                 })
                 .collect();
-            image::codecs::png::PngEncoder::new(&mut out)
-                .write_image(&bytes, w, h, ExtendedColorType::Rgb8)
-                .map_err(err("PNG"))?;
+            write_png(&mut out, &bytes, w, h, meta).map_err(|e| FilmError::Encode {
+                format: "PNG",
+                message: e.to_string(),
+            })?;
         }
     }
     Ok(out.into_inner())
+}
+
+/// An 8-bit RGB PNG of `rgb`, marked sRGB (an `sRGB` chunk, with the `gAMA` and `cHRM` that
+/// readers without colour management use), with `meta` in `iTXt` chunks.
+fn write_png(
+    out: &mut impl std::io::Write,
+    rgb: &[u8],
+    w: u32,
+    h: u32,
+    meta: &Metadata,
+) -> Result<(), png::EncodingError> {
+    let mut enc = png::Encoder::new(out, w, h);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    enc.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
+    if !meta.software.is_empty() {
+        enc.add_itxt_chunk("Software".into(), meta.software.clone())?;
+    }
+    if !meta.raytile.is_empty() {
+        enc.add_itxt_chunk("raytile".into(), meta.raytile.clone())?;
+    }
+    let mut writer = enc.write_header()?;
+    writer.write_image_data(rgb)?;
+    writer.finish()
 }
 
 /// Checks, before a render, that its image can be written to `path`: not a folder, in a folder
@@ -262,10 +389,15 @@ pub fn check_writable(path: &Path) -> Result<(), FilmError> {
     Ok(())
 }
 
-/// Writes the film to `path`, the format chosen by its extension.
-pub fn save(film: &Film, path: &Path, opts: &OutputOptions) -> Result<(), FilmError> {
+/// Writes the film to `path`, the format chosen by its extension, with `meta` in its header.
+pub fn save(
+    film: &Film,
+    path: &Path,
+    opts: &OutputOptions,
+    meta: &Metadata,
+) -> Result<(), FilmError> {
     let format = ImageFormat::from_path(path)?;
-    let bytes = encode(film, format, opts)?;
+    let bytes = encode_with(film, format, opts, meta)?;
     std::fs::write(path, bytes).map_err(|source| FilmError::Io {
         path: path.display().to_string(),
         source,
@@ -288,6 +420,94 @@ mod tests {
     }
     use crate::{Tile, TileAccum};
     use rayon::prelude::*;
+
+    /// Every format carries the metadata in its header, readable by other readers, and the
+    /// pixels are those of the file without it; a PNG says it is sRGB.
+    #[test]
+    fn files_say_how_they_were_made() {
+        let f = film();
+        let settings = crate::RenderSettings {
+            spp: 4,
+            environment: Some(crate::EnvironmentChoice::Map(
+                "/far/away/maps/sky.hdr".into(),
+            )),
+            ..Default::default()
+        };
+        let meta = Metadata::of_render(&settings, &f);
+        assert!(meta.software.starts_with("raytile "), "{meta:?}");
+        let json: serde_json::Value = serde_json::from_str(&meta.raytile).unwrap();
+        assert_eq!(json["render_version"], crate::RENDER_VERSION);
+        assert_eq!(json["settings"]["spp"], 4);
+        assert_eq!(json["settings"]["environment"], "sky.hdr", "no folders");
+        assert!(
+            json["settings"].get("tile_size").is_none(),
+            "scheduling only"
+        );
+        assert_eq!(json["samples_per_pixel"], 1.0);
+        assert_eq!(json["dropped_samples"], 0);
+        // Another tile size or map folder: the same metadata (the same file bytes).
+        let other = crate::RenderSettings {
+            tile_size: 7,
+            environment: Some(crate::EnvironmentChoice::Map("environment/sky.hdr".into())),
+            ..settings.clone()
+        };
+        assert_eq!(Metadata::of_render(&other, &f), meta);
+
+        let opts = OutputOptions::default();
+        let png = encode_with(&f, ImageFormat::Png, &opts, &meta).unwrap();
+        let mut reader = png::Decoder::new(Cursor::new(&png)).read_info().unwrap();
+        let info = reader.info();
+        assert!(info.srgb.is_some(), "an sRGB chunk");
+        let texts: Vec<(String, String)> = info
+            .utf8_text
+            .iter()
+            .map(|t| (t.keyword.clone(), t.get_text().unwrap()))
+            .collect();
+        assert!(
+            texts.contains(&("Software".into(), meta.software.clone())),
+            "{texts:?}"
+        );
+        assert!(
+            texts.contains(&("raytile".into(), meta.raytile.clone())),
+            "{texts:?}"
+        );
+        let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+        reader.next_frame(&mut buf).unwrap();
+        let plain = image::load_from_memory(&encode(&f, ImageFormat::Png, &opts).unwrap())
+            .unwrap()
+            .to_rgb8();
+        assert_eq!(buf, plain.into_raw(), "the same pixels");
+
+        let exr = encode_with(&f, ImageFormat::Exr, &opts, &meta).unwrap();
+        let read = exr::meta::MetaData::read_from_buffered(Cursor::new(&exr), false).unwrap();
+        let attrs = &read.headers[0].own_attributes;
+        assert_eq!(
+            attrs.software_name.as_ref().map(|t| t.to_string()),
+            Some(meta.software.clone())
+        );
+        let key = exr::prelude::Text::from("raytile");
+        match attrs.other.get(&key) {
+            Some(exr::meta::attribute::AttributeValue::Text(t)) => {
+                assert_eq!(t.to_string(), meta.raytile)
+            }
+            other => panic!("{other:?}"),
+        }
+        let rgb = |bytes: &[u8]| {
+            image::load_from_memory(bytes)
+                .unwrap()
+                .to_rgb32f()
+                .into_raw()
+        };
+        let plain = encode(&f, ImageFormat::Exr, &opts).unwrap();
+        assert_eq!(rgb(&exr), rgb(&plain));
+
+        let hdr = encode_with(&f, ImageFormat::Hdr, &opts, &meta).unwrap();
+        let head = String::from_utf8_lossy(&hdr[..hdr.len().min(600)]).into_owned();
+        assert!(head.starts_with("#?RADIANCE\nSOFTWARE=raytile "), "{head}");
+        assert!(head.contains("\nraytile={\""), "{head}");
+        let plain = encode(&f, ImageFormat::Hdr, &opts).unwrap();
+        assert_eq!(rgb(&hdr), rgb(&plain));
+    }
 
     #[test]
     fn an_output_that_cannot_be_written_is_found_before_the_render() {
