@@ -184,6 +184,9 @@ pub struct Sched {
     gone: HashSet<String>,
     /// Why each lease forgotten with its job ended (memory only, bounded).
     ended_leases: HashMap<String, String>,
+    /// Leases that expired, by id: their job, task and worker, so that the worker's next
+    /// heartbeat can take the task back while nobody else has (memory only, bounded).
+    expired_leases: HashMap<String, (String, usize, String)>,
     events: Events,
 }
 
@@ -293,6 +296,7 @@ impl Sched {
             rates: HashMap::new(),
             gone: HashSet::new(),
             ended_leases: HashMap::new(),
+            expired_leases: HashMap::new(),
             events: Events::new(),
         };
         for (id, name, threads, registered_ms) in s.store.workers()? {
@@ -556,6 +560,9 @@ impl Sched {
     pub fn heartbeat(&mut self, lease: &str, now: Now) -> Heartbeat {
         let stop = |reason: String| Heartbeat::Stop { reason };
         let Some((job_id, idx)) = self.leases.get(lease).cloned() else {
+            if self.revive(lease, now) {
+                return Heartbeat::Renewed;
+            }
             let why = self.ended_leases.remove(lease);
             return stop(why.unwrap_or_else(|| "unknown or expired lease".into()));
         };
@@ -586,6 +593,59 @@ impl Sched {
             self.leases.remove(lease);
             stop("lease expired".into())
         }
+    }
+
+    /// Gives an expired lease back to its worker at its heartbeat, when the task still waits
+    /// for a worker: a worker stopped (SIGSTOP, a suspended machine) or cut off past its lease
+    /// goes on with the tile it has half rendered instead of dropping it, as long as nobody
+    /// else took it meanwhile. Not when the worker is gone from the register or blocked from
+    /// the job, nor when the job ended. Returns whether the lease lives again.
+    fn revive(&mut self, lease: &str, now: Now) -> bool {
+        let Some((job_id, idx, worker)) = self.expired_leases.get(lease).cloned() else {
+            return false;
+        };
+        let block = self.cfg.block_worker_after;
+        let Some(job) = self
+            .jobs
+            .get_mut(&job_id)
+            .filter(|j| !j.is_final() && j.failures_of(&worker) < block)
+        else {
+            return false;
+        };
+        if self.workers.touch(&worker, now.wall_ms).is_none() {
+            return false;
+        }
+        let ev = TaskEvent::Lease {
+            worker: worker.clone(),
+            lease: lease.into(),
+            deadline: now.instant + self.cfg.lease_timeout,
+        };
+        let (out, task) = job.next_task(idx, ev);
+        if out != Outcome::Changed {
+            return false;
+        }
+        let row = Job::task_row(idx, &task);
+        if let Err(e) = self.store.write(&[Write::Task {
+            job: &job_id,
+            row: &row,
+        }]) {
+            tracing::warn!(job = %job_id, task = idx, "an expired lease not renewed: {e}");
+            return false;
+        }
+        job.set_task(idx, task);
+        let work = job.work(idx).expect("a leased task is in the layout");
+        self.events.emit(|| Event::TaskLeased {
+            job: job_id.clone(),
+            task: idx as u32,
+            tile: work.tile,
+            pass: work.pass,
+            worker: worker.clone(),
+        });
+        tracing::info!(job = %job_id, task = idx, %worker, "expired lease renewed by its worker; nobody had taken the task");
+        self.expired_leases.remove(lease);
+        self.leases.insert(lease.into(), (job_id, idx));
+        self.counters.leased += 1;
+        true
     }
 
     /// Looks up a task for an upload: its tile and pass, to check the result against.
@@ -1004,13 +1064,14 @@ impl Sched {
             };
             let (out, task) = job.next_task(*idx, TaskEvent::Expire { now: now.instant });
             if out == Outcome::Changed {
-                expired.push((job_id.clone(), *idx, lease.clone(), task));
+                let worker = job.lease_of(*idx).map(|(w, _)| w.to_string());
+                expired.push((job_id.clone(), *idx, lease.clone(), task, worker));
             }
         }
         expired.sort_by(|a, b| (&a.0, a.1).cmp(&(&b.0, b.1)));
         let rows: Vec<TaskRow> = expired
             .iter()
-            .map(|(_, i, _, t)| Job::task_row(*i, t))
+            .map(|(_, i, _, t, _)| Job::task_row(*i, t))
             .collect();
         let writes: Vec<Write> = expired
             .iter()
@@ -1027,8 +1088,15 @@ impl Sched {
         // Jobs with a task whose leases expired too often: the first such task of each.
         let mut expiring: HashMap<String, String> = HashMap::new();
         let limit = self.cfg.max_task_expiries();
-        for (job_id, i, lease, task) in expired {
+        for (job_id, i, lease, task, worker) in expired {
             self.leases.remove(&lease);
+            if let Some(worker) = worker {
+                if self.expired_leases.len() >= ENDED_LEASES_KEPT {
+                    self.expired_leases.clear();
+                }
+                self.expired_leases
+                    .insert(lease.clone(), (job_id.clone(), i, worker));
+            }
             if let Some(job) = self.jobs.get_mut(&job_id) {
                 if let Some(work) = job.work(i).filter(|_| task.expiries >= limit) {
                     let t = work.tile;

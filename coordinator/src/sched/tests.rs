@@ -192,12 +192,13 @@ fn expired_leases_are_requeued_and_late_results_are_duplicates() {
     // Renewed at 5 s: still alive at 14 s, gone at 15 s.
     assert_eq!(s.expire(t0.after(secs(14))).unwrap(), 0);
     assert_eq!(s.expire(t0.after(secs(15))).unwrap(), 1);
+    let g2 = s.lease(&w2, t0.after(secs(15))).unwrap().unwrap();
+    assert_eq!(g.task, g2.task, "the expired task is leased again first");
+    // Taken by another: the first worker's heartbeat stops it.
     assert!(matches!(
         s.heartbeat(&g.lease, t0.after(secs(15))),
         Heartbeat::Stop { .. }
     ));
-    let g2 = s.lease(&w2, t0.after(secs(15))).unwrap().unwrap();
-    assert_eq!(g.task, g2.task, "the expired task is leased again first");
     let now = t0.after(secs(16));
     assert_eq!(
         deliver(&mut s, &job, g.task, &w2, now),
@@ -229,6 +230,64 @@ fn expired_leases_are_requeued_and_late_results_are_duplicates() {
         other.x0, other.x1, other.y0, other.y1, g.task, tile.x0, tile.x1, tile.y0, tile.y1
     );
     assert!(m.starts_with(&want), "{m}");
+}
+
+/// A worker stopped past its lease (SIGSTOP, a suspended laptop) takes its task back at its
+/// next heartbeat while nobody else has, and goes on; not once another took it, nor once it
+/// is blocked from the job or the job ended.
+#[test]
+fn an_expired_lease_comes_back_to_its_worker_while_nobody_took_the_task() {
+    let dir = tempfile::tempdir().unwrap();
+    let t0 = t0();
+    let mut s = open(dir.path(), t0);
+    let w1 = s.register("w1", 1, t0).unwrap();
+    let w2 = s.register("w2", 1, t0).unwrap();
+    let job = s.new_job("s".into(), small(1), 0, t0).unwrap().id;
+    let g = s.lease(&w1, t0).unwrap().unwrap();
+    assert_eq!(s.expire(t0.after(secs(10))).unwrap(), 1);
+    // Back: the same lease lives again, with a new deadline.
+    let back = t0.after(secs(30));
+    assert_eq!(s.heartbeat(&g.lease, back), Heartbeat::Renewed);
+    assert_eq!(s.expire(back.after(secs(9))).unwrap(), 0);
+    assert_eq!(
+        s.heartbeat(&g.lease, back.after(secs(9))),
+        Heartbeat::Renewed
+    );
+    // The other worker is given other tasks, not this one.
+    let g2 = s.lease(&w2, back).unwrap().unwrap();
+    assert_ne!(g2.task, g.task);
+    let now = back.after(secs(10));
+    assert_eq!(
+        deliver(&mut s, &job, g.task, &w1, now),
+        ResultOutcome::Accepted
+    );
+    assert_eq!(s.metrics(now).counters.expired, 1);
+
+    // Expired, then taken by the other worker: not given back.
+    let g3 = s.lease(&w1, now).unwrap().unwrap();
+    let later = now.after(secs(60));
+    s.heartbeat(&g2.lease, now.after(secs(55)));
+    assert_eq!(s.expire(later).unwrap(), 1, "w1's lease alone");
+    let g4 = s.lease(&w2, later).unwrap().unwrap();
+    assert_eq!(g4.task, g3.task);
+    assert!(matches!(
+        s.heartbeat(&g3.lease, later),
+        Heartbeat::Stop { .. }
+    ));
+
+    // Expired in a job that was cancelled since: not given back.
+    let job2 = s.new_job("s".into(), small(1), 0, later).unwrap().id;
+    let mut g5 = s.lease(&w1, later).unwrap().unwrap();
+    while g5.job != job2 {
+        g5 = s.lease(&w1, later).unwrap().unwrap();
+    }
+    let end = later.after(secs(100));
+    s.expire(end).unwrap();
+    s.cancel(&job2, end).unwrap();
+    assert!(matches!(
+        s.heartbeat(&g5.lease, end),
+        Heartbeat::Stop { .. }
+    ));
 }
 
 #[test]
@@ -792,13 +851,15 @@ fn a_failed_write_changes_nothing_and_the_retry_applies_once() {
     let g = s.lease(&w2, now).unwrap().unwrap();
     let late = now.after(secs(60));
     assert_eq!(with_one_fault(&mut s, dir.path(), |s| s.expire(late)), 1);
-    assert!(matches!(
-        s.heartbeat(&g.lease, late),
-        Heartbeat::Stop { .. }
-    ));
+    // Nobody took it since: its worker's heartbeat takes it back, and its result is in.
+    assert_eq!(s.heartbeat(&g.lease, late), Heartbeat::Renewed);
+    assert_eq!(
+        deliver(&mut s, &job, g.task, &w2, late),
+        ResultOutcome::Accepted
+    );
     // Finish the job: every task exactly once (the one w failed waits for w2, which may take
     // it).
-    let mut n = 1;
+    let mut n = 2;
     while finish(&mut s, &w, late).is_some() || finish(&mut s, &w2, late).is_some() {
         n += 1;
     }
