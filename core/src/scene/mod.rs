@@ -270,7 +270,14 @@ pub fn load_scene_with(path: &Path, files: &files::SceneFiles) -> Result<SceneDe
         Some("gltf") | Some("glb") => {
             gltf::load_gltf_files(path, &gltf::GltfOptions::default(), files)
         }
-        _ => Err(SceneError::UnknownFormat(path.to_path_buf())),
+        // A path that is not there is said so, whatever its name.
+        _ => Err(match std::fs::metadata(path) {
+            Err(source) if source.kind() == std::io::ErrorKind::NotFound => SceneError::Io {
+                path: path.to_path_buf(),
+                source,
+            },
+            _ => SceneError::UnknownFormat(path.to_path_buf()),
+        }),
     }?;
     // Here as well as in the build, so that a coordinator refuses such a scene when it is
     // submitted.
@@ -292,6 +299,21 @@ mod tests {
     use super::desc::*;
     use super::Scene;
     use glam::{Mat4, Vec3};
+
+    /// A path that is not there is said so, not taken for a file of an unknown format.
+    #[test]
+    fn a_missing_scene_is_said_missing() {
+        let dir = std::env::temp_dir().join(format!("raytile-missing-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let missing = dir.join("no-such-folder");
+        let e = super::load_scene(&missing).unwrap_err();
+        assert!(matches!(e, super::SceneError::Io { .. }), "{e}");
+        let other = dir.join("notes.txt");
+        std::fs::write(&other, "hello").unwrap();
+        let e = super::load_scene(&other).unwrap_err();
+        assert!(e.to_string().contains("unknown scene format"), "{e}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
 
     /// A grid of `n × n` quads (2 n² triangles), once or instanced twice.
     fn grid(n: u32, instances: usize) -> SceneDesc {
