@@ -181,15 +181,14 @@ impl ScenePack {
         let name = match inside {
             Some(rel) => rel,
             None => {
-                let file = canonical
-                    .file_name()
-                    .and_then(|n| n.to_str())
-                    .ok_or_else(|| {
-                        anyhow!(
-                            "--environment {}: the file name is not UTF-8",
-                            map.display()
-                        )
-                    })?;
+                // The name as given (a link keeps its own): the image's metadata names the map
+                // by it, as `raytile render`'s does.
+                let file = map.file_name().and_then(|n| n.to_str()).ok_or_else(|| {
+                    anyhow!(
+                        "--environment {}: the file name is not UTF-8",
+                        map.display()
+                    )
+                })?;
                 format!("environment/{file}")
             }
         };

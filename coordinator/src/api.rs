@@ -323,8 +323,13 @@ async fn metrics(State(state): State<AppState>) -> Response {
         ),
         (
             "raytile_tiles_duplicate_total",
-            "Duplicate or late results ignored.",
+            "Results ignored because their task was done already (late or repeated uploads).",
             c.duplicates,
+        ),
+        (
+            "raytile_tiles_for_ended_jobs_total",
+            "Results ignored because their job was cancelled or had failed.",
+            c.for_ended_jobs,
         ),
         ("raytile_samples_total", "Samples accepted.", c.samples),
         (
@@ -1172,7 +1177,7 @@ async fn upload_result(
     // (the answer does not depend on it, and a worker expects its whole body to be read).
     if let Some(outcome) = settled {
         drain(body, limit).await?;
-        state.sched().count_duplicate();
+        state.sched().count_duplicate(outcome);
         return Ok(Json(reply(outcome)));
     }
     // The size is known from the task: read at most that much.

@@ -835,13 +835,14 @@ mod api {
         let fast = Fake::register(&c.base, "fast").await;
         let l1 = slow.lease().await.unwrap();
         tokio::time::sleep(Duration::from_millis(800)).await;
-        assert!(slow.heartbeat(&l1).await.cancelled, "lease expired");
         let l2 = fast.lease().await.unwrap();
         assert_eq!(
             (l2.job.clone(), l2.task),
             (l1.job.clone(), l1.task),
             "re-queued task first"
         );
+        // Expired and taken by another: the first holder's heartbeat stops it.
+        assert!(slow.heartbeat(&l1).await.cancelled, "lease expired");
         let (code, body) = fast.upload(&l2).await;
         assert_eq!((code, body["accepted"].as_bool()), (200, Some(true)));
         let (code, body) = slow.upload(&l1).await;

@@ -131,12 +131,55 @@ fn nanos() -> u128 {
         .map_or(0, |d| d.as_nanos())
 }
 
-/// Records that the scene folder `dir` was used now (its `ok` file's modification time), for
-/// [`trim`]'s order. Best effort: a folder that cannot be touched is only removed sooner.
-pub fn mark_used(dir: &Path) {
-    if let Ok(f) = std::fs::File::options().write(true).open(dir.join("ok")) {
-        let _ = f.set_modified(SystemTime::now());
+/// Sets the modification time of `path` to the file system's "now": `futimens(UTIME_NOW)`,
+/// which any user who may write the file may do (an explicit time needs its owner) and which
+/// takes the server's clock on a network file system.
+fn touch(path: &Path) -> std::io::Result<()> {
+    let f = std::fs::File::options().write(true).open(path)?;
+    #[cfg(unix)]
+    {
+        use std::os::fd::AsRawFd;
+        let now = libc::timespec {
+            tv_sec: 0,
+            tv_nsec: libc::UTIME_NOW,
+        };
+        // SAFETY: a valid open descriptor and two initialised timespecs.
+        if unsafe { libc::futimens(f.as_raw_fd(), [now, now].as_ptr()) } != 0 {
+            return Err(std::io::Error::last_os_error());
+        }
+        Ok(())
     }
+    #[cfg(not(unix))]
+    f.set_modified(SystemTime::now())
+}
+
+/// Records that the scene folder `dir` is being used now (its `ok` file's modification time),
+/// for [`trim`]'s order and its sparing of scenes in use. Best effort: a folder that cannot be
+/// touched is only removed sooner.
+pub fn mark_used(dir: &Path) {
+    let _ = touch(&dir.join("ok"));
+}
+
+/// The cache folder's clock: the modification time of a file touched in it now (on a network
+/// file system the server's, which the scenes' use times come from too), or this host's.
+fn cache_now(cache: &Path) -> SystemTime {
+    let clock = cache.join(".clock");
+    let _ = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&clock);
+    touch(&clock)
+        .and_then(|()| std::fs::metadata(&clock)?.modified())
+        .unwrap_or_else(|_| SystemTime::now())
+}
+
+/// When the scene folder `dir` was last used: its `ok` file's modification time, else the
+/// folder's, else long ago.
+fn last_use(dir: &Path) -> SystemTime {
+    std::fs::metadata(dir.join("ok"))
+        .or_else(|_| std::fs::metadata(dir))
+        .and_then(|m| m.modified())
+        .unwrap_or(SystemTime::UNIX_EPOCH)
 }
 
 /// A scene folder of the cache: its bytes on disk and when it was last used.
@@ -180,10 +223,7 @@ fn held(cache: &Path) -> Vec<Held> {
             continue;
         }
         let dir = e.path();
-        let used = std::fs::metadata(dir.join("ok"))
-            .or_else(|_| std::fs::metadata(&dir))
-            .and_then(|m| m.modified())
-            .unwrap_or(SystemTime::UNIX_EPOCH);
+        let used = last_use(&dir);
         out.push(Held {
             bytes: tree_bytes(&dir),
             dir,
@@ -214,13 +254,15 @@ pub fn trim(cache: &Path, max_bytes: u64, keep: Option<&Path>) -> Trimmed {
         held: scenes.iter().map(|h| h.bytes).sum(),
         ..Trimmed::default()
     };
-    let now = SystemTime::now();
+    let now = cache_now(cache);
+    let recent = |used: SystemTime| now.duration_since(used).map_or(true, |age| age < IN_USE);
     for h in scenes {
         if out.held <= max_bytes {
             break;
         }
-        let recent = now.duration_since(h.used).map_or(true, |age| age < IN_USE);
-        if recent || keep == Some(h.dir.as_path()) {
+        // Looked at again just before: another process may have begun to use it since the
+        // list was made (removing scenes can take a while).
+        if recent(h.used) || keep == Some(h.dir.as_path()) || recent(last_use(&h.dir)) {
             continue;
         }
         tracing::info!(

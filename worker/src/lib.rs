@@ -363,11 +363,10 @@ impl Worker {
         if dir.exists() {
             let (d, sha) = (dir.clone(), lease.scene_sha256.clone());
             let ok = tokio::task::spawn_blocking(move || {
-                let ok = files::verify(&d, &sha);
-                if ok {
-                    files::mark_used(&d);
-                }
-                ok
+                // Marked first: a worker sharing the cache must not remove it while this one
+                // checks and builds from it.
+                files::mark_used(&d);
+                files::verify(&d, &sha)
             })
             .await?;
             if ok {
@@ -428,8 +427,10 @@ impl Worker {
             installed.map_err(|e| {
                 if files::disk_full(&e) {
                     e.context(format!(
-                        "the worker's cache disk is full ({}); no scene there is old enough to remove",
-                        cache.display()
+                        "the worker's cache disk is full ({}), even without the scenes not \
+                         used in the last {} minutes",
+                        cache.display(),
+                        files::IN_USE.as_secs() / 60
                     ))
                 } else {
                     e

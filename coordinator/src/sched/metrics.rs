@@ -16,8 +16,10 @@ pub struct Counters {
     pub expired: u64,
     /// Failures reported.
     pub failed: u64,
-    /// Duplicate or late results ignored.
+    /// Results ignored because their task was done already.
     pub duplicates: u64,
+    /// Results ignored because their job was cancelled or had failed.
+    pub for_ended_jobs: u64,
     /// Samples accepted.
     pub samples: u64,
 }

@@ -124,7 +124,7 @@ pub enum Heartbeat {
 }
 
 /// What a result upload did.
-#[derive(Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ResultOutcome {
     /// Stored.
     Accepted,
@@ -682,8 +682,16 @@ impl Sched {
     }
 
     /// Counts a result that came for a task already settled ([`Sched::settled`]).
-    pub fn count_duplicate(&mut self) {
-        self.counters.duplicates += 1;
+    pub fn count_duplicate(&mut self, outcome: ResultOutcome) {
+        self.count_ignored(outcome);
+    }
+
+    /// Counts a result ignored with `outcome`: a duplicate, or one for a job that ended.
+    fn count_ignored(&mut self, outcome: ResultOutcome) {
+        match outcome {
+            ResultOutcome::JobFinished => self.counters.for_ended_jobs += 1,
+            _ => self.counters.duplicates += 1,
+        }
     }
 
     /// Whether `lease` is an id this coordinator gave, at this start or an earlier one, for
@@ -745,12 +753,13 @@ impl Sched {
             )));
         }
         if job.is_final() {
-            self.counters.duplicates += 1;
-            return Ok(if job.life().state == JobState::Done {
+            let outcome = if job.life().state == JobState::Done {
                 ResultOutcome::Duplicate
             } else {
                 ResultOutcome::JobFinished
-            });
+            };
+            self.count_ignored(outcome);
+            return Ok(outcome);
         }
         let ev = TaskEvent::Complete {
             worker: d.worker.into(),
@@ -762,7 +771,10 @@ impl Sched {
                 self.counters.duplicates += 1;
                 return Ok(ResultOutcome::Duplicate);
             }
-            Outcome::Ignored => return Ok(ResultOutcome::JobFinished),
+            Outcome::Ignored => {
+                self.counters.for_ended_jobs += 1;
+                return Ok(ResultOutcome::JobFinished);
+            }
         }
         let finished = if job.all_done_but(i) {
             job.next_life(JobEvent::Finish, now.wall_ms)
@@ -779,7 +791,14 @@ impl Sched {
         writes.extend(finished.as_ref().map(|l| life_write(job_id, l)));
         // Stored first: if this fails, nothing changed and the worker's retry is accepted.
         self.store.write(&writes)?;
-        if let Some((_, lease)) = job.lease_of(i) {
+        if let Some((holder, lease)) = job.lease_of(i) {
+            if holder != d.worker {
+                // Its holder learns why at its next heartbeat.
+                self.ended_leases.insert(
+                    lease.to_string(),
+                    "task done: another worker's result for it came first".into(),
+                );
+            }
             self.leases.remove(lease);
         }
         job.set_task(i, task);
@@ -1311,6 +1330,9 @@ impl Sched {
             }
             j != job_id
         });
+        // Nor may a lease that expired before: its worker's heartbeat would take back a task
+        // of the job's new life (whose expiries start again from zero).
+        self.expired_leases.retain(|_, (j, ..)| j != job_id);
         let requeued: Vec<usize> = changed
             .iter()
             .filter(|(i, _)| job.tasks()[*i].state == state::TaskState::Failed)

@@ -288,6 +288,36 @@ fn an_expired_lease_comes_back_to_its_worker_while_nobody_took_the_task() {
         s.heartbeat(&g5.lease, end),
         Heartbeat::Stop { .. }
     ));
+    // Nor after the job was retried: the old lease belongs to the job's former life.
+    s.retry(&job2, end).unwrap();
+    assert!(matches!(
+        s.heartbeat(&g5.lease, end),
+        Heartbeat::Stop { .. }
+    ));
+
+    // Expired while its worker got itself blocked from the job: not given back.
+    let job3 = s.new_job("s".into(), small(1), 0, end).unwrap().id;
+    let w3 = s.register("w3", 1, end).unwrap();
+    // Another live worker, so that the job is not failed as one every live worker is blocked
+    // from.
+    s.register("w4", 1, end).unwrap();
+    let mut mine = Vec::new();
+    while mine.len() < 3 {
+        let g = s.lease(&w3, end).unwrap().unwrap();
+        if g.job == job3 {
+            mine.push(g);
+        }
+    }
+    for g in &mine[1..] {
+        assert!(s.fail(&g.lease, "broken", end).unwrap());
+    }
+    let last = end.after(secs(20));
+    s.expire(last).unwrap();
+    assert!(matches!(
+        s.heartbeat(&mine[0].lease, last),
+        Heartbeat::Stop { .. }
+    ));
+    assert!(!s.job_status(&job3).unwrap().state.is_final());
 }
 
 #[test]

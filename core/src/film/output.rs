@@ -347,7 +347,32 @@ fn write_png(
     let mut enc = png::Encoder::new(out, w, h);
     enc.set_color(png::ColorType::Rgb);
     enc.set_depth(png::BitDepth::Eight);
+    // What the image crate's encoder used: fast deflate, adaptive filters (and no dependence
+    // on which zlib backend the build links).
+    enc.set_compression(png::Compression::Fast);
+    enc.set_filter(png::Filter::Adaptive);
     enc.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
+    // The fallback for readers without colour management: the png crate writes gAMA and cHRM
+    // beside sRGB only when they hold exactly sRGB's values (PNG 1.2, 11.3.3.5).
+    enc.set_source_gamma(png::ScaledFloat::from_scaled(45_455));
+    enc.set_source_chromaticities(png::SourceChromaticities {
+        white: (
+            png::ScaledFloat::from_scaled(31_270),
+            png::ScaledFloat::from_scaled(32_900),
+        ),
+        red: (
+            png::ScaledFloat::from_scaled(64_000),
+            png::ScaledFloat::from_scaled(33_000),
+        ),
+        green: (
+            png::ScaledFloat::from_scaled(30_000),
+            png::ScaledFloat::from_scaled(60_000),
+        ),
+        blue: (
+            png::ScaledFloat::from_scaled(15_000),
+            png::ScaledFloat::from_scaled(6_000),
+        ),
+    });
     if !meta.software.is_empty() {
         enc.add_itxt_chunk("Software".into(), meta.software.clone())?;
     }
@@ -458,6 +483,12 @@ mod tests {
         let mut reader = png::Decoder::new(Cursor::new(&png)).read_info().unwrap();
         let info = reader.info();
         assert!(info.srgb.is_some(), "an sRGB chunk");
+        assert_eq!(
+            info.gama_chunk.map(|g| g.into_scaled()),
+            Some(45_455),
+            "a gAMA chunk"
+        );
+        assert!(info.chrm_chunk.is_some(), "a cHRM chunk");
         let texts: Vec<(String, String)> = info
             .utf8_text
             .iter()
