@@ -445,6 +445,18 @@ impl Worker {
         Ok(entry)
     }
 
+    /// Whether the cached files of `lease`'s scene are still those recorded when they were
+    /// unpacked.
+    async fn cached_scene_intact(&self, lease: &proto::Lease) -> bool {
+        let (d, sha) = (
+            self.cfg.cache_dir.join(&lease.scene),
+            lease.scene_sha256.clone(),
+        );
+        tokio::task::spawn_blocking(move || files::verify(&d, &sha))
+            .await
+            .unwrap_or(false)
+    }
+
     /// The built scene of `lease`: from the scene cache, or downloaded and built on the
     /// render pool (off the async threads).
     async fn scene(&mut self, lease: &proto::Lease) -> Result<Arc<Scene>, anyhow::Error> {
@@ -453,15 +465,28 @@ impl Worker {
         let cache = self.cfg.scene_cache.clone();
         cache
             .get_or_build(&key, || async {
-                let file = self.scene_file(lease).await?;
-                let pool = self.pool.clone();
-                let limits = self.cfg.scene_limits;
                 let t = std::time::Instant::now();
-                let scene = tokio::task::spawn_blocking(move || {
-                    pool.install(|| load_and_build(&file, limits))
-                })
-                .await
-                .map_err(|e| anyhow!("scene build task: {e}"))??;
+                let mut tries = 0;
+                let scene = loop {
+                    tries += 1;
+                    let file = self.scene_file(lease).await?;
+                    let pool = self.pool.clone();
+                    let limits = self.cfg.scene_limits;
+                    let built = tokio::task::spawn_blocking(move || {
+                        pool.install(|| load_and_build(&file, limits))
+                    })
+                    .await
+                    .map_err(|e| anyhow!("scene build task: {e}"))?;
+                    match built {
+                        Ok(scene) => break scene,
+                        // Files changed or removed under the build (a worker sharing the cache
+                        // removed the scene, a disk fault): once more, from a fresh copy.
+                        Err(e) if tries == 1 && !self.cached_scene_intact(lease).await => {
+                            tracing::warn!(scene = %lease.scene, "the cached scene changed while it was built ({e:#}); fetching it again");
+                        }
+                        Err(e) => return Err(e),
+                    }
+                };
                 self.cfg.stats.scene_builds.fetch_add(1, Ordering::Relaxed);
                 tracing::info!(
                     scene = %lease.scene,
