@@ -467,10 +467,56 @@ async fn create_job(
     Ok((StatusCode::CREATED, Json(status)).into_response())
 }
 
-async fn list_jobs(State(state): State<AppState>) -> Json<proto::JobList> {
-    Json(proto::JobList {
-        jobs: state.sched().job_list(),
-    })
+/// Query of `GET /v1/jobs`; without parameters, every job.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ListQuery {
+    /// Only jobs in these states, comma-separated.
+    state: Option<String>,
+    /// Only jobs submitted after this one (a job id: the `next` of the page before).
+    after: Option<String>,
+    /// At most this many jobs (at least 1).
+    limit: Option<usize>,
+}
+
+async fn list_jobs(
+    State(state): State<AppState>,
+    Query(q): Query<ListQuery>,
+) -> Result<Json<proto::JobList>, AppError> {
+    let states = match q.state.as_deref() {
+        None => Vec::new(),
+        Some(list) => list
+            .split(',')
+            .map(|name| {
+                proto::JobState::from_name(name.trim()).ok_or_else(|| {
+                    let names: Vec<&str> = proto::JobState::ALL.iter().map(|s| s.name()).collect();
+                    AppError::invalid(
+                        "state",
+                        format!("unknown job state '{name}' (expected {})", names.join(", ")),
+                    )
+                })
+            })
+            .collect::<Result<_, _>>()?,
+    };
+    // A job id is `job-SEQ-EPOCH`: the sequence number orders the list, and a page goes on
+    // after a job that was purged meanwhile.
+    let after = match q.after.as_deref() {
+        None => 0,
+        Some(id) => id
+            .strip_prefix("job-")
+            .and_then(|rest| rest.split('-').next())
+            .and_then(|seq| seq.parse::<u64>().ok())
+            .ok_or_else(|| {
+                AppError::invalid("after", format!("'{id}' is not a job id (job-N-EPOCH)"))
+            })?,
+    };
+    let limit = match q.limit {
+        Some(0) => return Err(AppError::invalid("limit", "must be at least 1")),
+        Some(n) => n,
+        None => usize::MAX,
+    };
+    let (jobs, next) = state.sched().job_page(&states, after, limit);
+    Ok(Json(proto::JobList { jobs, next }))
 }
 
 fn no_job(id: &str) -> AppError {

@@ -153,7 +153,8 @@ fn schemas() -> Value {
                 "workers": {"type": "array", "description": "Workers holding a lease on one of the tile's passes", "items": {"type": "string"}}}}}}},
         "PriorityRequest": {"type": "object", "required": ["priority"], "additionalProperties": false, "properties": {
             "priority": {"type": "integer", "minimum": i32::MIN, "maximum": i32::MAX}}},
-        "JobList": {"type": "object", "required": ["jobs"], "properties": {"jobs": {"type": "array", "items": {"$ref": "#/components/schemas/JobStatus"}}}},
+        "JobList": {"type": "object", "required": ["jobs"], "properties": {"jobs": {"type": "array", "items": {"$ref": "#/components/schemas/JobStatus"}},
+            "next": {"type": "string", "description": "When limit left jobs out: pass it as after= for the next page"}}},
         "RegisterRequest": {"type": "object", "required": ["name", "threads"], "properties": {
             "name": {"type": "string", "minLength": 1, "maxLength": 256}, "threads": u32_in(0, u32::MAX),
             "render_version": {"description": "the worker's renderer version; a mismatch with the coordinator's is refused with 409", "type": "integer", "minimum": 0, "maximum": u32::MAX, "example": raytile_core::RENDER_VERSION}}},
@@ -237,7 +238,12 @@ pub fn document() -> Value {
                     json!({"201": ok_json("Created", "JobStatus"),
                         "422": err("Invalid settings, a setting over this coordinator's limits, a camera the scene does not have, or an unknown scene (field named)"),
                         "429": err("Too many unfinished jobs")}))),
-                "get": op("List jobs", json!([]), none, json!({"200": ok_json("Jobs", "JobList")}))},
+                "get": op("List jobs, oldest first: every job, or a page of those in some states",
+                    json!([{"name": "state", "in": "query", "schema": {"type": "string"}, "description": "Only jobs in these states, comma-separated (queued, running, done, failed, cancelled)"},
+                        {"name": "after", "in": "query", "schema": {"type": "string"}, "description": "Only jobs submitted after this one: the next of the page before"},
+                        {"name": "limit", "in": "query", "schema": {"type": "integer", "minimum": 1}, "description": "At most this many jobs; next names where the page ended"}]),
+                    params,
+                    json!({"200": ok_json("Jobs", "JobList"), "422": err("An unknown state, an after that is not a job id, or a limit of 0 (field named)")}))},
             "/v1/jobs/{id}": {
                 "get": op("Job status", json!([job_id]), params,
                     json!({"200": ok_json("Job", "JobStatus"), "404": err("Unknown job")})),

@@ -35,6 +35,69 @@ async fn delete_with_purge_removes_the_job_from_the_api() {
     assert_eq!(call(&st, del("?purge=true")).await.0, StatusCode::NOT_FOUND);
 }
 
+/// `GET /v1/jobs` lists every job, or pages of those in some states; a page goes on after a
+/// job purged meanwhile, and a wrong parameter is an error naming it.
+#[tokio::test]
+async fn the_job_list_comes_in_pages_and_by_state() {
+    let dir = tempfile::tempdir().unwrap();
+    let st = test_state(dir.path(), None);
+    let mut ids = Vec::new();
+    for _ in 0..5 {
+        let (code, job) = empty_scene_job(&st, "").await;
+        assert_eq!(code, StatusCode::CREATED);
+        ids.push(job["id"].as_str().unwrap().to_string());
+    }
+    let listed = |body: &serde_json::Value| -> Vec<String> {
+        body["jobs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|j| j["id"].as_str().unwrap().to_string())
+            .collect()
+    };
+    let (code, all) = call(&st, get("/v1/jobs")).await;
+    assert_eq!((code, listed(&all)), (StatusCode::OK, ids.clone()));
+    assert!(all.get("next").is_none(), "{all}");
+    // Pages of two: 2, 2, 1.
+    let (_, p1) = call(&st, get("/v1/jobs?limit=2")).await;
+    assert_eq!(listed(&p1), ids[..2]);
+    let next = p1["next"].as_str().unwrap().to_string();
+    assert_eq!(next, ids[1]);
+    // The page's last job purged meanwhile: the next page starts where it would have.
+    let purge = Request::delete(format!("/v1/jobs/{next}?purge=true"))
+        .body(Body::empty())
+        .unwrap();
+    assert_eq!(call(&st, purge).await.0, StatusCode::OK);
+    let (_, p2) = call(&st, get(&format!("/v1/jobs?limit=2&after={next}"))).await;
+    assert_eq!(listed(&p2), ids[2..4]);
+    let (_, p3) = call(&st, get(&format!("/v1/jobs?limit=2&after={}", ids[3]))).await;
+    assert_eq!(listed(&p3), ids[4..]);
+    assert!(p3.get("next").is_none(), "{p3}");
+    // By state.
+    let cancel = Request::delete(format!("/v1/jobs/{}", ids[0]))
+        .body(Body::empty())
+        .unwrap();
+    assert_eq!(call(&st, cancel).await.0, StatusCode::OK);
+    let (_, c) = call(&st, get("/v1/jobs?state=cancelled")).await;
+    assert_eq!(listed(&c), ids[..1]);
+    let (_, q) = call(&st, get("/v1/jobs?state=queued,running&limit=10")).await;
+    assert_eq!(listed(&q), [&ids[2..]].concat());
+    // Wrong parameters name themselves.
+    for (query, field) in [
+        ("state=sleeping", "state"),
+        ("after=nothing", "after"),
+        ("limit=0", "limit"),
+    ] {
+        let (code, body) = call(&st, get(&format!("/v1/jobs?{query}"))).await;
+        assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{query}: {body}");
+        assert_eq!(body["error"]["field"], field, "{query}: {body}");
+    }
+    for query in ["limit=x", "lmit=2"] {
+        let (code, body) = call(&st, get(&format!("/v1/jobs?{query}"))).await;
+        assert_eq!(code, StatusCode::BAD_REQUEST, "{query}: {body}");
+    }
+}
+
 /// The defaults with `dir` as the data directory and a scene loader that takes every scene as
 /// an empty one.
 fn fake_config(dir: impl Into<std::path::PathBuf>) -> Config {

@@ -258,6 +258,9 @@ pub struct JobStatus {
 pub struct JobList {
     /// Jobs, oldest first.
     pub jobs: Vec<JobStatus>,
+    /// When `limit` left jobs out: the id to ask for the next page with (`after=`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub next: Option<String>,
 }
 
 /// Body of `POST /v1/workers`.

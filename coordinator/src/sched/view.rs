@@ -79,9 +79,29 @@ impl Sched {
 
     /// Every job's status, in submission order.
     pub fn job_list(&self) -> Vec<JobStatus> {
-        let mut jobs: Vec<&Job> = self.jobs.values().collect();
+        self.job_page(&[], 0, usize::MAX).0
+    }
+
+    /// One page of the job list, oldest first: the jobs submitted after the `after`-th (0:
+    /// from the first) in one of `states` (empty: any), at most `limit`; and, when jobs were
+    /// left out, the id of the last one given (to ask for the next page).
+    pub fn job_page(
+        &self,
+        states: &[JobState],
+        after: u64,
+        limit: usize,
+    ) -> (Vec<JobStatus>, Option<String>) {
+        let mut jobs: Vec<&Job> = self
+            .jobs
+            .values()
+            .filter(|j| j.seq > after)
+            .filter(|j| states.is_empty() || states.contains(&j.life().state))
+            .collect();
         jobs.sort_by_key(|j| j.seq);
-        jobs.into_iter().map(Job::status).collect()
+        let more = jobs.len() > limit;
+        jobs.truncate(limit);
+        let next = more.then(|| jobs.last().map(|j| j.id.clone())).flatten();
+        (jobs.into_iter().map(Job::status).collect(), next)
     }
 
     /// Each tile of job `id` with its passes done and the workers rendering it, or `None`.
