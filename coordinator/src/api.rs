@@ -345,7 +345,12 @@ async fn metrics(State(state): State<AppState>) -> Response {
     }
     let _ = writeln!(
         out,
-        "# HELP raytile_workers Registered workers.\n# TYPE raytile_workers gauge\nraytile_workers {workers}"
+        "# HELP raytile_workers Registered workers, those gone included (a worker not heard from for a day is forgotten).\n# TYPE raytile_workers gauge\nraytile_workers {workers}"
+    );
+    let _ = writeln!(
+        out,
+        "# HELP raytile_workers_live Registered workers heard from lately, heartbeats included (those not gone in GET /v1/workers).\n# TYPE raytile_workers_live gauge\nraytile_workers_live {}",
+        m.workers_live
     );
     let _ = writeln!(
         out,

@@ -70,6 +70,9 @@ pub struct Metrics {
     pub counters: Counters,
     /// Registered workers.
     pub workers: usize,
+    /// Registered workers that are live (heard from lately, a heartbeat included): those not
+    /// `gone` in `GET /v1/workers`.
+    pub workers_live: usize,
     /// Samples accepted per second over the last ten seconds.
     pub samples_per_second: f64,
 }

@@ -473,6 +473,8 @@ fn a_job_every_live_worker_is_blocked_from_fails_instead_of_waiting() {
     // a calls in (and gets nothing: it is blocked); b has not for more than a minute.
     let later = now.after(secs(61));
     assert!(s.lease(&a, later).unwrap().is_none());
+    let m = s.metrics(later);
+    assert_eq!((m.workers, m.workers_live), (3, 1), "a alone is live");
     s.expire(later).unwrap();
     let j2 = s.job_status(&job2).unwrap();
     assert_eq!(j2.state, JobState::Failed);

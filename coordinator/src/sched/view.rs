@@ -249,6 +249,11 @@ impl Sched {
                 .collect(),
             counters: self.counters.clone(),
             workers: self.workers.len(),
+            workers_live: self
+                .workers
+                .iter()
+                .filter(|(id, _)| self.workers.is_live_id(id, now.wall_ms))
+                .count(),
             samples_per_second: self.throughput.per_second(now.instant),
         }
     }
