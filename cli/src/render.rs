@@ -34,12 +34,58 @@ pub struct RenderArgs {
     /// Worker threads (default: all cores; at most 1024).
     #[arg(long, value_parser = crate::threads_flag(1))]
     pub threads: Option<usize>,
+    /// How a PNG is made of the linear image.
+    #[command(flatten)]
+    pub look: LookArgs,
+}
+
+/// `--exposure` and `--tonemap`: how a PNG is made of the linear image (`raytile render`
+/// applies them itself; `submit` and `cluster` ask the coordinator for such a PNG).
+#[derive(Args, Debug, Clone, Copy, Default)]
+pub struct LookArgs {
     /// Exposure in stops for PNG output (-64 to 64).
     #[arg(long, default_value_t = 0.0, value_parser = crate::exposure_flag, allow_hyphen_values = true)]
     pub exposure: f32,
     /// Tone map for PNG output: clamp or aces.
     #[arg(long, default_value = "clamp")]
     pub tonemap: ToneMap,
+}
+
+impl LookArgs {
+    /// The output options.
+    pub fn options(self) -> OutputOptions {
+        OutputOptions {
+            exposure: self.exposure,
+            tonemap: self.tonemap,
+        }
+    }
+
+    /// Warns when the flags were given for an image they do not shape (not a PNG).
+    pub fn warn_unless_png(self, format: film::ImageFormat, output: &std::path::Path) {
+        if format != film::ImageFormat::Png && self.options() != OutputOptions::default() {
+            eprintln!(
+                "raytile: warning: --exposure and --tonemap shape PNG output only; {} keeps \
+                 the linear radiance",
+                output.display()
+            );
+        }
+    }
+
+    /// The image request's query parameters for them (none for the defaults or an image
+    /// that is not a PNG).
+    pub fn query(self, format: film::ImageFormat) -> Vec<(&'static str, String)> {
+        if format != film::ImageFormat::Png || self.options() == OutputOptions::default() {
+            return Vec::new();
+        }
+        let curve = match self.tonemap {
+            ToneMap::Clamp => "clamp",
+            ToneMap::Aces => "aces",
+        };
+        vec![
+            ("exposure", self.exposure.to_string()),
+            ("tonemap", curve.to_string()),
+        ]
+    }
 }
 
 struct Progress {
@@ -86,15 +132,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     let start = Instant::now();
     let format = film::ImageFormat::from_path(&args.output)?;
     film::check_writable(&args.output)?;
-    if format != film::ImageFormat::Png
-        && (args.exposure != 0.0 || args.tonemap != film::ToneMap::Clamp)
-    {
-        eprintln!(
-            "raytile: warning: --exposure and --tonemap shape PNG output only; {} keeps the \
-             linear radiance",
-            args.output.display()
-        );
-    }
+    args.look.warn_unless_png(format, &args.output);
     let desc = if args.scene.is_dir() {
         load_scene(&crate::submit::scene_in_folder(&args.scene)?)?
     } else {
@@ -164,10 +202,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     film::save(
         &film,
         &args.output,
-        &OutputOptions {
-            exposure: args.exposure,
-            tonemap: args.tonemap,
-        },
+        &args.look.options(),
         &film::Metadata::of_render(&settings, &film),
     )?;
     if film.bad_samples > 0 {

@@ -26,6 +26,10 @@ pub struct JobArgs {
     /// Job priority (higher first).
     #[arg(long, allow_hyphen_values = true)]
     pub priority: Option<i32>,
+    /// How a PNG written with -o is made of the linear image (not part of the job: the
+    /// coordinator makes such a PNG when asked).
+    #[command(flatten)]
+    pub look: crate::render::LookArgs,
 }
 
 impl JobArgs {
@@ -496,8 +500,9 @@ pub async fn submit_and_follow(
     output: Option<&Path>,
 ) -> anyhow::Result<JobStatus> {
     let format = output.map(ImageFormat::from_path).transpose()?;
-    if let Some(o) = output {
+    if let (Some(o), Some(f)) = (output, format) {
         raytile_core::film::check_writable(o)?;
+        job.look.warn_unless_png(f, o);
     }
     job.overrides.check().map_err(flag_error)?;
     let mut pack = ScenePack::check(scene)?;
@@ -581,7 +586,8 @@ pub async fn submit_and_follow(
         let (Some(out), Some(format)) = (output, format) else {
             break;
         };
-        let image = patiently(&id, &say, || c.job_image_tagged(&id, format.name())).await?;
+        let look = job.look.query(format);
+        let image = patiently(&id, &say, || c.job_image_tagged(&id, format.name(), &look)).await?;
         let (bytes, tag) = (image.bytes, image.etag);
         // Making the frame reads every stored tile: one found lost or damaged is left out (the
         // frame has no tag) and rendered again, and the job runs again (and may be done again

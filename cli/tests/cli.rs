@@ -986,3 +986,57 @@ fn cluster_removes_its_temporary_folder_on_sigterm() {
     assert!(left.is_empty(), "left behind: {left:?}");
     std::fs::remove_dir_all(&tmp).unwrap();
 }
+
+/// `--exposure` and `--tonemap` shape the farm's PNG as they shape `raytile render`'s: the same
+/// bytes; and they change it.
+#[test]
+fn the_farm_makes_the_png_of_an_exposure_and_tone_map_as_render_does() {
+    let dir = std::env::temp_dir().join(format!("raytile-cli-look-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let job = [
+        "--width",
+        "24",
+        "--height",
+        "16",
+        "--spp",
+        "4",
+        "--exposure",
+        "1.5",
+        "--tonemap",
+        "aces",
+    ];
+    let render = |out: &str, look: &[&str]| {
+        let o = raytile()
+            .arg("render")
+            .arg(scene("cornell-box.json"))
+            .arg("-o")
+            .arg(dir.join(out))
+            .args(&job[..6])
+            .args(look)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        std::fs::read(dir.join(out)).unwrap()
+    };
+    let plain = render("plain.png", &[]);
+    let local = render("local.png", &job[6..]);
+    assert_ne!(plain, local, "the exposure changes the PNG");
+    let o = raytile()
+        .args(["cluster", "--workers", "1", "--threads", "1", "--render"])
+        .arg(scene("cornell-box.json"))
+        .arg("-o")
+        .arg(dir.join("farm.png"))
+        .arg("--data-dir")
+        .arg(dir.join("data"))
+        .args(job)
+        .env_remove("RAYTILE_TOKEN")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        std::fs::read(dir.join("farm.png")).unwrap() == local,
+        "the farm's PNG differs from raytile render's"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}

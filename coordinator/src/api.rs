@@ -16,7 +16,7 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::{on, MethodFilter, MethodRouter};
 use axum::Router;
 use futures_util::StreamExt;
-use raytile_core::film::ImageFormat;
+use raytile_core::film::{ImageFormat, OutputOptions, ToneMap};
 use raytile_proto::{self as proto, JobRequest};
 use serde::Deserialize;
 use std::fmt::Write as _;
@@ -687,6 +687,55 @@ async fn events(State(state): State<AppState>) -> Response {
 #[serde(deny_unknown_fields)]
 struct ImageQuery {
     format: Option<String>,
+    /// PNG only: exposure in stops (-64 to 64), as `raytile render --exposure`.
+    exposure: Option<f32>,
+    /// PNG only: `clamp` or `aces`, as `raytile render --tonemap`.
+    tonemap: Option<String>,
+}
+
+impl ImageQuery {
+    /// The output options asked for (the defaults unless the image is a PNG), and what they
+    /// add to the image's entity tag (nothing for the defaults).
+    fn look(&self, format: ImageFormat) -> Result<(OutputOptions, String), AppError> {
+        let mut opts = OutputOptions::default();
+        if let Some(e) = self.exposure {
+            if !(e.is_finite() && e.abs() <= 64.0) {
+                return Err(AppError::invalid(
+                    "exposure",
+                    format!("must be a finite number of stops from -64 to 64, got {e}"),
+                ));
+            }
+            opts.exposure = e;
+        }
+        if let Some(t) = &self.tonemap {
+            opts.tonemap = t
+                .parse()
+                .map_err(|e: String| AppError::invalid("tonemap", e))?;
+        }
+        if opts == OutputOptions::default() {
+            return Ok((opts, String::new()));
+        }
+        if format != ImageFormat::Png {
+            let field = if self.exposure.is_some() {
+                "exposure"
+            } else {
+                "tonemap"
+            };
+            return Err(AppError::invalid(
+                field,
+                format!(
+                    "exposure and tonemap shape PNG images only; a {} image is linear",
+                    format.name()
+                ),
+            ));
+        }
+        let curve = match opts.tonemap {
+            ToneMap::Clamp => "clamp",
+            ToneMap::Aces => "aces",
+        };
+        // The exposure's bits: two spellings of one number name one image.
+        Ok((opts, format!("-{:08x}-{curve}", opts.exposure.to_bits())))
+    }
 }
 
 /// The frame so far. Each image is named by an entity tag that changes whenever a result of the
@@ -700,7 +749,7 @@ async fn job_image(
     Path(id): Path<String>,
     Query(q): Query<ImageQuery>,
 ) -> Result<Response, AppError> {
-    let name = q.format.unwrap_or_else(|| "png".into());
+    let name = q.format.clone().unwrap_or_else(|| "png".into());
     let format = ImageFormat::from_extension(&name).ok_or_else(|| {
         AppError::invalid(
             "format",
@@ -708,8 +757,12 @@ async fn job_image(
         )
     })?;
     let ext = format.name();
+    let (look, look_tag) = q.look(format)?;
     let version = state.sched().results_version(&id);
-    let etag = images::entity_tag(&version.ok_or_else(|| no_job(&id))?, ext);
+    let etag = images::entity_tag(
+        &version.ok_or_else(|| no_job(&id))?,
+        &format!("{ext}{look_tag}"),
+    );
     // A frame of black alone is no image: a client that saved it would take it for the render.
     if let Some(why) = state.sched().no_image(&id) {
         return Err(AppError::Conflict(why));
@@ -757,7 +810,7 @@ async fn job_image(
             settings,
             conn,
             s.results_dir(),
-            images::entity_tag(&version, ext),
+            images::entity_tag(&version, &format!("{ext}{look_tag}")),
         )
     };
     let job_id = id.clone();
@@ -785,7 +838,8 @@ async fn job_image(
         lost.extend(refused);
         // The store's connection is not needed while the image is encoded.
         drop(conn);
-        let mut bytes = compose::encode(&film, format, &settings).map_err(AppError::internal)?;
+        let mut bytes =
+            compose::encode(&film, format, &look, &settings).map_err(AppError::internal)?;
         // Kept, the buffer should hold what is counted.
         bytes.shrink_to_fit();
         Ok((bytes, lost, film.bad_samples))
@@ -800,7 +854,7 @@ async fn job_image(
         // Named only if no result came in while it was made (it may hold some of the new
         // results, not all) and every stored result was read. Kept under the scheduler's lock,
         // so that a purge, which forgets the job's images after it, cannot come in between.
-        let unchanged = images::entity_tag(&after, ext) == etag;
+        let unchanged = images::entity_tag(&after, &format!("{ext}{look_tag}")) == etag;
         if unchanged && !lost.is_empty() {
             // Rendered again where the job can be; the image lacks them until then. Only while
             // the job's results are still those read: one of them may since have been
@@ -813,7 +867,8 @@ async fn job_image(
             }
         }
         let named = unchanged && lost.is_empty();
-        if named {
+        // Only the plain image of each format is kept: another exposure is made when asked.
+        if named && look_tag.is_empty() {
             state
                 .image_cache()
                 .put(&id, ext, etag.clone(), bytes.clone(), dropped);

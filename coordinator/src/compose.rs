@@ -90,16 +90,16 @@ pub fn compose_by_pass<E>(
     Ok((film, refused))
 }
 
-/// Encodes the film of a job of `settings` with the core's encoder, default output options and
+/// Encodes the film of a job of `settings` with the core's encoder, output options `opts` and
 /// the metadata `raytile render` writes (the same bytes as its file, once every tile is in).
 pub fn encode(
     film: &Film,
     format: ImageFormat,
+    opts: &OutputOptions,
     settings: &raytile_core::RenderSettings,
 ) -> Result<Vec<u8>, String> {
     let meta = raytile_core::film::Metadata::of_render(settings, film);
-    raytile_core::film::encode_with(film, format, &OutputOptions::default(), &meta)
-        .map_err(|e| e.to_string())
+    raytile_core::film::encode_with(film, format, opts, &meta).map_err(|e| e.to_string())
 }
 
 #[cfg(test)]
@@ -213,7 +213,13 @@ mod tests {
             (ImageFormat::Exr, &[0x76, 0x2f, 0x31, 0x01][..]),
             (ImageFormat::Hdr, &b"#?RADIANCE"[..]),
         ] {
-            let bytes = encode(&f, fmt, &RenderSettings::default()).unwrap();
+            let bytes = encode(
+                &f,
+                fmt,
+                &OutputOptions::default(),
+                &RenderSettings::default(),
+            )
+            .unwrap();
             assert!(bytes.starts_with(magic), "{fmt:?}: {:?}", &bytes[..8]);
             assert!(content_type(fmt).starts_with("image/"));
         }

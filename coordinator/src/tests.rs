@@ -1832,6 +1832,44 @@ async fn a_jobs_camera_must_be_one_of_the_scenes() {
 /// Job images are made a few at a time (each holds its frame while it is encoded): a request
 /// that finds every slot taken waits, and after the configured wait is answered a retryable
 /// 503 with Retry-After; once a slot is free, the image is served.
+/// A PNG may be asked for with an exposure and a tone map, as `raytile render` makes it: its
+/// own entity tag; the wrong values, or asking them of a linear image, are 422s naming them.
+#[tokio::test]
+async fn a_png_takes_an_exposure_and_a_tone_map() {
+    let dir = tempfile::tempdir().unwrap();
+    let st = test_state(dir.path(), None);
+    let (_, job) = empty_scene_job(&st, r#""width": 16, "height": 16, "spp": 1"#).await;
+    let base = format!("/v1/jobs/{}/image", job["id"].as_str().unwrap());
+    let tag = |q: &str| {
+        let st = st.clone();
+        let uri = format!("{base}?{q}");
+        async move {
+            let resp = app(st).oneshot(get(&uri)).await.unwrap();
+            assert_eq!(resp.status(), StatusCode::OK, "{uri}");
+            resp.headers()["etag"].to_str().unwrap().to_string()
+        }
+    };
+    let plain = tag("format=png").await;
+    let bright = tag("format=png&exposure=1.5&tonemap=aces").await;
+    assert_ne!(plain, bright);
+    assert_eq!(bright, tag("format=png&exposure=1.50&tonemap=aces").await);
+    assert_eq!(
+        plain,
+        tag("format=png&exposure=0&tonemap=clamp").await,
+        "the defaults"
+    );
+    for (q, field) in [
+        ("format=exr&exposure=1", "exposure"),
+        ("format=hdr&tonemap=aces", "tonemap"),
+        ("format=png&exposure=100", "exposure"),
+        ("format=png&tonemap=sepia", "tonemap"),
+    ] {
+        let (code, body) = call(&st, get(&format!("{base}?{q}"))).await;
+        assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{q}: {body}");
+        assert_eq!(body["error"]["field"], field, "{q}: {body}");
+    }
+}
+
 #[tokio::test]
 async fn image_requests_wait_for_a_slot_and_are_answered_busy_after_the_wait() {
     let dir = tempfile::tempdir().unwrap();

@@ -322,16 +322,23 @@ impl Client {
     /// `GET /v1/jobs/{id}/image?format=`: the frame so far, encoded as `format` (`png`, `exr`,
     /// `hdr`: the tracer's `ImageFormat::name`).
     pub async fn job_image(&self, id: &str, format: &str) -> Result<Bytes, ClientError> {
-        Ok(self.job_image_tagged(id, format).await?.bytes)
+        Ok(self.job_image_tagged(id, format, &[]).await?.bytes)
     }
 
-    /// The same, with the image's `ETag` and the samples its frame dropped.
-    pub async fn job_image_tagged(&self, id: &str, format: &str) -> Result<JobImage, ClientError> {
+    /// The same, with the image's `ETag` and the samples its frame dropped; `look` adds query
+    /// parameters (a PNG's `exposure` and `tonemap`).
+    pub async fn job_image_tagged(
+        &self,
+        id: &str,
+        format: &str,
+        look: &[(&str, String)],
+    ) -> Result<JobImage, ClientError> {
         let path = format!("/v1/jobs/{id}/image");
         let resp = self
             .send(
                 self.request(Method::GET, &path)
-                    .query(&[("format", format)]),
+                    .query(&[("format", format)])
+                    .query(look),
             )
             .await?;
         let etag = resp

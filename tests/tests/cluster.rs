@@ -261,7 +261,8 @@ mod support {
         let built = raytile_core::Scene::build(&desc).unwrap();
         let job = raytile_core::RenderJob::new(&built, s).unwrap();
         let film = raytile_core::render(&built, &job, &());
-        raytile_coordinator::compose::encode(&film, ImageFormat::Exr, s).unwrap()
+        raytile_coordinator::compose::encode(&film, ImageFormat::Exr, &Default::default(), s)
+            .unwrap()
     }
 
     /// Renders the cornell box with `workers` workers and `tile_size`, checks the EXR
@@ -1399,7 +1400,8 @@ mod environment {
         let job =
             raytile_core::RenderJob::with_files(&built, s, &SceneFiles::trusted(), dir).unwrap();
         let film = raytile_core::render(&built, &job, &());
-        raytile_coordinator::compose::encode(&film, ImageFormat::Exr, s).unwrap()
+        raytile_coordinator::compose::encode(&film, ImageFormat::Exr, &Default::default(), s)
+            .unwrap()
     }
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

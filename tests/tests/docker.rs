@@ -357,7 +357,8 @@ fn local_exr(scene: &Path, s: &RenderSettings) -> Vec<u8> {
     let built = raytile_core::Scene::build(&desc).unwrap();
     let job = raytile_core::RenderJob::new(&built, s).unwrap();
     let film = raytile_core::render(&built, &job, &());
-    let exr = raytile_coordinator::compose::encode(&film, ImageFormat::Exr, s).unwrap();
+    let exr = raytile_coordinator::compose::encode(&film, ImageFormat::Exr, &Default::default(), s)
+        .unwrap();
     cache.push((key, exr.clone()));
     exr
 }
