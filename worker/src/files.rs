@@ -12,9 +12,11 @@
 //! The cache is bounded (`--cache-max-mb`): after a scene is installed, the scenes used least
 //! recently go until the folder holds no more than the bound ([`trim`]). A scene's last use is
 //! the modification time of its `ok` file, set whenever a build reads it ([`mark_used`]), so
-//! processes sharing the folder see each other's uses. Scenes used in the last
-//! [`IN_USE`] stay whatever the bound (another process may be reading them), as does the
-//! scene just installed, however large.
+//! processes sharing the folder see each other's uses. A process reading a scene's files holds
+//! a shared lock on its `ok` file ([`InUse`]); a scene is removed only under an exclusive one,
+//! so never while any process sharing the folder reads it. The scene just installed stays
+//! however large, and so does a scene used in the last [`IN_USE`] (on a file system that
+//! cannot lock, where that age is the only sign of a use).
 
 use anyhow::Context;
 use raytile_proto::scene as pkg;
@@ -25,10 +27,51 @@ use std::time::{Duration, SystemTime};
 /// The disk cache's default bound (`--cache-max-mb`): 20 GiB.
 pub const DEFAULT_CACHE_MAX_BYTES: u64 = 20 << 30;
 
-/// A scene used this recently is not removed to make room: a worker sharing the folder may be
-/// building from it (a build reads its files for seconds to minutes; the built scene needs
-/// them no more).
+/// A scene used this recently is not removed to make room: the gap between a process's
+/// install of a scene and its lock on it, and on file systems that cannot lock (or off Unix)
+/// the only sign of a use: there a build may read the files for minutes.
+#[cfg(unix)]
+pub const IN_USE: Duration = Duration::from_secs(60);
+/// See the Unix value.
+#[cfg(not(unix))]
 pub const IN_USE: Duration = Duration::from_secs(15 * 60);
+
+/// A lock on a scene folder's `ok` file, `flock` shared (a reader) or exclusive (a remover),
+/// released when dropped. Where the file system cannot lock, the lock is taken as had.
+pub struct InUse(#[allow(dead_code)] std::fs::File);
+
+/// Takes a lock on `dir`'s `ok` file without waiting: `None` when the file is missing or
+/// another process holds a lock that excludes this one.
+fn lock(dir: &Path, exclusive: bool) -> Option<InUse> {
+    let f = std::fs::File::open(dir.join("ok")).ok()?;
+    #[cfg(unix)]
+    {
+        use std::os::fd::AsRawFd;
+        let how = if exclusive {
+            libc::LOCK_EX
+        } else {
+            libc::LOCK_SH
+        };
+        // SAFETY: a valid open descriptor.
+        if unsafe { libc::flock(f.as_raw_fd(), how | libc::LOCK_NB) } != 0 {
+            let e = std::io::Error::last_os_error();
+            if e.kind() == std::io::ErrorKind::WouldBlock {
+                return None;
+            }
+            // ENOLCK, EINVAL: a file system without locks; the age rule alone then applies.
+        }
+    }
+    let _ = exclusive;
+    Some(InUse(f))
+}
+
+/// Marks the scene folder `dir` used now and holds it in use (a shared lock) until the guard
+/// is dropped: [`trim`] in any process sharing the folder leaves it alone meanwhile. `None`
+/// when the folder is incomplete or being removed.
+pub fn hold(dir: &Path) -> Option<InUse> {
+    mark_used(dir);
+    lock(dir, false)
+}
 
 /// A name no other process or call uses, beside `dir`: `dir` with `what`, the process id and
 /// a counter as its extension.
@@ -223,6 +266,10 @@ fn held(cache: &Path) -> Vec<Held> {
             continue;
         }
         let dir = e.path();
+        // A folder a worker made holds its package; anything else of such a name is not ours.
+        if !dir.join("blob").is_file() {
+            continue;
+        }
         let used = last_use(&dir);
         out.push(Held {
             bytes: tree_bytes(&dir),
@@ -245,8 +292,8 @@ pub struct Trimmed {
 }
 
 /// Removes the least recently used scenes from `cache` until its scene folders hold at most
-/// `max_bytes`, sparing `keep` (the scene just installed) and scenes used within [`IN_USE`]:
-/// the bound may be exceeded while those alone exceed it.
+/// `max_bytes`, sparing `keep` (the scene just installed), scenes a process reads ([`InUse`])
+/// and scenes used within [`IN_USE`]: the bound may be exceeded while those alone exceed it.
 pub fn trim(cache: &Path, max_bytes: u64, keep: Option<&Path>) -> Trimmed {
     let mut scenes = held(cache);
     scenes.sort_by_key(|h| h.used);
@@ -265,6 +312,10 @@ pub fn trim(cache: &Path, max_bytes: u64, keep: Option<&Path>) -> Trimmed {
         if recent(h.used) || keep == Some(h.dir.as_path()) || recent(last_use(&h.dir)) {
             continue;
         }
+        // Not while a process reads it; the lock is held until it is moved aside.
+        let Some(_removing) = lock(&h.dir, true) else {
+            continue;
+        };
         tracing::info!(
             path = %h.dir.display(),
             mib = h.bytes >> 20,
@@ -474,6 +525,29 @@ mod tests {
         std::fs::write(cache.path().join("notes.txt"), vec![0u8; 4 * one as usize]).unwrap();
         assert_eq!(trim(cache.path(), 0, None).held, 2 * one);
         assert!(cache.path().join("notes.txt").exists());
+        // Nor a folder named like a scene without a package in it.
+        let stranger = cache.path().join("0".repeat(64));
+        std::fs::create_dir_all(&stranger).unwrap();
+        std::fs::write(stranger.join("file"), vec![0u8; one as usize]).unwrap();
+        assert_eq!(trim(cache.path(), 0, None).held, 2 * one);
+        assert!(stranger.join("file").exists());
+        // A scene a process reads stays however old its last use; released, it goes.
+        let read = scene(5, hours_ago(0));
+        let guard = hold(&read).unwrap();
+        std::fs::File::options()
+            .write(true)
+            .open(read.join("ok"))
+            .unwrap()
+            .set_modified(hours_ago(5))
+            .unwrap();
+        if cfg!(unix) {
+            assert_eq!(trim(cache.path(), 0, None).removed, 0, "held");
+            assert!(read.exists());
+        }
+        drop(guard);
+        let t = trim(cache.path(), 2 * one, None);
+        assert_eq!(t.removed, 1);
+        assert!(!read.exists());
     }
 
     #[test]

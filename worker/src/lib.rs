@@ -349,8 +349,12 @@ impl Worker {
     }
 
     /// Makes sure the scene is in the cache (downloaded and verified) and returns the scene
-    /// file to load.
-    async fn scene_file(&mut self, lease: &proto::Lease) -> Result<PathBuf, anyhow::Error> {
+    /// file to load, with the folder held in use (no worker sharing the cache removes it
+    /// while the guard lives; `None` where it could not be held).
+    async fn scene_file(
+        &mut self,
+        lease: &proto::Lease,
+    ) -> Result<(PathBuf, Option<files::InUse>), anyhow::Error> {
         if !pkg::is_scene_id(&lease.scene) {
             return Err(anyhow!("bad scene id '{}'", lease.scene));
         }
@@ -362,15 +366,15 @@ impl Worker {
         // again rather than rendered. Hashing costs a fraction of what building costs.
         if dir.exists() {
             let (d, sha) = (dir.clone(), lease.scene_sha256.clone());
-            let ok = tokio::task::spawn_blocking(move || {
-                // Marked first: a worker sharing the cache must not remove it while this one
+            let held = tokio::task::spawn_blocking(move || {
+                // Held first: a worker sharing the cache must not remove it while this one
                 // checks and builds from it.
-                files::mark_used(&d);
-                files::verify(&d, &sha)
+                let held = files::hold(&d)?;
+                files::verify(&d, &sha).then_some(held)
             })
             .await?;
-            if ok {
-                return Ok(entry);
+            if held.is_some() {
+                return Ok((entry, held));
             }
             tracing::warn!(scene = %lease.scene, "cached scene is incomplete or corrupt; downloading again");
             let d = dir.clone();
@@ -409,7 +413,7 @@ impl Worker {
             self.cfg.cache_dir.clone(),
             self.cfg.cache_max_bytes,
         );
-        tokio::task::spawn_blocking(move || {
+        let held = tokio::task::spawn_blocking(move || {
             let mut installed = files::install(&d, &bytes, format, &scene_entry);
             // A full disk: the scenes not used lately make room, and the unpack is tried once
             // more (a full disk is this machine's trouble, not the scene's).
@@ -417,7 +421,7 @@ impl Worker {
                 let t = files::trim(&cache, 0, None);
                 if t.removed > 0 {
                     tracing::warn!(
-                        "the cache disk is full: removed {} scenes ({} MiB) not used lately",
+                        "the cache disk is full: removed {} scenes ({} MiB) no worker was using",
                         t.removed,
                         t.freed >> 20
                     );
@@ -427,22 +431,22 @@ impl Worker {
             installed.map_err(|e| {
                 if files::disk_full(&e) {
                     e.context(format!(
-                        "the worker's cache disk is full ({}), even without the scenes not \
-                         used in the last {} minutes",
+                        "the worker's cache disk is full ({}), even without the scenes no \
+                         worker was using",
                         cache.display(),
-                        files::IN_USE.as_secs() / 60
                     ))
                 } else {
                     e
                 }
             })?;
+            let held = files::hold(&d);
             if let Some(max) = max {
                 files::trim(&cache, max, Some(&d));
             }
-            anyhow::Ok(())
+            anyhow::Ok(held)
         })
         .await??;
-        Ok(entry)
+        Ok((entry, held))
     }
 
     /// Whether the cached files of `lease`'s scene are still those recorded when they were
@@ -469,7 +473,8 @@ impl Worker {
                 let mut tries = 0;
                 let scene = loop {
                     tries += 1;
-                    let file = self.scene_file(lease).await?;
+                    // Held until the build has read the files.
+                    let (file, _in_use) = self.scene_file(lease).await?;
                     let pool = self.pool.clone();
                     let limits = self.cfg.scene_limits;
                     let built = tokio::task::spawn_blocking(move || {
@@ -518,6 +523,7 @@ impl Worker {
         let load = async {
             let scene = self.scene(&lease).await?;
             let map_base = match needs_map {
+                // The map is read from the scene's folder by the first render: held till then.
                 true => Some(self.scene_file(&lease).await?),
                 false => None,
             };
@@ -563,8 +569,13 @@ impl Worker {
                     let job = match job {
                         Some(j) => j,
                         None => Arc::new(
-                            job_for(&scene, &settings, map_base.as_deref(), limits)
-                                .map_err(|e| format!("job: {e}"))?,
+                            job_for(
+                                &scene,
+                                &settings,
+                                map_base.as_ref().map(|(file, _in_use)| file.as_path()),
+                                limits,
+                            )
+                            .map_err(|e| format!("job: {e}"))?,
                         ),
                     };
                     let accum = raytile_core::render_tile(&scene, &job, tile, samples, &watched);

@@ -563,7 +563,10 @@ impl Sched {
             if self.revive(lease, now) {
                 return Heartbeat::Renewed;
             }
-            let why = self.ended_leases.remove(lease);
+            let why = self
+                .ended_leases
+                .remove(lease)
+                .or_else(|| self.why_not_revived(lease));
             return stop(why.unwrap_or_else(|| "unknown or expired lease".into()));
         };
         let Some(job) = self.jobs.get_mut(&job_id) else {
@@ -646,6 +649,23 @@ impl Sched {
         self.leases.insert(lease.into(), (job_id, idx));
         self.counters.leased += 1;
         true
+    }
+
+    /// Why an expired lease was not given back to its worker, when it is on record.
+    fn why_not_revived(&self, lease: &str) -> Option<String> {
+        let (job_id, idx, worker) = self.expired_leases.get(lease)?;
+        let Some(job) = self.jobs.get(job_id) else {
+            return Some("job deleted".into());
+        };
+        Some(if job.is_final() {
+            format!("job {}", job.life().state.name())
+        } else if job.failures_of(worker) >= self.cfg.block_worker_after {
+            "lease expired, and this worker is blocked from the job".into()
+        } else if matches!(job.tasks()[*idx].state, TaskState::Done { .. }) {
+            "lease expired, and the task was done by another worker".into()
+        } else {
+            "lease expired, and the task went to another worker".into()
+        })
     }
 
     /// Looks up a task for an upload: its tile and pass, to check the result against.

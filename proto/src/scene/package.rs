@@ -28,8 +28,8 @@ pub enum PackageError {
     /// No scene file, or several, at the archive root.
     #[error("{0}")]
     Entry(String),
-    /// Disk trouble.
-    #[error("io: {0}")]
+    /// Disk trouble (said as the OS says it, once: an error chain would repeat a source).
+    #[error(transparent)]
     Io(#[from] std::io::Error),
 }
 
