@@ -233,9 +233,11 @@ struct Held {
 }
 
 /// The bytes of the files under `path` (a file's own length when it is one; symbolic links are
-/// not followed).
+/// not followed, and a file of several names, as a single-file scene's package and its
+/// unpacked copy are, counts once).
 fn tree_bytes(path: &Path) -> u64 {
     let mut total = 0;
+    let mut seen = std::collections::HashSet::new();
     let mut todo = vec![path.to_path_buf()];
     while let Some(p) = todo.pop() {
         let Ok(meta) = std::fs::symlink_metadata(&p) else {
@@ -249,9 +251,18 @@ fn tree_bytes(path: &Path) -> u64 {
                     .flatten()
                     .map(|e| e.path()),
             );
-        } else {
-            total += meta.len();
+            continue;
         }
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::MetadataExt;
+            if meta.nlink() > 1 && !seen.insert((meta.dev(), meta.ino())) {
+                continue;
+            }
+        }
+        #[cfg(not(unix))]
+        let _ = &mut seen;
+        total += meta.len();
     }
     total
 }
@@ -415,6 +426,15 @@ mod tests {
         install(&dir, &bytes, pkg::SceneFormat::Json, "scene.json").unwrap();
         assert!(verify(&dir, &sha));
         assert!(!verify(&dir, &"0".repeat(64)), "another scene's id");
+        // A single-file scene's unpacked file is its package under a second name, not a copy.
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::MetadataExt;
+            let blob = std::fs::metadata(dir.join("blob")).unwrap();
+            assert_eq!(blob.nlink(), 2);
+            let ok = std::fs::metadata(dir.join("ok")).unwrap().len();
+            assert_eq!(tree_bytes(&dir), blob.len() + ok, "counted once");
+        }
         // An unpacked file edited (or rotted): the folder is not used.
         let file = std::fs::read_dir(dir.join("root"))
             .unwrap()

@@ -176,7 +176,11 @@ pub fn unpack(
     match format {
         SceneFormat::Gltf | SceneFormat::Glb | SceneFormat::Json => {
             let dest = dir.join(single_file_name(format));
-            std::fs::copy(blob, &dest)?;
+            // A second name for the package's bytes, not a second copy of them (where the
+            // file system has links: a copy otherwise).
+            if std::fs::hard_link(blob, &dest).is_err() {
+                std::fs::copy(blob, &dest)?;
+            }
             return Ok(dest);
         }
         SceneFormat::Tar => {
