@@ -705,7 +705,8 @@ impl ImageQuery {
                     format!("must be a finite number of stops from -64 to 64, got {e}"),
                 ));
             }
-            opts.exposure = e;
+            // -0 makes the image 0 makes, and is named as it.
+            opts.exposure = e + 0.0;
         }
         if let Some(t) = &self.tonemap {
             opts.tonemap = t

@@ -1829,9 +1829,6 @@ async fn a_jobs_camera_must_be_one_of_the_scenes() {
     }
 }
 
-/// Job images are made a few at a time (each holds its frame while it is encoded): a request
-/// that finds every slot taken waits, and after the configured wait is answered a retryable
-/// 503 with Retry-After; once a slot is free, the image is served.
 /// A PNG may be asked for with an exposure and a tone map, as `raytile render` makes it: its
 /// own entity tag; the wrong values, or asking them of a linear image, are 422s naming them.
 #[tokio::test]
@@ -1858,6 +1855,11 @@ async fn a_png_takes_an_exposure_and_a_tone_map() {
         tag("format=png&exposure=0&tonemap=clamp").await,
         "the defaults"
     );
+    assert_eq!(
+        tag("format=png&exposure=-0&tonemap=aces").await,
+        tag("format=png&exposure=0&tonemap=aces").await,
+        "-0 is 0"
+    );
     for (q, field) in [
         ("format=exr&exposure=1", "exposure"),
         ("format=hdr&tonemap=aces", "tonemap"),
@@ -1870,6 +1872,9 @@ async fn a_png_takes_an_exposure_and_a_tone_map() {
     }
 }
 
+/// Job images are made a few at a time (each holds its frame while it is encoded): a request
+/// that finds every slot taken waits, and after the configured wait is answered a retryable
+/// 503 with Retry-After; once a slot is free, the image is served.
 #[tokio::test]
 async fn image_requests_wait_for_a_slot_and_are_answered_busy_after_the_wait() {
     let dir = tempfile::tempdir().unwrap();

@@ -27,26 +27,48 @@ use std::time::{Duration, SystemTime};
 /// The disk cache's default bound (`--cache-max-mb`): 20 GiB.
 pub const DEFAULT_CACHE_MAX_BYTES: u64 = 20 << 30;
 
-/// A scene used this recently is not removed to make room: the gap between a process's
-/// install of a scene and its lock on it, and on file systems that cannot lock (or off Unix)
-/// the only sign of a use: there a build may read the files for minutes.
-#[cfg(unix)]
-pub const IN_USE: Duration = Duration::from_secs(60);
-/// See the Unix value.
-#[cfg(not(unix))]
+/// A scene used this recently is not removed to make room where locks tell nothing (off
+/// Unix, or a file system that cannot lock): there the age of the last use is the only sign
+/// of one, and a build may read the files for minutes.
 pub const IN_USE: Duration = Duration::from_secs(15 * 60);
+
+/// A scene used this recently is not removed where locks work: the gap between a process's
+/// install of a scene and its lock on it (and a network file system's attribute cache).
+pub const LOCKED_GRACE: Duration = Duration::from_secs(2 * 60);
+
+/// Set once a lock was refused as unsupported (the file system cannot lock): the age rule
+/// ([`IN_USE`]) alone then spares scenes.
+static NO_LOCKS: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(!cfg!(unix));
+
+/// How recently used a scene must be not to be removed: see [`IN_USE`] and [`LOCKED_GRACE`].
+fn grace() -> Duration {
+    if NO_LOCKS.load(Ordering::Relaxed) {
+        IN_USE
+    } else {
+        LOCKED_GRACE
+    }
+}
 
 /// A lock on a scene folder's `ok` file, `flock` shared (a reader) or exclusive (a remover),
 /// released when dropped. Where the file system cannot lock, the lock is taken as had.
 pub struct InUse(#[allow(dead_code)] std::fs::File);
 
-/// Takes a lock on `dir`'s `ok` file without waiting: `None` when the file is missing or
-/// another process holds a lock that excludes this one.
+/// Takes a lock on `dir`'s `ok` file without waiting: `None` when the file is missing, was
+/// replaced meanwhile, or another process holds a lock that excludes this one (or, for the
+/// exclusive lock a removal takes, when locking failed for any other reason).
 fn lock(dir: &Path, exclusive: bool) -> Option<InUse> {
-    let f = std::fs::File::open(dir.join("ok")).ok()?;
+    let path = dir.join("ok");
+    // Written for the exclusive lock: over NFS, flock is a byte-range lock, and an exclusive
+    // one needs a file open for writing.
+    let f = std::fs::File::options()
+        .read(true)
+        .write(exclusive)
+        .open(&path)
+        .ok()?;
     #[cfg(unix)]
     {
         use std::os::fd::AsRawFd;
+        use std::os::unix::fs::MetadataExt;
         let how = if exclusive {
             libc::LOCK_EX
         } else {
@@ -55,13 +77,27 @@ fn lock(dir: &Path, exclusive: bool) -> Option<InUse> {
         // SAFETY: a valid open descriptor.
         if unsafe { libc::flock(f.as_raw_fd(), how | libc::LOCK_NB) } != 0 {
             let e = std::io::Error::last_os_error();
-            if e.kind() == std::io::ErrorKind::WouldBlock {
+            let unsupported = matches!(
+                e.raw_os_error(),
+                Some(libc::ENOLCK | libc::EOPNOTSUPP | libc::ENOSYS)
+            );
+            if unsupported {
+                // The age rule alone spares scenes from now on.
+                NO_LOCKS.store(true, Ordering::Relaxed);
+            } else if exclusive || e.kind() == std::io::ErrorKind::WouldBlock {
                 return None;
             }
-            // ENOLCK, EINVAL: a file system without locks; the age rule alone then applies.
+        }
+        // The file locked must still be the folder's: a removal may have moved the folder
+        // aside, and an install put a new one in its place, between the open and the lock.
+        let same = match (f.metadata(), std::fs::metadata(&path)) {
+            (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+            _ => false,
+        };
+        if !same {
+            return None;
         }
     }
-    let _ = exclusive;
     Some(InUse(f))
 }
 
@@ -313,7 +349,8 @@ pub fn trim(cache: &Path, max_bytes: u64, keep: Option<&Path>) -> Trimmed {
         ..Trimmed::default()
     };
     let now = cache_now(cache);
-    let recent = |used: SystemTime| now.duration_since(used).map_or(true, |age| age < IN_USE);
+    let grace = grace();
+    let recent = |used: SystemTime| now.duration_since(used).map_or(true, |age| age < grace);
     for h in scenes {
         if out.held <= max_bytes {
             break;
@@ -323,16 +360,22 @@ pub fn trim(cache: &Path, max_bytes: u64, keep: Option<&Path>) -> Trimmed {
         if recent(h.used) || keep == Some(h.dir.as_path()) || recent(last_use(&h.dir)) {
             continue;
         }
-        // Not while a process reads it; the lock is held until it is moved aside.
-        let Some(_removing) = lock(&h.dir, true) else {
+        // Not while a process reads it: moved aside under the lock (a folder without its `ok`
+        // file, an unpack that did not finish, nobody can read), removed after it.
+        let removing = lock(&h.dir, true);
+        if removing.is_none() && h.dir.join("ok").exists() {
+            continue;
+        }
+        let Some(aside) = move_aside(&h.dir) else {
             continue;
         };
+        drop(removing);
         tracing::info!(
             path = %h.dir.display(),
             mib = h.bytes >> 20,
-            "removing the least recently used scene from the disk cache"
+            "removed the least recently used scene from the disk cache"
         );
-        discard(&h.dir);
+        let _ = std::fs::remove_dir_all(&aside);
         out.removed += 1;
         out.freed += h.bytes;
         out.held -= h.bytes;
@@ -357,10 +400,16 @@ pub fn disk_full(e: &anyhow::Error) -> bool {
 /// Moves `dir` aside (one rename, so no process sees it half removed) and removes it. Nothing
 /// happens when it does not exist.
 pub fn discard(dir: &Path) {
-    let aside = own_name(dir, "discarded");
-    if std::fs::rename(dir, &aside).is_ok() {
+    if let Some(aside) = move_aside(dir) {
         let _ = std::fs::remove_dir_all(&aside);
     }
+}
+
+/// Moves `dir` aside under a name of this call's own (one rename): where it went, or `None`
+/// when it could not be moved (gone already).
+fn move_aside(dir: &Path) -> Option<PathBuf> {
+    let aside = own_name(dir, "discarded");
+    std::fs::rename(dir, &aside).ok().map(|()| aside)
 }
 
 /// Unpacks the package `bytes` (already checked against its sha256) into the scene folder
@@ -551,6 +600,16 @@ mod tests {
         std::fs::write(stranger.join("file"), vec![0u8; one as usize]).unwrap();
         assert_eq!(trim(cache.path(), 0, None).held, 2 * one);
         assert!(stranger.join("file").exists());
+        // A scene whose unpack never finished (no `ok` file): nobody can read it; it goes.
+        let unfinished = cache.path().join("1".repeat(64));
+        std::fs::create_dir_all(&unfinished).unwrap();
+        std::fs::write(unfinished.join("blob"), b"x").unwrap();
+        std::fs::File::open(&unfinished)
+            .unwrap()
+            .set_modified(hours_ago(5))
+            .unwrap();
+        assert_eq!(trim(cache.path(), 0, None).removed, 1);
+        assert!(!unfinished.exists());
         // A scene a process reads stays however old its last use; released, it goes.
         let read = scene(5, hours_ago(0));
         let guard = hold(&read).unwrap();

@@ -421,7 +421,7 @@ impl Worker {
                 let t = files::trim(&cache, 0, None);
                 if t.removed > 0 {
                     tracing::warn!(
-                        "the cache disk is full: removed {} scenes ({} MiB) no worker was using",
+                        "the cache disk is full: removed {} scenes ({} MiB) no worker was using lately",
                         t.removed,
                         t.freed >> 20
                     );
@@ -432,7 +432,7 @@ impl Worker {
                 if files::disk_full(&e) {
                     e.context(format!(
                         "the worker's cache disk is full ({}), even without the scenes no \
-                         worker was using",
+                         worker was using lately",
                         cache.display(),
                     ))
                 } else {

@@ -33,7 +33,7 @@ struct Args {
     cache_dir: Option<PathBuf>,
     /// Most disk space the scene cache folder may take, in MiB: beyond it the scenes used
     /// least recently are removed (those a worker sharing the folder is reading, or used in
-    /// the last minute, stay). 0: no bound.
+    /// the last two minutes, stay). 0: no bound.
     #[arg(long, env = "RAYTILE_CACHE_MAX_MB", default_value_t = raytile_worker::DEFAULT_CACHE_MAX_BYTES >> 20)]
     cache_max_mb: u64,
     /// Memory for built scenes kept between jobs, in MiB: a second job on a scene starts at

@@ -661,10 +661,13 @@ impl Sched {
             format!("job {}", job.life().state.name())
         } else if job.failures_of(worker) >= self.cfg.block_worker_after {
             "lease expired, and this worker is blocked from the job".into()
-        } else if matches!(job.tasks()[*idx].state, TaskState::Done { .. }) {
-            "lease expired, and the task was done by another worker".into()
         } else {
-            "lease expired, and the task went to another worker".into()
+            match job.tasks()[*idx].state {
+                TaskState::Done { .. } => "lease expired, and the task was done by another worker",
+                TaskState::Leased { .. } => "lease expired, and the task went to another worker",
+                _ => "lease expired",
+            }
+            .into()
         })
     }
 
