@@ -80,6 +80,12 @@ pub fn run(args: SubmitArgs) -> anyhow::Result<()> {
     rt.block_on(async {
         let c = Client::new(&args.coordinator, args.token.clone())?;
         let wait = args.wait || args.output.is_some();
+        if args.output.is_none() && args.job.look.options() != Default::default() {
+            eprintln!(
+                "raytile: warning: --exposure and --tonemap shape the PNG written with -o; \
+                 without -o they do nothing (ask GET /v1/jobs/ID/image?format=png&exposure=...)"
+            );
+        }
         let job =
             submit_and_follow(&c, &args.scene, &args.job, wait, args.output.as_deref()).await?;
         // The job's id, to fetch its image later; with --wait, once the job is done.

@@ -317,6 +317,11 @@ async fn metrics(State(state): State<AppState>) -> Response {
             c.expired,
         ),
         (
+            "raytile_tiles_revived_total",
+            "Expired leases given back to their workers at a heartbeat, nobody having taken the task (a worker stopped or cut off past its lease).",
+            c.revived,
+        ),
+        (
             "raytile_tiles_failed_total",
             "Failures reported by workers.",
             c.failed,

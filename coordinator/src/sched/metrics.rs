@@ -14,6 +14,8 @@ pub struct Counters {
     pub done: u64,
     /// Leases expired.
     pub expired: u64,
+    /// Expired leases given back to their workers at a heartbeat (the task still queued).
+    pub revived: u64,
     /// Failures reported.
     pub failed: u64,
     /// Results ignored because their task was done already.

@@ -647,7 +647,7 @@ impl Sched {
         tracing::info!(job = %job_id, task = idx, %worker, "expired lease renewed by its worker; nobody had taken the task");
         self.expired_leases.remove(lease);
         self.leases.insert(lease.into(), (job_id, idx));
-        self.counters.leased += 1;
+        self.counters.revived += 1;
         true
     }
 

@@ -261,7 +261,8 @@ fn an_expired_lease_comes_back_to_its_worker_while_nobody_took_the_task() {
         deliver(&mut s, &job, g.task, &w1, now),
         ResultOutcome::Accepted
     );
-    assert_eq!(s.metrics(now).counters.expired, 1);
+    let c = s.metrics(now).counters;
+    assert_eq!((c.expired, c.revived, c.leased), (1, 1, 2));
 
     // Expired, then taken by the other worker: not given back.
     let g3 = s.lease(&w1, now).unwrap().unwrap();
