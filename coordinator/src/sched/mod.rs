@@ -210,6 +210,17 @@ fn job_state_event(id: &str, life: &JobLife) -> Event {
     }
 }
 
+/// The event that says task `idx` of job `id` (`work`) is out with `worker`.
+fn task_leased_event(id: &str, idx: usize, work: &TaskWork, worker: &str) -> Event {
+    Event::TaskLeased {
+        job: id.into(),
+        task: idx as u32,
+        tile: work.tile,
+        pass: work.pass,
+        worker: worker.into(),
+    }
+}
+
 /// The event that says how far job `id` is.
 fn job_progress_event(id: &str, job: &Job) -> Event {
     let (tiles_done, passes_done) = job.progress();
@@ -531,13 +542,8 @@ impl Sched {
             self.store.write(&writes)?;
             job.set_task(idx, task);
             let work = job.work(idx).expect("a queued task is in the layout");
-            self.events.emit(|| Event::TaskLeased {
-                job: id.clone(),
-                task: idx as u32,
-                tile: work.tile,
-                pass: work.pass,
-                worker: worker.into(),
-            });
+            self.events
+                .emit(|| task_leased_event(&id, idx, &work, worker));
             if let Some(l) = life {
                 self.events.emit(|| job_state_event(&id, &l));
                 job.set_life(l);
@@ -637,13 +643,8 @@ impl Sched {
         }
         job.set_task(idx, task);
         let work = job.work(idx).expect("a leased task is in the layout");
-        self.events.emit(|| Event::TaskLeased {
-            job: job_id.clone(),
-            task: idx as u32,
-            tile: work.tile,
-            pass: work.pass,
-            worker: worker.clone(),
-        });
+        self.events
+            .emit(|| task_leased_event(&job_id, idx, &work, &worker));
         tracing::info!(job = %job_id, task = idx, %worker, "expired lease renewed by its worker; nobody had taken the task");
         self.expired_leases.remove(lease);
         self.leases.insert(lease.into(), (job_id, idx));
