@@ -115,6 +115,7 @@ mod tests {
             "-90",
             "--environment-strength",
             "2.5",
+            "--alpha",
         ];
         let want = RenderOverrides {
             width: Some(64),
@@ -131,6 +132,7 @@ mod tests {
             environment: Some(raytile_core::EnvironmentChoice::Map("sky.hdr".into())),
             environment_rotation: Some(-90.0),
             environment_strength: Some(2.5),
+            alpha: Some(true),
         };
         for command in [
             &["raytile", "render", "s.json", "-o", "x.png"][..],

@@ -71,6 +71,18 @@ impl LookArgs {
         }
     }
 
+    /// Warns when a render with an alpha channel goes to a format without one (Radiance).
+    pub fn warn_if_alpha_lost(alpha: bool, format: film::ImageFormat, output: &std::path::Path) {
+        if alpha && format == film::ImageFormat::Hdr {
+            eprintln!(
+                "raytile: warning: Radiance .hdr files have no alpha channel: {} gets the \
+                 colour premultiplied by alpha (the image over black); write .exr or .png to \
+                 keep it",
+                output.display()
+            );
+        }
+    }
+
     /// The image request's query parameters for them (none for the defaults or an image
     /// that is not a PNG).
     pub fn query(self, format: film::ImageFormat) -> Vec<(&'static str, String)> {
@@ -148,6 +160,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     desc.sppm_facts()
         .check(&settings)
         .map_err(|e| anyhow!("--integrator: {e}"))?;
+    LookArgs::warn_if_alpha_lost(settings.alpha, format, &args.output);
     for w in &desc.warnings {
         // The default light's warning says what this render does in its place.
         if w == NO_LIGHT_WARNING {

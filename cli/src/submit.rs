@@ -530,6 +530,9 @@ pub async fn submit_and_follow(
         Ok(e) => job_error(e),
         Err(e) => e,
     })?;
+    if let (Some(o), Some(f)) = (output, format) {
+        crate::render::LookArgs::warn_if_alpha_lost(status.settings.alpha, f, o);
+    }
     // What the farm's loader said about the scene, as `raytile render` says it: the default
     // light's warning names what lights this job in its place.
     for w in &created.warnings {

@@ -65,6 +65,14 @@ fn render_writes_every_format_and_prints_a_summary() {
             ext != "png",
             "{ext}: {err}"
         );
+        // An alpha channel is kept by EXR and PNG; a Radiance file cannot, and says so.
+        let (ok, err) = render(&out, &[&TINY[..], &["--alpha"]].concat());
+        assert!(ok, "{err}");
+        assert_eq!(
+            err.contains(".hdr files have no alpha channel"),
+            ext == "hdr",
+            "{ext}: {err}"
+        );
     }
     std::fs::remove_dir_all(&dir).ok();
 }
@@ -762,6 +770,8 @@ fn cluster_with_an_environment_matches_render() {
             "45",
         ][..],
         &["--environment", "0.2,0.4,0.6"],
+        // An alpha channel: the farm's tiles carry coverage, the EXR gets RGBA.
+        &["--environment", "0.2,0.4,0.6", "--alpha"],
     ] {
         let local = dir.join("local.exr");
         let o = raytile()

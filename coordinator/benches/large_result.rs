@@ -37,6 +37,7 @@ async fn main() -> anyhow::Result<()> {
         pixels: vec![[0.5, 0.5, 0.5, 1.0]; l.tile.pixel_count()],
         bad_samples: 0,
         splats: (0..SIDE * SIDE).map(|i| (i, [1 << 20; 3])).collect(),
+        coverage: Vec::new(),
     };
     let body = proto::tile::encode(&acc, l.pass);
     drop(acc);

@@ -38,6 +38,7 @@ async fn main() -> anyhow::Result<()> {
                     pixels: vec![[0.5, 0.5, 0.5, 1.0]; l.tile.pixel_count()],
                     bad_samples: 0,
                     splats: Vec::new(),
+                    coverage: Vec::new(),
                 };
                 farm.upload(&reg.worker_id, &l, proto::tile::encode(&acc, l.pass))
                     .await?;

@@ -1134,7 +1134,25 @@ fn check_splats(splats: &[(u32, [i128; 3])], splat_pixels: Option<u64>) -> Resul
 /// first pixel, in frame coordinates, and the value. The samples dropped as NaN or infinite
 /// are at most the tile's pixels times `samples`, as each pixel's weight is at most `samples`:
 /// they count into the frame's samples per pixel, by which a `bdpt` frame's splats are divided.
-pub(crate) fn check_sums(acc: &proto::tile::TileAccum, samples: u32) -> Result<(), String> {
+/// A job with an alpha channel (`alpha`) needs a coverage for each pixel, a whole number from 0
+/// to the pixel's weight; any other job's results carry none.
+pub(crate) fn check_sums(
+    acc: &proto::tile::TileAccum,
+    samples: u32,
+    alpha: bool,
+) -> Result<(), String> {
+    let want = if alpha { acc.tile.pixel_count() } else { 0 };
+    if acc.coverage.len() != want {
+        return Err(if alpha {
+            format!(
+                "the job has an alpha channel: its results need a coverage for each of the \
+                 tile's {want} pixels, got {}",
+                acc.coverage.len()
+            )
+        } else {
+            "result carries coverage, but the job has no alpha channel".to_string()
+        });
+    }
     let most_dropped = (acc.tile.pixel_count() as u64).saturating_mul(u64::from(samples));
     if acc.bad_samples > most_dropped {
         return Err(format!(
@@ -1169,6 +1187,15 @@ pub(crate) fn check_sums(acc: &proto::tile::TileAccum, samples: u32) -> Result<(
             return Err(format!(
                 "pixel ({x}, {y}) has a weight of {weight}: a weight counts samples, a whole number"
             ));
+        }
+        if let Some(&c) = acc.coverage.get(i) {
+            if !(0.0..=weight).contains(&c) || c.fract() != 0.0 {
+                let (x, y) = at();
+                return Err(format!(
+                    "pixel ({x}, {y}) has a coverage of {c}: it counts samples, a whole number \
+                     from 0 to the weight ({weight})"
+                ));
+            }
         }
         if let Some(k) = (0..3).find(|&k| f64::from(p[k].abs()) > f64::from(weight) * limit) {
             let (x, y) = at();
@@ -1216,12 +1243,13 @@ async fn upload_result(
                 pass,
                 s.pass_samples(&job, pass),
                 s.splat_pixels(&job),
+                s.alpha(&job),
                 settled,
                 s.lease_is_for(lease, &job, task, worker),
             )
         })
     };
-    let (tile, task_pass, pass_samples, splat_pixels, settled, leased) = match found {
+    let (tile, task_pass, pass_samples, splat_pixels, alpha, settled, leased) = match found {
         Ok(found) => found,
         Err(e) => {
             // No such job (purged) or task: the body is read and dropped first, so that the
@@ -1231,7 +1259,7 @@ async fn upload_result(
             return Err(e.into());
         }
     };
-    let expected = proto::tile::encoded_len(&tile);
+    let expected = proto::tile::encoded_len(&tile, alpha);
     // A bdpt result carries at most one splat per pixel of the frame after its pixels.
     let room = splat_pixels.map_or(0, |n| n * proto::tile::SPLAT_LEN as u64);
     let limit = (expected as u64 + room).min(state.cfg.limits.max_result_bytes);
@@ -1298,7 +1326,7 @@ async fn upload_result(
     let (acc, pass) =
         proto::tile::decode(&buf).map_err(|e| AppError::invalid("body", e.to_string()))?;
     check_splats(&acc.splats, splat_pixels)?;
-    if let Err(why) = check_sums(&acc, pass_samples) {
+    if let Err(why) = check_sums(&acc, pass_samples, alpha) {
         // Refused, so that no frame shows a corrupted tile. When the sender holds the task's
         // lease, the refusal counts as a failure of the task on that worker: the task is
         // queued again at once for another worker (or fails its job after

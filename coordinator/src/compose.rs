@@ -51,7 +51,7 @@ pub fn compose_by_pass<E>(
     mut read_pass: impl FnMut(Range<usize>, &mut dyn FnMut(u32, TileAccum)) -> Result<(), E>,
 ) -> Result<(Film, Vec<u32>), E> {
     let mut refused = Vec::new();
-    let mut film = Film::new(layout.width(), layout.height());
+    let mut film = Film::with_alpha(layout.width(), layout.height(), layout.alpha());
     // Tiles whose passes so far are all present.
     let mut open = vec![true; layout.tile_count()];
     let mut seen = vec![false; layout.tile_count()];
@@ -119,6 +119,7 @@ mod tests {
                 .collect(),
             bad_samples: 0,
             splats: Vec::new(),
+            coverage: Vec::new(),
         }
     }
 

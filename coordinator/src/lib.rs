@@ -167,7 +167,7 @@ impl Limits {
                 x1: s.tile_size.min(s.width),
                 y1: s.tile_size.min(s.height),
             };
-            let largest = raytile_proto::tile::encoded_len(&tile) as u64
+            let largest = raytile_proto::tile::encoded_len(&tile, s.alpha) as u64
                 + pixels * raytile_proto::tile::SPLAT_LEN as u64;
             if largest > self.max_result_bytes {
                 return over(

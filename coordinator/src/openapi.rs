@@ -100,7 +100,8 @@ fn settings_schema() -> Value {
         "tile_size": {"type": "integer"}, "passes": {"type": "integer"},
         "default_light": {"type": "boolean"},
         "environment": {"type": "string", "nullable": true},
-        "environment_rotation": {"type": "number"}, "environment_strength": {"type": "number"}}})
+        "environment_rotation": {"type": "number"}, "environment_strength": {"type": "number"},
+        "alpha": {"type": "boolean"}}})
 }
 
 fn schemas() -> Value {
@@ -129,7 +130,8 @@ fn schemas() -> Value {
             "environment": {"type": "string", "example": "0.5,0.5,0.5",
                 "description": "the job's light, replacing the scene's environment: none, R,G,B (constant linear radiance, each ≥ 0) or the path of an equirectangular .hdr or .exr map inside the scene's folder (raytile submit packs it with the scene)"},
             "environment_rotation": {"type": "number", "description": "rotation of the environment map about +Y, degrees (needs environment)"},
-            "environment_strength": {"type": "number", "minimum": 0, "description": "multiplies the environment (needs environment)"}}},
+            "environment_strength": {"type": "number", "minimum": 0, "description": "multiplies the environment (needs environment)"},
+            "alpha": {"type": "boolean", "description": "an alpha channel: the environment seen straight from the camera is transparent (it still lights the scene) and colours are premultiplied by alpha; EXR and PNG images carry it, Radiance HDR has none"}}},
         "RenderSettings": settings_schema(),
         "JobStatus": {"type": "object", "required": ["id", "scene", "state", "settings", "tasks_total", "tasks_done"], "properties": {
             "id": {"type": "string"}, "scene": {"type": "string"}, "state": {"type": "string", "enum": JobState::ALL.map(JobState::name)},

@@ -1645,6 +1645,7 @@ fn result_4x2(pixels: Vec<[f32; 4]>, bad_samples: u64) -> Vec<u8> {
         pixels,
         bad_samples,
         splats: Vec::new(),
+        coverage: Vec::new(),
     };
     raytile_proto::tile::encode(&acc, 0)
 }
@@ -1664,12 +1665,13 @@ fn result_sums_are_held_to_what_a_pass_can_make() {
         pixels: vec![[0.5, 0.25, -0.125, 4.0], p],
         bad_samples: 0,
         splats: Vec::new(),
+        coverage: Vec::new(),
     };
     let max = raytile_core::film::MAX_SAMPLE;
     // Fine: fewer samples kept than the pass has, negative sums (the normals integrator's),
     // the largest sample values.
     for p in [[0.0; 4], [1.0, -2.0, 3.0, 3.0], [max, -max, max * 2.0, 2.0]] {
-        crate::api::check_sums(&acc(p), 4).unwrap();
+        crate::api::check_sums(&acc(p), 4, false).unwrap();
     }
     let refused = [
         ([f32::NAN, 0.0, 0.0, 1.0], "red sum of NaN"),
@@ -1684,8 +1686,34 @@ fn result_sums_are_held_to_what_a_pass_can_make() {
         ([1.0, 0.0, 0.0, 0.0], "colour sum of 1 over 0 samples"),
     ];
     for (p, want) in refused {
-        let e = crate::api::check_sums(&acc(p), 4).unwrap_err();
+        let e = crate::api::check_sums(&acc(p), 4, false).unwrap_err();
         assert!(e.contains("pixel (9, 4)") && e.contains(want), "{p:?}: {e}");
+    }
+    // Coverage: one whole number from 0 to the weight per pixel for a job with an alpha
+    // channel, none for any other.
+    let p = [1.0, 1.0, 1.0, 3.0];
+    let covered = |c: Vec<f32>| TileAccum {
+        coverage: c,
+        ..acc(p)
+    };
+    crate::api::check_sums(&covered(vec![4.0, 3.0]), 4, true).unwrap();
+    crate::api::check_sums(&covered(vec![0.0, 0.0]), 4, true).unwrap();
+    let refused = [
+        (
+            vec![],
+            true,
+            "need a coverage for each of the tile's 2 pixels, got 0",
+        ),
+        (vec![1.0], true, "got 1"),
+        (vec![1.0, 1.0], false, "the job has no alpha channel"),
+        (vec![1.0, 4.0], true, "pixel (9, 4) has a coverage of 4"),
+        (vec![1.0, 0.5], true, "coverage of 0.5"),
+        (vec![1.0, -1.0], true, "coverage of -1"),
+        (vec![1.0, f32::NAN], true, "coverage of NaN"),
+    ];
+    for (c, alpha, want) in refused {
+        let e = crate::api::check_sums(&covered(c.clone()), 4, alpha).unwrap_err();
+        assert!(e.contains(want), "{c:?}: {e}");
     }
 }
 

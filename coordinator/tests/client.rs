@@ -143,6 +143,7 @@ async fn the_client_speaks_every_route_it_knows() {
             pixels: vec![[0.5, 0.25, 1.0, 1.0]; lease.tile.pixel_count()],
             bad_samples: 0,
             splats: Vec::new(),
+            coverage: Vec::new(),
         };
         let body = raytile_proto::tile::encode(&acc, lease.pass);
         let reply = api

@@ -301,7 +301,7 @@ function jobRequest(job) {
   const req = { scene: job.scene, priority: job.priority };
   for (const k of ["width", "height", "spp", "max_depth", "integrator", "seed", "camera",
                    "filter", "tile_size", "passes", "default_light", "environment",
-                   "environment_rotation", "environment_strength"]) {
+                   "environment_rotation", "environment_strength", "alpha"]) {
     if (s[k] !== null && s[k] !== undefined) req[k] = s[k];
   }
   return req;
@@ -531,6 +531,8 @@ function submitForm() {
     field("environment_rotation", "Environment rotation (°)",
       h("input", { type: "number", step: "any", placeholder: "0" })),
     field("priority", "Priority", num("priority", "0")),
+    field("alpha", "Transparent background (alpha channel)",
+      h("input", { type: "checkbox" })),
     h("div", { class: "buttons" },
       h("button", { type: "submit", id: "submit-button" }, "Submit"),
       h("span", { class: "error", id: "err-form", role: "alert" }),
@@ -594,6 +596,7 @@ function submitForm() {
         if (v !== "") req[name] = Number(v);
       }
       if (form.elements.integrator.value) req.integrator = form.elements.integrator.value;
+      if (form.elements.alpha.checked) req.alpha = true;
       const environment = form.elements.environment.value.trim();
       if (environment !== "") req.environment = environment;
       status.textContent = "submitting…";
@@ -730,12 +733,13 @@ function jobPage(main, id) {
   const failures = h("ul", { class: "failures", id: "job-failures" });
   const errorBox = h("p", { class: "error", id: "job-error", role: "alert" });
   const showOverlay = h("input", { type: "checkbox", id: "show-overlay", checked: true });
+  const preview = h("div", { class: "preview" }, canvas, overlay);
   main.append(
     h("p", {}, h("a", { href: "/" }, "← all jobs")),
     title, actions, errorBox,
     h("div", { class: "job-layout" },
       h("section", { "aria-label": "Preview" },
-        h("div", { class: "preview" }, canvas, overlay),
+        preview,
         h("div", { class: "legend" },
           h("label", {}, showOverlay, " tile overlay"),
           h("span", {}, h("span", { class: "swatch waiting" }), "no pass yet"),
@@ -776,6 +780,7 @@ function jobPage(main, id) {
       ["Max depth", s.max_depth], ["Seed", s.seed], ["Camera", s.camera || "first"],
       ["Environment", s.environment ? s.environment + " ×" + s.environment_strength + ", " + s.environment_rotation + "°" : "scene's own"],
       ["Filter", s.filter], ["Tile size", s.tile_size], ["Default light", s.default_light],
+      ["Alpha", s.alpha ? "yes (transparent background)" : "no"],
       ["Priority", job.priority]];
     settings.replaceChildren(...rows.flatMap(([k, v]) => [h("dt", {}, k), h("dd", {}, String(v))]));
     const total = job.samples_done || 1;
@@ -867,6 +872,9 @@ function jobPage(main, id) {
     const bitmap = await createImageBitmap(await r.blob());
     sizeCanvases();
     const ctx = canvas.getContext("2d");
+    // A frame with an alpha channel shows over a checkerboard; each preview replaces the last.
+    preview.classList.toggle("alpha", Boolean(job.settings && job.settings.alpha));
+    ctx.clearRect(0, 0, canvas.width, canvas.height);
     ctx.drawImage(bitmap, 0, 0);
     // How much of the frame shows something (not black), for the record.
     const px = ctx.getImageData(0, 0, canvas.width, canvas.height).data;

@@ -149,4 +149,9 @@ pub use settings::{
 /// [0, 1], so where no surface was seen they read as (-1, -1, -1)), and `albedo` is in [0, 1]
 /// (an emitter's, and the sky's, was its radiance; now its colour scaled to at most one).
 /// Other integrators are unchanged.
-pub const RENDER_VERSION: u32 = 18;
+///
+/// 19 (2026-12-07): the `alpha` setting (an alpha channel: the environment seen straight from
+/// the camera transparent, colours premultiplied) and tile results that carry coverage (format
+/// 3). A worker of version 18 would not know the setting, so the versions must not mix; images
+/// of jobs without `alpha` are unchanged.
+pub const RENDER_VERSION: u32 = 19;

@@ -280,6 +280,11 @@ pub struct RenderSettings {
     pub environment_rotation: f32,
     /// Multiplies the job's environment (map or colour).
     pub environment_strength: f32,
+    /// Whether the image has an alpha channel: a camera ray that leaves the scene without
+    /// meeting a surface or scattering in a medium sees nothing (transparent) instead of the
+    /// environment, which still lights the scene. The colour is then premultiplied by the
+    /// pixel's alpha, ready to be laid over a background.
+    pub alpha: bool,
 }
 
 impl Default for RenderSettings {
@@ -299,6 +304,7 @@ impl Default for RenderSettings {
             environment: None,
             environment_rotation: 0.0,
             environment_strength: 1.0,
+            alpha: false,
         }
     }
 }
@@ -420,6 +426,7 @@ impl RenderSettings {
             environment,
             environment_rotation,
             environment_strength,
+            alpha,
         } = self;
         RenderOverrides {
             width: Some(*width),
@@ -436,6 +443,7 @@ impl RenderSettings {
             environment: environment.clone(),
             environment_rotation: Some(*environment_rotation),
             environment_strength: Some(*environment_strength),
+            alpha: Some(*alpha),
         }
     }
 
@@ -559,6 +567,20 @@ pub struct RenderOverrides {
     #[cfg_attr(feature = "clap", arg(long, value_name = "X", value_parser = f32_arg))]
     #[serde(deserialize_with = "f32_in_range")]
     pub environment_strength: Option<f32>,
+    /// `true`: an alpha channel, the environment seen straight from the camera transparent
+    /// (it still lights the scene); colours premultiplied by alpha (default `false`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(
+        feature = "clap",
+        arg(
+            long = "alpha",
+            num_args = 0,
+            default_missing_value = "true",
+            help = "Write an alpha channel: the environment seen straight from the camera is \
+                    transparent (it still lights the scene), colours are premultiplied"
+        )
+    )]
+    pub alpha: Option<bool>,
 }
 
 /// Why a number does not fit an f32: it is finite but beyond the largest f32, which a plain
@@ -624,7 +646,7 @@ pub fn camera_name_or_index<'de, D: serde::Deserializer<'de>>(
 
 impl RenderOverrides {
     /// The field names, as in JSON (a `--flag` on the command line, `_` spelt `-`).
-    pub const FIELDS: [&'static str; 14] = [
+    pub const FIELDS: [&'static str; 15] = [
         "width",
         "height",
         "spp",
@@ -639,6 +661,7 @@ impl RenderOverrides {
         "environment",
         "environment_rotation",
         "environment_strength",
+        "alpha",
     ];
 
     /// Checks each given field on its own (ranges), so that a wrong value is refused before
@@ -659,6 +682,7 @@ impl RenderOverrides {
             environment: _,
             environment_rotation,
             environment_strength,
+            alpha: _,
         } = self;
         if let Some(r) = environment_rotation {
             if !r.is_finite() {
@@ -710,6 +734,7 @@ impl RenderOverrides {
             environment,
             environment_rotation,
             environment_strength,
+            alpha,
         } = self;
         s.width = width.unwrap_or(s.width);
         s.height = height.unwrap_or(s.height);
@@ -729,6 +754,7 @@ impl RenderOverrides {
         }
         s.environment_rotation = environment_rotation.unwrap_or(s.environment_rotation);
         s.environment_strength = environment_strength.unwrap_or(s.environment_strength);
+        s.alpha = alpha.unwrap_or(s.alpha);
     }
 }
 
@@ -927,6 +953,7 @@ mod tests {
         let v = serde_json::to_value(RenderSettings::default()).unwrap();
         let keys: Vec<&str> = v.as_object().unwrap().keys().map(|k| k.as_str()).collect();
         let want = [
+            "alpha",
             "camera",
             "default_light",
             "environment",

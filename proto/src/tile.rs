@@ -36,6 +36,11 @@ pub struct TileAccum {
     /// by 2^[`SPLAT_FRACTION_BITS`]), sorted by pixel, one entry per pixel. Integer sums, so
     /// adding them in any order gives the same bits. Empty for every other integrator.
     pub splats: Vec<(u32, [i128; 3])>,
+    /// Row-major count of each pixel's samples whose camera ray met the scene (did not leave it
+    /// straight for the environment), for a job with an alpha channel
+    /// (`RenderSettings::alpha`): a pixel's alpha is its coverage over its weight. Whole
+    /// numbers, so sums are exact. Empty for a job without alpha.
+    pub coverage: Vec<f32>,
 }
 
 /// Bits after the binary point of a splat's fixed-point value: a channel value `v` travels as
@@ -53,8 +58,13 @@ const V1_FRACTION_BITS: u32 = 28;
 
 /// First four bytes of every tile result.
 pub const MAGIC: [u8; 4] = *b"RTTR";
-/// Version of the format written by [`encode`].
+/// Version of the format written by [`encode`] for a result without coverage; one with
+/// coverage (a job with an alpha channel) is written as [`VERSION_COVERAGE`].
 pub const VERSION: u32 = 2;
+/// Version of a result that carries coverage: version 2's layout with one f32 per pixel after
+/// the pixels, before the splats. Results without coverage are still written as version 2, so
+/// that a coordinator of an earlier release reads every result it can use.
+pub const VERSION_COVERAGE: u32 = 3;
 /// Size of the header in bytes.
 pub const HEADER_LEN: usize = 40;
 
@@ -68,7 +78,7 @@ pub enum TileFormatError {
     #[error("tile result does not start with the magic bytes RTTR")]
     Magic,
     /// An unknown format version.
-    #[error("unsupported tile result version {0} (expected {VERSION})")]
+    #[error("unsupported tile result version {0} (expected {VERSION} or {VERSION_COVERAGE})")]
     Version(u32),
     /// The rectangle is empty, inverted or too large.
     #[error("bad tile rectangle [{0}, {2}) × [{1}, {3})")]
@@ -83,18 +93,27 @@ pub enum TileFormatError {
     },
 }
 
-/// The total encoded size of a result for `tile`.
-pub fn encoded_len(tile: &Tile) -> usize {
-    HEADER_LEN + tile.pixel_count() * 16
+/// The total encoded size of a result for `tile` without splats, with or without coverage.
+pub fn encoded_len(tile: &Tile, coverage: bool) -> usize {
+    HEADER_LEN + tile.pixel_count() * if coverage { 20 } else { 16 }
 }
 
-/// Encodes a tile result for `pass`.
+/// Encodes a tile result for `pass`. Coverage, when present, has one value per pixel
+/// (otherwise [`decode`] refuses the bytes).
 pub fn encode(accum: &TileAccum, pass: u32) -> Vec<u8> {
     let t = accum.tile;
-    let mut out = Vec::with_capacity(encoded_len(&t) + accum.splats.len() * SPLAT_LEN);
+    let with_coverage = !accum.coverage.is_empty();
+    let mut out = Vec::with_capacity(
+        encoded_len(&t, false) + accum.coverage.len() * 4 + accum.splats.len() * SPLAT_LEN,
+    );
     out.extend_from_slice(&MAGIC);
     let n = accum.splats.len() as u32;
-    for v in [VERSION, t.x0, t.y0, t.x1, t.y1, pass, n] {
+    let version = if with_coverage {
+        VERSION_COVERAGE
+    } else {
+        VERSION
+    };
+    for v in [version, t.x0, t.y0, t.x1, t.y1, pass, n] {
         out.extend_from_slice(&v.to_le_bytes());
     }
     out.extend_from_slice(&accum.bad_samples.to_le_bytes());
@@ -102,6 +121,9 @@ pub fn encode(accum: &TileAccum, pass: u32) -> Vec<u8> {
         for c in p {
             out.extend_from_slice(&c.to_le_bytes());
         }
+    }
+    for c in &accum.coverage {
+        out.extend_from_slice(&c.to_le_bytes());
     }
     for (i, rgb) in &accum.splats {
         out.extend_from_slice(&i.to_le_bytes());
@@ -123,7 +145,7 @@ pub fn decode(bytes: &[u8]) -> Result<(TileAccum, u32), TileFormatError> {
     let u = |i: usize| u32::from_le_bytes([bytes[i], bytes[i + 1], bytes[i + 2], bytes[i + 3]]);
     let version = u(4);
     let splat_len = match version {
-        VERSION => SPLAT_LEN,
+        VERSION | VERSION_COVERAGE => SPLAT_LEN,
         1 => V1_SPLAT_LEN,
         _ => return Err(TileFormatError::Version(version)),
     };
@@ -137,9 +159,14 @@ pub fn decode(bytes: &[u8]) -> Result<(TileAccum, u32), TileFormatError> {
     let tile = Tile { x0, y0, x1, y1 };
     let n_splats = u(28) as usize;
     let pixel_bytes = tile.pixel_count() * 16;
+    let coverage_bytes = if version == VERSION_COVERAGE {
+        tile.pixel_count() * 4
+    } else {
+        0
+    };
     let expected = n_splats
         .checked_mul(splat_len)
-        .and_then(|b| b.checked_add(pixel_bytes))
+        .and_then(|b| b.checked_add(pixel_bytes + coverage_bytes))
         .unwrap_or(usize::MAX);
     let body = &bytes[HEADER_LEN..];
     if body.len() != expected {
@@ -148,7 +175,12 @@ pub fn decode(bytes: &[u8]) -> Result<(TileAccum, u32), TileFormatError> {
             got: body.len(),
         });
     }
-    let (body, splat_bytes) = body.split_at(pixel_bytes);
+    let (body, rest) = body.split_at(pixel_bytes);
+    let (coverage_bytes, splat_bytes) = rest.split_at(coverage_bytes);
+    let coverage = coverage_bytes
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect();
     let splats = splat_bytes
         .chunks_exact(splat_len)
         .map(|b| {
@@ -181,6 +213,7 @@ pub fn decode(bytes: &[u8]) -> Result<(TileAccum, u32), TileFormatError> {
             pixels,
             bad_samples: u64::from_le_bytes(bad),
             splats,
+            coverage,
         },
         pass,
     ))
@@ -204,7 +237,45 @@ mod tests {
                 .collect(),
             bad_samples: 7,
             splats: Vec::new(),
+            coverage: Vec::new(),
         }
+    }
+
+    /// A result with coverage is version 3: the coverage after the pixels, the splats after it;
+    /// without coverage it stays version 2, byte for byte what an earlier release wrote.
+    #[test]
+    fn coverage_travels_between_pixels_and_splats() {
+        let plain = encode(&sample(), 4);
+        assert_eq!(u32::from_le_bytes(plain[4..8].try_into().unwrap()), VERSION);
+        let mut a = sample();
+        a.coverage = vec![0.0, 1.0, 2.0, 3.0, 16_777_216.0, 5.0];
+        a.splats = vec![(7, [1, 2, 3])];
+        let bytes = encode(&a, 4);
+        assert_eq!(
+            u32::from_le_bytes(bytes[4..8].try_into().unwrap()),
+            VERSION_COVERAGE
+        );
+        assert_eq!(bytes.len(), encoded_len(&a.tile, true) + SPLAT_LEN);
+        // The header (apart from the version and the splat count) and the pixels as before.
+        assert_eq!(bytes[8..28], plain[8..28]);
+        assert_eq!(bytes[32..plain.len()], plain[32..]);
+        let (b, pass) = decode(&bytes).unwrap();
+        assert_eq!((pass, &b), (4, &a));
+        // The coverage is part of the length: one value short is refused, as is a version 2
+        // header on the longer body.
+        assert!(matches!(
+            decode(&bytes[..bytes.len() - 1]),
+            Err(TileFormatError::Length { .. })
+        ));
+        let mut v2 = bytes.clone();
+        v2[4..8].copy_from_slice(&VERSION.to_le_bytes());
+        assert!(matches!(decode(&v2), Err(TileFormatError::Length { .. })));
+        // Coverage of the wrong length is written as given and refused when read.
+        a.coverage.pop();
+        assert!(matches!(
+            decode(&encode(&a, 4)),
+            Err(TileFormatError::Length { .. })
+        ));
     }
 
     #[test]
@@ -212,7 +283,7 @@ mod tests {
         let mut a = sample();
         a.splats = vec![(0, [1, -2, i128::MAX]), (99, [i128::MIN, 0, 5])];
         let bytes = encode(&a, 1);
-        assert_eq!(bytes.len(), encoded_len(&a.tile) + 2 * SPLAT_LEN);
+        assert_eq!(bytes.len(), encoded_len(&a.tile, false) + 2 * SPLAT_LEN);
         let (b, pass) = decode(&bytes).unwrap();
         assert_eq!((pass, &b.splats), (1, &a.splats));
         // A splat count that the body does not hold is refused.
@@ -251,15 +322,15 @@ mod tests {
                 (9, [0, i128::from(i64::MIN) * k, (1 << 40) * k])
             ]
         );
-        bytes[4..8].copy_from_slice(&3u32.to_le_bytes());
-        assert_eq!(decode(&bytes).unwrap_err(), TileFormatError::Version(3));
+        bytes[4..8].copy_from_slice(&4u32.to_le_bytes());
+        assert_eq!(decode(&bytes).unwrap_err(), TileFormatError::Version(4));
     }
 
     #[test]
     fn round_trip_keeps_bits() {
         let a = sample();
         let bytes = encode(&a, 2);
-        assert_eq!(bytes.len(), encoded_len(&a.tile));
+        assert_eq!(bytes.len(), encoded_len(&a.tile, false));
         let (b, pass) = decode(&bytes).unwrap();
         assert_eq!(pass, 2);
         assert_eq!(b.tile, a.tile);

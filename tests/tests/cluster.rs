@@ -346,6 +346,7 @@ mod support {
                 pixels: vec![[1.0, 0.5, 0.25, 1.0]; l.tile.pixel_count()],
                 bad_samples: 0,
                 splats: Vec::new(),
+                coverage: Vec::new(),
             };
             let r = self
                 .http
@@ -435,7 +436,16 @@ mod determinism {
     /// workers with tiles of 16 and of 64 pixels give the local render's bits.
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn bdpt_on_two_workers_matches_local_render_whatever_the_tiles() {
-        caustic_on_two_workers_matches_local_render(proto::IntegratorKind::Bdpt, 4).await;
+        caustic_on_two_workers_matches_local_render(proto::IntegratorKind::Bdpt, 4, false).await;
+    }
+
+    /// A job with an alpha channel: tile results carry coverage, which the frame adds as it
+    /// adds the sums, so two workers give the local render's EXR (its alpha too) whatever the
+    /// tiles, with `path`, and with `bdpt`'s splats beside the coverage.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn alpha_on_two_workers_matches_local_render_whatever_the_tiles() {
+        caustic_on_two_workers_matches_local_render(proto::IntegratorKind::Path, 3, true).await;
+        caustic_on_two_workers_matches_local_render(proto::IntegratorKind::Bdpt, 2, true).await;
     }
 
     /// An `sppm` job: each tile task runs every iteration of its pixels against whole-frame
@@ -443,14 +453,16 @@ mod determinism {
     /// alone, so two workers with tiles of 16 and of 64 pixels give the local render's bits.
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn sppm_on_two_workers_matches_local_render_whatever_the_tiles() {
-        caustic_on_two_workers_matches_local_render(proto::IntegratorKind::Sppm, 1).await;
+        caustic_on_two_workers_matches_local_render(proto::IntegratorKind::Sppm, 1, false).await;
     }
 
     /// `scenes/caustic.json` with `integrator` in `passes` passes on two workers, with tiles of
-    /// 16 and of 64 pixels: the local render's EXR both times.
+    /// 16 and of 64 pixels: the local render's EXR both times. With `alpha`, the EXR's alpha
+    /// channel is checked to be opaque on the floor and clear beyond it.
     async fn caustic_on_two_workers_matches_local_render(
         integrator: proto::IntegratorKind,
         passes: u32,
+        alpha: bool,
     ) {
         let scene = std::path::PathBuf::from(concat!(
             env!("CARGO_MANIFEST_DIR"),
@@ -471,11 +483,25 @@ mod determinism {
             req.overrides.passes = Some(passes);
             req.overrides.max_depth = Some(6);
             req.overrides.integrator = Some(integrator);
+            req.overrides.alpha = Some(alpha);
             let j = submit(&c.base, &req).await;
             let done = wait_for(&c.base, &j.id, 120, |s| s.state.is_final()).await;
             assert_eq!(done.state, JobState::Done, "{done:?}");
             assert_eq!(done.settings.integrator, integrator);
+            assert_eq!(done.settings.alpha, alpha);
             let got = image(&c.base, &j.id, "exr").await;
+            if alpha {
+                let img = ::image::load_from_memory(&got).unwrap().into_rgba32f();
+                let a: Vec<f32> = img.pixels().map(|p| p.0[3]).collect();
+                // The camera looks down at the floor: the corners of its top row see past it
+                // (the lamp and the ball are in the middle).
+                let top = [&a[..8], &a[32..40]].concat();
+                assert!(top.iter().all(|&a| a == 0.0), "{:?}", &a[..40]);
+                assert!(a.contains(&1.0));
+                let png = image(&c.base, &j.id, "png").await;
+                let png = ::image::load_from_memory(&png).unwrap();
+                assert_eq!(png.color(), ::image::ColorType::Rgba8);
+            }
             let local = want.get_or_insert_with(|| local_exr(&scene, &done.settings));
             assert!(
                 got == *local,

@@ -754,6 +754,12 @@ impl Sched {
             .then(|| s.width as u64 * s.height as u64)
     }
 
+    /// Whether `job`'s results carry coverage (the job has an alpha channel); false for an
+    /// unknown job.
+    pub fn alpha(&self, job: &str) -> bool {
+        self.jobs.get(job).is_some_and(|j| j.settings.alpha)
+    }
+
     /// Stores a result for task `idx` of `job_id`, delivered at `now`.
     pub fn complete(
         &mut self,

@@ -20,6 +20,8 @@ pub struct TaskLayout {
     passes: Vec<Range<u32>>,
     /// Tile indices, centre-out.
     order: Vec<u32>,
+    /// Whether the job's results carry coverage (an alpha channel).
+    alpha: bool,
 }
 
 /// What one task renders.
@@ -53,7 +55,13 @@ impl TaskLayout {
             tiles,
             passes: settings.pass_ranges(),
             order,
+            alpha: settings.alpha,
         }
+    }
+
+    /// Whether the frame has an alpha channel: every result carries coverage.
+    pub fn alpha(&self) -> bool {
+        self.alpha
     }
 
     /// Frame width in pixels.

@@ -52,6 +52,7 @@ fn deliver(s: &mut Sched, job: &str, idx: u32, worker: &str, now: Now) -> Result
         pixels: vec![[pass as f32 + 0.5, 1.0, 2.0, 1.0]; tile.pixel_count()],
         bad_samples: 0,
         splats: Vec::new(),
+        coverage: Vec::new(),
     };
     let bytes = raytile_proto::tile::encode(&acc, pass);
     let d = Delivery {
@@ -857,6 +858,7 @@ fn a_failed_write_changes_nothing_and_the_retry_applies_once() {
             pixels: vec![[1.0; 4]; tile.pixel_count()],
             bad_samples: 0,
             splats: Vec::new(),
+            coverage: Vec::new(),
         };
         let bytes = raytile_proto::tile::encode(&acc, pass);
         let d = Delivery {
@@ -932,6 +934,7 @@ fn the_last_result_finishes_the_job_only_when_stored() {
             pixels: vec![[1.0; 4]; tile.pixel_count()],
             bad_samples: 0,
             splats: Vec::new(),
+            coverage: Vec::new(),
         };
         let bytes = raytile_proto::tile::encode(&acc, pass);
         let d = Delivery {

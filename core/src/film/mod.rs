@@ -60,6 +60,17 @@ pub enum TileMismatch {
         /// The pixels given.
         got: usize,
     },
+    /// The tile carries coverage and the film has no alpha channel, or the other way round,
+    /// or its coverage is not one value per pixel.
+    #[error("tile [{}, {}) × [{}, {}) has coverage for {got} pixels, expected {expected}", tile.x0, tile.x1, tile.y0, tile.y1)]
+    Coverage {
+        /// The tile.
+        tile: crate::Tile,
+        /// Coverage values the film needs: the tile's pixel count, or none.
+        expected: usize,
+        /// The coverage values given.
+        got: usize,
+    },
     /// A splat names a pixel outside the film.
     #[error("splat for pixel {index} lies outside the {width}×{height} film")]
     Splat {
@@ -89,19 +100,36 @@ pub struct Film {
     /// Camera samples added so far over the whole frame (weights and dropped samples): the
     /// splat sums are divided by this over the pixel count (the samples per pixel).
     pub samples: f64,
+    /// Row-major sums of coverage ([`TileAccum::coverage`]) for a film with an alpha channel;
+    /// empty for one without.
+    pub coverage: Vec<f32>,
 }
 
 impl Film {
-    /// An empty film.
+    /// An empty film without an alpha channel.
     pub fn new(width: u32, height: u32) -> Self {
+        Self::with_alpha(width, height, false)
+    }
+
+    /// An empty film, with an alpha channel if `alpha` (the job's
+    /// [`RenderSettings::alpha`](crate::settings::RenderSettings::alpha)): its tiles must then
+    /// carry coverage, and without it they must not.
+    pub fn with_alpha(width: u32, height: u32, alpha: bool) -> Self {
+        let n = width as usize * height as usize;
         Self {
             width,
             height,
-            pixels: vec![[0.0; 4]; width as usize * height as usize],
+            pixels: vec![[0.0; 4]; n],
             bad_samples: 0,
             splats: Vec::new(),
             samples: 0.0,
+            coverage: if alpha { vec![0.0; n] } else { Vec::new() },
         }
+    }
+
+    /// Whether the film has an alpha channel.
+    pub fn has_alpha(&self) -> bool {
+        !self.coverage.is_empty()
     }
 
     /// Adds a tile's sums. The caller adds the tiles of each pass in pass order, which is what
@@ -121,6 +149,18 @@ impl Film {
                 tile,
                 expected: tile.pixel_count(),
                 got: t.pixels.len(),
+            });
+        }
+        let expected = if self.has_alpha() {
+            tile.pixel_count()
+        } else {
+            0
+        };
+        if t.coverage.len() != expected {
+            return Err(TileMismatch::Coverage {
+                tile,
+                expected,
+                got: t.coverage.len(),
             });
         }
         let len = self.pixels.len();
@@ -148,6 +188,11 @@ impl Film {
             for (dst, s) in self.pixels[start..start + w].iter_mut().zip(src) {
                 for k in 0..4 {
                     dst[k] += s[k];
+                }
+            }
+            if let Some(cov) = t.coverage.get(row * w..(row + 1) * w) {
+                for (dst, c) in self.coverage[start..start + w].iter_mut().zip(cov) {
+                    *dst += c;
                 }
             }
         }
@@ -183,6 +228,18 @@ impl Film {
         out
     }
 
+    /// Alpha per pixel (coverage / weight; 0 where no sample landed), for a film with an alpha
+    /// channel. The colours of [`Film::resolve`] are then premultiplied by it.
+    pub fn alpha(&self) -> Option<Vec<f32>> {
+        self.has_alpha().then(|| {
+            self.pixels
+                .iter()
+                .zip(&self.coverage)
+                .map(|(p, c)| if p[3] > 0.0 { c / p[3] } else { 0.0 })
+                .collect()
+        })
+    }
+
     /// Mean of each channel over the image.
     pub fn mean(&self) -> [f64; 3] {
         let px = self.resolve();
@@ -215,6 +272,7 @@ mod tests {
             pixels: vec![[2.0, 4.0, 6.0, 2.0]; 4],
             bad_samples: 1,
             splats: Vec::new(),
+            coverage: Vec::new(),
         })
         .unwrap();
         let px = f.resolve();
@@ -234,6 +292,7 @@ mod tests {
             pixels: vec![[1.0; 4]; 6],
             bad_samples: 5,
             splats: Vec::new(),
+            coverage: Vec::new(),
         });
         assert!(
             matches!(outside, Err(TileMismatch::Outside { .. })),
@@ -244,6 +303,7 @@ mod tests {
             pixels: vec![[1.0; 4]; 3],
             bad_samples: 5,
             splats: Vec::new(),
+            coverage: Vec::new(),
         });
         assert_eq!(
             short,
@@ -257,7 +317,40 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("3 pixels, expected 4"));
+        // Coverage only where the film has an alpha channel, one value per pixel.
+        let covered = TileAccum {
+            tile,
+            pixels: vec![[1.0; 4]; 4],
+            bad_samples: 0,
+            splats: Vec::new(),
+            coverage: vec![1.0; 4],
+        };
+        assert!(matches!(
+            f.add_tile(&covered),
+            Err(TileMismatch::Coverage {
+                expected: 0,
+                got: 4,
+                ..
+            })
+        ));
         assert_eq!(f, before);
+        let mut a = Film::with_alpha(4, 3, true);
+        let empty = a.clone();
+        let bare = TileAccum {
+            coverage: Vec::new(),
+            ..covered.clone()
+        };
+        let e = a.add_tile(&bare).unwrap_err();
+        assert!(
+            e.to_string().contains("coverage for 0 pixels, expected 4"),
+            "{e}"
+        );
+        assert_eq!(a, empty);
+        a.add_tile(&covered).unwrap();
+        a.add_tile(&covered).unwrap();
+        let alpha = a.alpha().unwrap();
+        assert_eq!((alpha[5], alpha[0]), (1.0, 0.0));
+        assert_eq!(a.coverage[5], 2.0);
     }
 
     #[test]
@@ -273,6 +366,7 @@ mod tests {
             pixels: vec![[0.0; 4]],
             bad_samples: u64::MAX,
             splats: Vec::new(),
+            coverage: Vec::new(),
         };
         f.add_tile(&t).unwrap();
         f.add_tile(&t).unwrap();

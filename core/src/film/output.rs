@@ -231,6 +231,7 @@ pub fn encode_with(
     meta: &Metadata,
 ) -> Result<Vec<u8>, FilmError> {
     let px = film.resolve();
+    let alpha = film.alpha();
     let (w, h) = (film.width, film.height);
     let mut out = Cursor::new(Vec::new());
     let err = |format: &'static str| {
@@ -255,10 +256,6 @@ pub fn encode_with(
                 line_order: LineOrder::Increasing,
             };
             let width = w as usize;
-            let channels = SpecificChannels::rgb(|at: Vec2<usize>| {
-                let [r, g, b] = px[at.y() * width + at.x()];
-                (r, g, b)
-            });
             // OpenEXR's text is bytes; UTF-8 is what readers take it for.
             let text = |v: &str| Text::from_slice_unchecked(v.as_bytes());
             let mut attributes = LayerAttributes::default();
@@ -270,16 +267,35 @@ pub fn encode_with(
                     .other
                     .insert(text("raytile"), AttributeValue::Text(text(&meta.raytile)));
             }
-            let layer = Layer::new((width, h as usize), attributes, encoding, channels);
-            Image::from_layer(layer)
-                .write()
-                .to_buffered(&mut out)
-                .map_err(|e| FilmError::Encode {
-                    format: "OpenEXR",
-                    message: e.to_string(),
-                })?;
+            // RGB, or RGBA with the colour premultiplied by alpha (OpenEXR's convention):
+            // the two are layers of different types, written by the same steps.
+            macro_rules! write_layer {
+                ($channels:expr) => {{
+                    let layer = Layer::new((width, h as usize), attributes, encoding, $channels);
+                    Image::from_layer(layer)
+                        .write()
+                        .to_buffered(&mut out)
+                        .map_err(|e| FilmError::Encode {
+                            format: "OpenEXR",
+                            message: e.to_string(),
+                        })?
+                }};
+            }
+            match &alpha {
+                None => write_layer!(SpecificChannels::rgb(|at: Vec2<usize>| {
+                    let [r, g, b] = px[at.y() * width + at.x()];
+                    (r, g, b)
+                })),
+                Some(a) => write_layer!(SpecificChannels::rgba(|at: Vec2<usize>| {
+                    let i = at.y() * width + at.x();
+                    let [r, g, b] = px[i];
+                    (r, g, b, a[i])
+                })),
+            }
         }
         ImageFormat::Hdr => {
+            // Radiance files have no alpha channel: a film with one is written as its
+            // premultiplied colour (the image laid over black).
             // RGBE keeps a pixel's shared exponent in one byte, from 2^-128 up: a pixel whose
             // brightest channel is below f32's normal range would wrap it around (and read
             // back near 10^38). Such a pixel is black.
@@ -314,19 +330,35 @@ pub fn encode_with(
         }
         ImageFormat::Png => {
             let scale = opts.exposure.exp2();
-            let bytes: Vec<u8> = px
-                .iter()
-                .flatten()
-                .map(|&v| {
-                    let v = (v * scale).max(0.0);
-                    let v = match opts.tonemap {
-                        ToneMap::Clamp => v.min(1.0),
-                        ToneMap::Aces => aces(v),
-                    };
-                    (linear_to_srgb(v) * 255.0 + 0.5) as u8
-                })
-                .collect();
-            write_png(&mut out, &bytes, w, h, meta).map_err(|e| FilmError::Encode {
+            let byte = |v: f32| {
+                let v = (v * scale).max(0.0);
+                let v = match opts.tonemap {
+                    ToneMap::Clamp => v.min(1.0),
+                    ToneMap::Aces => aces(v),
+                };
+                (linear_to_srgb(v) * 255.0 + 0.5) as u8
+            };
+            let bytes: Vec<u8> = match &alpha {
+                None => px.iter().flatten().map(|&v| byte(v)).collect(),
+                // PNG's alpha is straight: the colour is divided by alpha before it is exposed,
+                // tone-mapped and encoded (colour where alpha is 0, such as a medium's glow in
+                // front of nothing, cannot be kept: EXR keeps it).
+                Some(a) => px
+                    .iter()
+                    .zip(a)
+                    .flat_map(|(p, &a)| {
+                        let c = p.map(|v| if a > 0.0 { byte(v / a) } else { 0 });
+                        let a = (a.clamp(0.0, 1.0) * 255.0 + 0.5) as u8;
+                        [c[0], c[1], c[2], a]
+                    })
+                    .collect(),
+            };
+            let colour = if alpha.is_some() {
+                png::ColorType::Rgba
+            } else {
+                png::ColorType::Rgb
+            };
+            write_png(&mut out, &bytes, colour, w, h, meta).map_err(|e| FilmError::Encode {
                 format: "PNG",
                 message: e.to_string(),
             })?;
@@ -335,17 +367,19 @@ pub fn encode_with(
     Ok(out.into_inner())
 }
 
-/// An 8-bit RGB PNG of `rgb`, marked sRGB (an `sRGB` chunk, with the `gAMA` and `cHRM` that
-/// readers without colour management use), with `meta` in `iTXt` chunks.
+/// An 8-bit PNG of `data` (RGB or RGBA, as `colour` says), marked sRGB (an `sRGB` chunk, with
+/// the `gAMA` and `cHRM` that readers without colour management use), with `meta` in `iTXt`
+/// chunks.
 fn write_png(
     out: &mut impl std::io::Write,
-    rgb: &[u8],
+    data: &[u8],
+    colour: png::ColorType,
     w: u32,
     h: u32,
     meta: &Metadata,
 ) -> Result<(), png::EncodingError> {
     let mut enc = png::Encoder::new(out, w, h);
-    enc.set_color(png::ColorType::Rgb);
+    enc.set_color(colour);
     enc.set_depth(png::BitDepth::Eight);
     // What the image crate's encoder used: fast deflate, adaptive filters (and no dependence
     // on which zlib backend the build links).
@@ -380,7 +414,7 @@ fn write_png(
         enc.add_itxt_chunk("raytile".into(), meta.raytile.clone())?;
     }
     let mut writer = enc.write_header()?;
-    writer.write_image_data(rgb)?;
+    writer.write_image_data(data)?;
     writer.finish()
 }
 
@@ -576,9 +610,89 @@ mod tests {
             pixels: (0..6).map(|i| [i as f32 * 0.25, 0.5, 2.0, 1.0]).collect(),
             bad_samples: 0,
             splats: Vec::new(),
+            coverage: Vec::new(),
         })
         .unwrap();
         f
+    }
+
+    /// A film with an alpha channel: pixel i has weight 4 and coverage i mod 5 (alpha 0, ¼,
+    /// ½, ¾, 1, 0), its premultiplied colour that alpha times (0.8, 0.4, 0.1).
+    fn film_with_alpha() -> Film {
+        let mut f = Film::with_alpha(3, 2, true);
+        let coverage: Vec<f32> = (0..6).map(|i| (i % 5) as f32).collect();
+        f.add_tile(&TileAccum {
+            tile: Tile {
+                x0: 0,
+                y0: 0,
+                x1: 3,
+                y1: 2,
+            },
+            pixels: coverage
+                .iter()
+                .map(|&c| [0.8 * c, 0.4 * c, 0.1 * c, 4.0])
+                .collect(),
+            bad_samples: 0,
+            splats: Vec::new(),
+            coverage,
+        })
+        .unwrap();
+        f
+    }
+
+    /// EXR files carry alpha beside the premultiplied colour, PNG files a straight alpha (the
+    /// colour divided by it before it is encoded), Radiance files the premultiplied colour.
+    #[test]
+    fn alpha_reaches_every_file_as_its_format_keeps_it() {
+        let f = film_with_alpha();
+        assert_eq!(
+            f.alpha().unwrap(),
+            [0.0, 0.25, 0.5, 0.75, 1.0, 0.0],
+            "coverage over weight"
+        );
+        let opts = OutputOptions::default();
+        let exr = encode(&f, ImageFormat::Exr, &opts).unwrap();
+        let img = image::load_from_memory_with_format(&exr, image::ImageFormat::OpenExr)
+            .unwrap()
+            .into_rgba32f();
+        for (i, p) in img.pixels().enumerate() {
+            let a = f.alpha().unwrap()[i];
+            assert_eq!(p.0, [0.8 * a, 0.4 * a, 0.1 * a, a], "pixel {i}");
+        }
+        let png = encode(&f, ImageFormat::Png, &opts).unwrap();
+        let decoder = png::Decoder::new(std::io::Cursor::new(&png));
+        let reader = decoder.read_info().unwrap();
+        assert_eq!(reader.info().color_type, png::ColorType::Rgba);
+        let img = image::load_from_memory(&png).unwrap().into_rgba8();
+        let straight = |v: f32| (linear_to_srgb(v) * 255.0 + 0.5) as u8;
+        for (i, p) in img.pixels().enumerate() {
+            let a = f.alpha().unwrap()[i];
+            let want = if a > 0.0 {
+                [
+                    straight(0.8),
+                    straight(0.4),
+                    straight(0.1),
+                    (a * 255.0 + 0.5) as u8,
+                ]
+            } else {
+                [0; 4]
+            };
+            assert_eq!(p.0, want, "pixel {i}");
+        }
+        let hdr = encode(&f, ImageFormat::Hdr, &opts).unwrap();
+        let img = image::load_from_memory(&hdr).unwrap().into_rgb32f();
+        let p = img.get_pixel(2, 0).0;
+        // RGBE keeps 8 bits of mantissa for the brightest channel.
+        assert!(
+            (p[0] - 0.4).abs() < 0.01 && (p[2] - 0.05).abs() < 0.003,
+            "{p:?}"
+        );
+        // Without an alpha channel the files are RGB as before.
+        let png = encode(&film(), ImageFormat::Png, &opts).unwrap();
+        let reader = png::Decoder::new(std::io::Cursor::new(&png))
+            .read_info()
+            .unwrap();
+        assert_eq!(reader.info().color_type, png::ColorType::Rgb);
     }
 
     #[test]
@@ -609,6 +723,7 @@ mod tests {
                 .collect(),
             bad_samples: 0,
             splats: Vec::new(),
+            coverage: Vec::new(),
         })
         .unwrap();
         let once = encode(&f, ImageFormat::Exr, &OutputOptions::default()).unwrap();

@@ -14,6 +14,7 @@
 //! arguments swapped; for sampled delta transmission, the radiance value times η²) and
 //! pbrt's shading-normal correction. Participating media are not rendered (as `path`).
 
+use super::Estimate;
 use crate::geometry::{Interaction, Ray};
 use crate::light::{range_window, spot_falloff, Light};
 use crate::material::Bsdf;
@@ -915,9 +916,10 @@ fn mis_weight(
     }
 }
 
-/// Radiance of one camera sample along `ray` by every strategy with t ≥ 2; the strategies
-/// with t = 1 are pushed to `splats` (pixel index and RGB, not yet divided by the sample
-/// count). `light_sampler` is this sample's own light-subpath sampler.
+/// Radiance of one camera sample along `ray` by every strategy with t ≥ 2, and whether the
+/// camera ray left the scene without a vertex; the strategies with t = 1 are pushed to
+/// `splats` (pixel index and RGB, not yet divided by the sample count). `light_sampler` is
+/// this sample's own light-subpath sampler.
 pub fn li(
     scene: &Scene,
     job: &RenderJob,
@@ -925,7 +927,7 @@ pub fn li(
     sampler: &mut Sampler,
     light_sampler: &mut Sampler,
     splats: &mut Vec<RawSplat>,
-) -> Vec3A {
+) -> Estimate {
     let (center, radius) = scene_sphere(scene);
     let ctx = Ctx {
         scene,
@@ -955,6 +957,8 @@ pub fn li(
         cam0.bodies,
         &mut camera,
     );
+    // The camera ray met nothing: no vertex, or only the environment's at infinity.
+    let escaped = camera.get(1).is_none_or(|v| v.infinite);
     // Light subpath.
     let mut light: Vec<Vertex> = Vec::with_capacity(max_depth + 1);
     light_subpath(&ctx, light_sampler, max_depth + 1, &mut light);
@@ -989,7 +993,7 @@ pub fn li(
             }
         }
     }
-    l
+    Estimate { l, escaped }
 }
 
 /// Strategy (s, t): its MIS-weighted contribution, and for t = 1 the film position.

@@ -1,20 +1,21 @@
 //! Debug and auxiliary outputs: shading normals, albedo, depth and ambient occlusion.
 //! Fast previews, and the buffers a denoiser needs.
 
+use super::Estimate;
 use crate::geometry::Ray;
 use crate::sampling::warp::{cosine_hemisphere, Frame};
 use crate::sampling::Sampler;
 use crate::{IntegratorKind, RenderJob, Scene};
 use glam::Vec3A;
 
-/// Value of debug integrator `kind` along `ray`.
+/// Value of debug integrator `kind` along `ray`, and whether the ray met no surface.
 pub fn li(
     scene: &Scene,
     job: &RenderJob,
     mut ray: Ray,
     sampler: &mut Sampler,
     kind: IntegratorKind,
-) -> Vec3A {
+) -> Estimate {
     // The first surface that is not an interface (a medium boundary, invisible to every
     // integrator but volpath, as to `path`), and the ray parameter travelled to cross the
     // interfaces in front of it.
@@ -22,12 +23,13 @@ pub fn li(
     let (hit, it) = loop {
         let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
             // No surface: a zero normal (a denoiser's "nothing here"), the sky's colour.
-            return match kind {
+            let l = match kind {
                 IntegratorKind::Albedo => {
                     unit_colour(job.environment().map_or(Vec3A::ZERO, |e| e.radiance(ray.d)))
                 }
                 _ => Vec3A::ZERO,
             };
+            return Estimate { l, escaped: true };
         };
         let it = scene.interaction(&ray, &hit);
         if scene.is_interface(it.object) {
@@ -38,7 +40,7 @@ pub fn li(
         }
         break (hit, it);
     };
-    match kind {
+    let l = match kind {
         // The world-space shading normal, each component in [-1, 1], as denoisers (Open Image
         // Denoise) and compositors take it.
         IntegratorKind::Normals => it.ns,
@@ -74,7 +76,8 @@ pub fn li(
         | IntegratorKind::Bdpt
         | IntegratorKind::Sppm
         | IntegratorKind::Whitted => Vec3A::ZERO,
-    }
+    };
+    Estimate { l, escaped: false }
 }
 
 /// A radiance's colour as an albedo: scaled so that its largest channel is at most one.

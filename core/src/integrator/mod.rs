@@ -50,9 +50,22 @@ impl RenderProgress for () {
     fn tile_done(&self, _samples: u64) {}
 }
 
+/// What one camera sample brings back.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Estimate {
+    /// The radiance (or debug value) along the camera ray.
+    pub l: Vec3A,
+    /// Whether the camera ray left the scene before any vertex: it met no surface (medium
+    /// boundaries, `interface`s, are crossed as if absent) and, in `volpath`, did not scatter
+    /// or get absorbed in a medium. Its whole value is then the environment seen straight on.
+    /// In a job with an alpha channel ([`crate::RenderSettings::alpha`]) such a sample is
+    /// transparent: its value is dropped and it does not count towards the pixel's coverage.
+    pub escaped: bool,
+}
+
 /// Radiance estimate for one camera ray with the selected integrator.
 #[inline]
-fn li(scene: &Scene, job: &RenderJob, ray: Ray, sampler: &mut Sampler) -> Vec3A {
+fn li(scene: &Scene, job: &RenderJob, ray: Ray, sampler: &mut Sampler) -> Estimate {
     let max_depth = job.settings.max_depth;
     match job.settings.integrator {
         IntegratorKind::Path => path::li(scene, job, ray, sampler, max_depth),
@@ -112,17 +125,20 @@ pub fn render_tile(
     let seed = job.settings.seed;
     let w = tile.width() as usize;
     let mut pixels = vec![[0.0f32; 4]; tile.pixel_count()];
+    let alpha = job.settings.alpha;
     let bidirectional = job.settings.integrator == IntegratorKind::Bdpt;
-    let rows: Option<Vec<(u64, Vec<bdpt::RawSplat>)>> = pixels
+    let rows: Option<Vec<Row>> = pixels
         .par_chunks_mut(w.max(1))
         .enumerate()
         .map(|(row, out)| {
             let y = tile.y0 + row as u32;
             let mut bad = 0u64;
             let mut splats = Vec::new();
+            let mut coverage = Vec::with_capacity(if alpha { out.len() } else { 0 });
             for (col, px) in out.iter_mut().enumerate() {
                 let x = tile.x0 + col as u32;
                 let mut sum = [0.0f32; 4];
+                let mut covered = 0.0f32;
                 // Blocks of samples, in index order, with a look at the flag before each.
                 let mut start = samples.start;
                 while start < samples.end {
@@ -136,24 +152,30 @@ pub fn render_tile(
                         let lens = sampler.next_2d();
                         let film = Vec2::new(x as f32 + 0.5 + offset.x, y as f32 + 0.5 + offset.y);
                         let ray = job.camera.generate_ray(film, lens);
-                        let l = if bidirectional {
+                        let e = if bidirectional {
                             let mut light = Sampler::new(x, y, s, seed ^ LIGHT_SUBPATH_SEED);
                             let first = splats.len();
-                            let l =
+                            let e =
                                 bdpt::li(scene, job, ray, &mut sampler, &mut light, &mut splats);
-                            if !crate::film::sample_ok(l) {
+                            if !crate::film::sample_ok(e.l) {
                                 // The whole sample is dropped, its splats too.
                                 splats.truncate(first);
                             }
-                            l
+                            e
                         } else {
                             li(scene, job, ray, &mut sampler)
                         };
-                        if crate::film::sample_ok(l) {
+                        // With an alpha channel the environment seen straight on is
+                        // transparent: nothing in colour, nothing in coverage.
+                        let l = if alpha && e.escaped { Vec3A::ZERO } else { e.l };
+                        if crate::film::sample_ok(e.l) {
                             sum[0] += l.x;
                             sum[1] += l.y;
                             sum[2] += l.z;
                             sum[3] += 1.0;
+                            if !e.escaped {
+                                covered += 1.0;
+                            }
                         } else {
                             bad += 1;
                         }
@@ -161,14 +183,25 @@ pub fn render_tile(
                     start = end;
                 }
                 *px = sum;
+                if alpha {
+                    coverage.push(covered);
+                }
             }
-            Some((bad, splats))
+            Some(Row {
+                bad,
+                splats,
+                coverage,
+            })
         })
         .collect();
     let rows = rows.ok_or(Cancelled)?;
-    let bad = rows.iter().map(|r| r.0).sum();
+    let bad = rows.iter().map(|r| r.bad).sum();
+    let coverage = rows
+        .iter()
+        .flat_map(|r| r.coverage.iter().copied())
+        .collect();
     let splats = if bidirectional {
-        bdpt::coalesce(rows.into_iter().flat_map(|r| r.1).collect())
+        bdpt::coalesce(rows.into_iter().flat_map(|r| r.splats).collect())
     } else {
         Vec::new()
     };
@@ -177,7 +210,18 @@ pub fn render_tile(
         pixels,
         bad_samples: bad,
         splats,
+        coverage,
     })
+}
+
+/// What one row of a tile gives besides its pixels' sums.
+struct Row {
+    /// Samples dropped (NaN, infinite or too large).
+    bad: u64,
+    /// `bdpt`'s splats.
+    splats: Vec<bdpt::RawSplat>,
+    /// The row's coverage, for a job with an alpha channel; empty otherwise.
+    coverage: Vec<f32>,
 }
 
 /// Mixed into the seed of the sampler of a sample's light subpath (`bdpt`), so that it draws
@@ -195,7 +239,11 @@ const LIGHT_SUBPATH_SEED: u32 = 0x5bd1_e995;
 /// frame's worth each).
 pub fn render(scene: &Scene, job: &RenderJob, progress: &dyn RenderProgress) -> Film {
     let settings = &job.settings;
-    let film = std::sync::Mutex::new(Film::new(settings.width, settings.height));
+    let film = std::sync::Mutex::new(Film::with_alpha(
+        settings.width,
+        settings.height,
+        settings.alpha,
+    ));
     let tiles = settings.tiles();
     let never = Cancel::new();
     for pass in settings.pass_ranges() {

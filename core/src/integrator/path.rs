@@ -8,20 +8,22 @@
 //! dimensions line up across samples.
 
 use super::direct::sample_one_light;
+use super::Estimate;
 use crate::geometry::{Interaction, Ray};
 use crate::sampling::detmath::exp3;
 use crate::sampling::{power_heuristic, Sampler};
 use crate::{RenderJob, Scene};
 use glam::Vec3A;
 
-/// Radiance along `ray`.
+/// Radiance along `ray`, and whether it left the scene before any vertex.
 pub fn li(
     scene: &Scene,
     job: &RenderJob,
     mut ray: Ray,
     sampler: &mut Sampler,
     max_depth: u32,
-) -> Vec3A {
+) -> Estimate {
+    let mut escaped = false;
     let mut l = Vec3A::ZERO;
     let mut beta = Vec3A::ONE;
     let mut specular = true;
@@ -32,6 +34,7 @@ pub fn li(
     let mut bodies = job.starts.camera();
     loop {
         let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
+            escaped = prev_it.is_none();
             if let Some(env) = job.environment() {
                 let le = env.radiance(ray.d) * bodies.escape(scene, false);
                 if specular || prev_it.is_none() {
@@ -122,5 +125,5 @@ pub fn li(
             beta /= 1.0 - q;
         }
     }
-    l
+    Estimate { l, escaped }
 }

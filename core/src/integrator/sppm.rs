@@ -414,14 +414,15 @@ struct VisiblePoint {
 /// directional lights on the near-specular surfaces passed (a light sample there that counts
 /// only those, which no ray can find),
 /// direct light at the visible point (one light as `path` chooses it, no MIS: emitters found past the
-/// visible point are the photons' part), and the visible point itself.
+/// visible point are the photons' part), the visible point itself, and whether the camera ray
+/// left the scene without meeting a surface ([`super::Estimate::escaped`]).
 fn camera_pass(
     scene: &Scene,
     job: &RenderJob,
     x: u32,
     y: u32,
     it: u32,
-) -> (Vec3A, Option<VisiblePoint>) {
+) -> (Vec3A, Option<VisiblePoint>, bool) {
     let mut sampler = Sampler::new(x, y, it, job.settings.seed);
     let offset = job.filter.sample(sampler.next_2d());
     let lens = sampler.next_2d();
@@ -437,7 +438,7 @@ fn camera_pass(
             if let Some(env) = job.environment() {
                 l += beta * env.radiance(ray.d) * bodies.escape(scene, false);
             }
-            return (l, None);
+            return (l, None, depth == 0);
         };
         let si = scene.interaction(&ray, &hit);
         let wo_w = -ray.d;
@@ -453,7 +454,7 @@ fn camera_pass(
         }
         l += beta * scene.emitted(&si, wo_w);
         if depth >= max_depth {
-            return (l, None);
+            return (l, None, false);
         }
         let bsdf = scene.bsdf(&si);
         let frame = si.shading_frame();
@@ -495,17 +496,17 @@ fn camera_pass(
                 beta,
                 depth,
             };
-            return (l, Some(vp));
+            return (l, Some(vp), false);
         }
         let Some(bs) = bsdf.sample(wo, u_lobe, u_dir) else {
-            return (l, None);
+            return (l, None, false);
         };
         if !(bs.pdf > 0.0) {
-            return (l, None);
+            return (l, None, false);
         }
         beta *= bs.f * (bs.wi.z.abs() / bs.pdf);
         if !beta.is_finite() || beta == Vec3A::ZERO {
-            return (l, None);
+            return (l, None, false);
         }
         let wi_w = frame.to_world(bs.wi).normalize();
         if scene.absorbs {
@@ -529,6 +530,8 @@ struct PixelState {
     tau: Vec3A,
     /// Iterations dropped for a value that was not finite.
     bad: u32,
+    /// Good iterations whose camera ray met a surface (the pixel's coverage).
+    covered: f32,
 }
 
 /// Runs iterations `iterations` (the job's samples; every one of them: sppm is one pass) for
@@ -562,6 +565,7 @@ fn render_tile_with(
             r: r0,
             tau: Vec3A::ZERO,
             bad: 0,
+            covered: 0.0,
         };
         tile.pixel_count()
     ];
@@ -597,9 +601,15 @@ fn render_tile_with(
         });
     }
     let mut bad = 0u64;
+    let alpha = job.settings.alpha;
+    let mut coverage = Vec::with_capacity(if alpha { state.len() } else { 0 });
     let pixels = state
         .iter()
         .map(|st| {
+            // A pixel dropped whole below covers nothing.
+            if alpha {
+                coverage.push(0.0);
+            }
             bad += st.bad as u64;
             let good = (iterations.len() as u32 - st.bad) as f32;
             if good == 0.0 {
@@ -618,6 +628,9 @@ fn render_tile_with(
                 bad += good as u64;
                 return [0.0; 4];
             }
+            if let Some(c) = coverage.last_mut() {
+                *c = st.covered;
+            }
             [l.x, l.y, l.z, good]
         })
         .collect();
@@ -626,6 +639,7 @@ fn render_tile_with(
         pixels,
         bad_samples: bad,
         splats: Vec::new(),
+        coverage,
     })
 }
 
@@ -661,13 +675,19 @@ fn gather(
     if !first && !g.gathers {
         return;
     }
-    let (ld, vp) = camera_pass(scene, job, x, y, it);
+    let (ld, vp, escaped) = camera_pass(scene, job, x, y, it);
     if first {
         if !crate::film::sample_ok(ld) {
             st.bad += 1;
             return;
         }
-        st.ld += ld;
+        // With an alpha channel the environment seen straight on is transparent.
+        if !(escaped && job.settings.alpha) {
+            st.ld += ld;
+        }
+        if !escaped {
+            st.covered += 1.0;
+        }
     }
     let Some(vp) = vp else {
         return;

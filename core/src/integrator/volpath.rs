@@ -29,6 +29,7 @@
 //! [`HashRng`] seeded from a hash of the dimension after the hero channel's. All depend on
 //! (pixel, sample index, seed) only.
 
+use super::Estimate;
 use crate::geometry::{Interaction, Ray};
 use crate::material::Bsdf;
 use crate::medium::{sample_t_maj, HashRng, HenyeyGreenstein, RandomSource};
@@ -62,14 +63,16 @@ enum Vertex<'a> {
     },
 }
 
-/// Radiance along `ray`.
+/// Radiance along `ray`, and whether it left the scene before any vertex (a surface or a
+/// medium's real scattering or absorption).
 pub fn li(
     scene: &Scene,
     job: &RenderJob,
     mut ray: Ray,
     sampler: &mut Sampler,
     max_depth: u32,
-) -> Vec3A {
+) -> Estimate {
+    let mut escaped = false;
     // The hero channel (a Sobol dimension: stratified over the pixel's samples) and the
     // media's random stream (a hash of the next dimension: no vertex's numbers reuse it).
     let channel = ((sampler.next_1d() * 3.0) as usize).min(2);
@@ -179,6 +182,7 @@ pub fn li(
         }
 
         let Some(hit) = hit else {
+            escaped = prev_p.is_none();
             if let Some(env) = job.environment() {
                 let le = env.radiance(ray.d) * bodies.escape(scene, true);
                 match prev_p {
@@ -277,7 +281,7 @@ pub fn li(
             beta /= 1.0 - q;
         }
     }
-    l
+    Estimate { l, escaped }
 }
 
 /// Next-event estimation at `v` (in `medium` if it is a medium vertex; for a surface, the

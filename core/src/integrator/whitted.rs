@@ -7,6 +7,7 @@
 //! converge with more samples); point, spot and directional lights give hard shadows.
 
 use super::direct::{light_contribution, Counted};
+use super::Estimate;
 use crate::geometry::Ray;
 use crate::material::{fresnel_dielectric, refract, Bsdf};
 use crate::sampling::detmath::exp3;
@@ -18,19 +19,32 @@ use glam::Vec3A;
 /// Contributions below this (per channel, relative to the camera ray) are not traced further.
 pub const DAMPING: f32 = 1e-3;
 
-/// Radiance along `ray`.
+/// Radiance along `ray`, and whether it left the scene without meeting a surface.
 pub fn li(
     scene: &Scene,
     job: &RenderJob,
     ray: Ray,
     sampler: &mut Sampler,
     max_depth: u32,
-) -> Vec3A {
+) -> Estimate {
     let bodies = job.starts.camera();
-    trace(scene, job, ray, sampler, max_depth, 0, Vec3A::ONE, bodies)
+    let mut escaped = false;
+    let l = trace(
+        scene,
+        job,
+        ray,
+        sampler,
+        max_depth,
+        0,
+        Vec3A::ONE,
+        bodies,
+        &mut escaped,
+    );
+    Estimate { l, escaped }
 }
 
-/// Radiance along `ray`, which starts inside `bodies`.
+/// Radiance along `ray`, which starts inside `bodies`; `escaped` is set where a ray of the
+/// camera's (depth 0, through interfaces) leaves the scene.
 #[allow(clippy::too_many_arguments)]
 fn trace(
     scene: &Scene,
@@ -41,8 +55,10 @@ fn trace(
     depth: u32,
     weight: Vec3A,
     mut bodies: Bodies,
+    escaped: &mut bool,
 ) -> Vec3A {
     let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
+        *escaped = depth == 0;
         let le = job.environment().map_or(Vec3A::ZERO, |e| e.radiance(ray.d));
         return le * bodies.escape(scene, false);
     };
@@ -59,7 +75,10 @@ fn trace(
     if scene.is_interface(it.object) {
         let next = it.spawn_ray(ray.d);
         let w = weight * transmittance;
-        return trace(scene, job, next, sampler, max_depth, depth, w, bodies) * transmittance;
+        let li = trace(
+            scene, job, next, sampler, max_depth, depth, w, bodies, escaped,
+        );
+        return li * transmittance;
     }
     let wo_world = -ray.d;
     let mut l = scene.emitted(&it, wo_world);
@@ -89,7 +108,19 @@ fn trace(
             inside.leave(scene, &it, d);
         }
         let next = it.spawn_ray(d);
-        factor * trace(scene, job, next, sampler, max_depth, depth + 1, w, inside)
+        let deeper = &mut false;
+        factor
+            * trace(
+                scene,
+                job,
+                next,
+                sampler,
+                max_depth,
+                depth + 1,
+                w,
+                inside,
+                deeper,
+            )
     };
     match bsdf {
         Bsdf::Mirror(m) => {

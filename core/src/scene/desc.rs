@@ -723,6 +723,9 @@ pub struct RenderDefaults {
     pub camera: Option<String>,
     /// Reconstruction filter.
     pub filter: Option<FilterKind>,
+    /// An alpha channel (the environment seen straight from the camera transparent).
+    #[serde(default)]
+    pub alpha: Option<bool>,
 }
 
 impl RenderDefaults {
@@ -738,6 +741,7 @@ impl RenderDefaults {
             seed,
             camera,
             filter,
+            alpha,
         } = self;
         RenderOverrides {
             width: *width,
@@ -748,6 +752,7 @@ impl RenderDefaults {
             seed: *seed,
             camera: camera.clone(),
             filter: *filter,
+            alpha: *alpha,
             ..RenderOverrides::default()
         }
     }
