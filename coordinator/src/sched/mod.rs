@@ -624,7 +624,7 @@ impl Sched {
         if self.workers.touch(&worker, now.wall_ms).is_none() {
             return false;
         }
-        let ev = TaskEvent::Lease {
+        let ev = TaskEvent::Revive {
             worker: worker.clone(),
             lease: lease.into(),
             deadline: now.instant + self.cfg.lease_timeout,

@@ -68,6 +68,17 @@ pub enum TaskEvent {
         /// Expiry.
         deadline: Instant,
     },
+    /// The worker of an expired lease is heard from again, while nobody took the task: the
+    /// lease is its again, and its expiry no longer counts (the worker was alive all along:
+    /// stopped, or cut off for a while, not killed by the task).
+    Revive {
+        /// Worker id.
+        worker: String,
+        /// The expired lease's id.
+        lease: String,
+        /// New expiry.
+        deadline: Instant,
+    },
     /// The worker holding `lease` is still at it.
     Renew {
         /// Lease id.
@@ -156,6 +167,21 @@ pub fn transition(task: &mut Task, ev: TaskEvent) -> Outcome {
             lease,
             deadline,
         },
+        (
+            Queued,
+            TaskEvent::Revive {
+                worker,
+                lease,
+                deadline,
+            },
+        ) => {
+            task.expiries = task.expiries.saturating_sub(1);
+            Leased {
+                worker,
+                lease,
+                deadline,
+            }
+        }
         (Leased { worker, lease, .. }, TaskEvent::Renew { lease: l, deadline }) if *lease == l => {
             Leased {
                 worker: worker.clone(),

@@ -683,6 +683,64 @@ fn a_task_whose_workers_keep_vanishing_fails_its_job() {
     assert_eq!(state_of(&s, &job), JobState::Running);
 }
 
+/// A worker stopped past its lease again and again (a laptop suspended, a process stopped by
+/// its user) takes the task back each time: those expiries do not count towards the limit,
+/// so the job does not fail while the worker is alive.
+#[test]
+fn revived_expiries_do_not_fail_the_job() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut now = t0();
+    let mut s = open(dir.path(), now);
+    // One tile, one pass: one task per job.
+    let one = RenderSettings {
+        width: 16,
+        height: 16,
+        ..small(1)
+    };
+    let job = s.new_job("s".into(), one.clone(), 0, now).unwrap().id;
+    let w = s.register("w", 1, now).unwrap();
+    let g = s.lease(&w, now).unwrap().unwrap();
+    let limit = cfg().max_task_expiries();
+    for n in 1..=2 * limit {
+        now = now.after(secs(100));
+        assert_eq!(s.expire(now).unwrap(), 1, "expiry {n}");
+        assert_eq!(state_of(&s, &job), JobState::Running, "after {n} expiries");
+        assert_eq!(
+            s.heartbeat(&g.lease, now),
+            Heartbeat::Renewed,
+            "revival {n}"
+        );
+    }
+    assert_eq!(
+        deliver(&mut s, &job, g.task, &w, now),
+        ResultOutcome::Accepted
+    );
+    assert_eq!(state_of(&s, &job), JobState::Done);
+    assert_eq!(s.metrics(now).counters.revived, u64::from(2 * limit));
+    // An expiry that is not revived still counts: with one revived before them, the limit's
+    // worth of workers vanishing fails the job at the limit, not one later.
+    let job = s.new_job("s".into(), one, 0, now).unwrap().id;
+    let g = s.lease(&w, now).unwrap().unwrap();
+    assert_eq!(g.job, job);
+    now = now.after(secs(100));
+    s.expire(now).unwrap();
+    assert_eq!(s.heartbeat(&g.lease, now), Heartbeat::Renewed);
+    for n in 1..=limit {
+        now = now.after(secs(100));
+        assert_eq!(s.expire(now).unwrap(), 1);
+        let want = if n < limit {
+            JobState::Running
+        } else {
+            JobState::Failed
+        };
+        assert_eq!(state_of(&s, &job), want, "after {n} expiries not revived");
+        if n < limit {
+            let other = s.register(&format!("v{n}"), 1, now).unwrap();
+            s.lease(&other, now).unwrap().unwrap();
+        }
+    }
+}
+
 #[test]
 fn a_lease_out_at_a_restart_expires_after_the_grace() {
     let dir = tempfile::tempdir().unwrap();
