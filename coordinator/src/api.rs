@@ -296,7 +296,14 @@ async fn openapi() -> Response {
     axum::Json(crate::openapi::document()).into_response()
 }
 
-async fn metrics(State(state): State<AppState>) -> Response {
+/// The query of a user's route that takes no parameters: any parameter is a 400 naming it, as
+/// on the routes that take some (`GET /v1/jobs/ID?format=png` is not silently the job's
+/// status). The worker routes, and `/healthz` (load balancers add their own), stay lenient.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct NoQuery {}
+
+async fn metrics(State(state): State<AppState>, _: Query<NoQuery>) -> Response {
     let now = state.now();
     let m = state.sched().metrics(now);
     let (c, workers, sps) = (m.counters, m.workers, m.samples_per_second);
@@ -422,6 +429,7 @@ async fn download_scene(
 
 async fn create_job(
     State(state): State<AppState>,
+    _: Query<NoQuery>,
     Json(req): Json<JobRequest>,
 ) -> Result<Response, AppError> {
     let m = scenes::meta(&state, &req.scene)
@@ -536,6 +544,7 @@ fn no_job(id: &str) -> AppError {
 async fn get_job(
     State(state): State<AppState>,
     Path(id): Path<String>,
+    _: Query<NoQuery>,
 ) -> Result<Json<proto::JobStatus>, AppError> {
     let status = state.sched().job_status(&id);
     status.map(Json).ok_or_else(|| no_job(&id))
@@ -588,6 +597,7 @@ fn check_queue_room(s: &Sched, lim: &crate::Limits, tasks: u64) -> Result<(), Ap
 async fn retry_job(
     State(state): State<AppState>,
     Path(id): Path<String>,
+    _: Query<NoQuery>,
 ) -> Result<Json<proto::JobStatus>, AppError> {
     let lim = &state.cfg.limits;
     let now = state.now();
@@ -617,6 +627,7 @@ async fn retry_job(
 async fn job_tiles(
     State(state): State<AppState>,
     Path(id): Path<String>,
+    _: Query<NoQuery>,
 ) -> Result<Json<proto::TileList>, AppError> {
     let tiles = state.sched().tile_list(&id);
     tiles.map(Json).ok_or_else(|| no_job(&id))
@@ -625,6 +636,7 @@ async fn job_tiles(
 async fn set_priority(
     State(state): State<AppState>,
     Path(id): Path<String>,
+    _: Query<NoQuery>,
     Json(proto::json::Members(mut body)): Json<proto::json::Members>,
 ) -> Result<Json<proto::JobStatus>, AppError> {
     // Read from an object only (serde would take `[5]` for `{"priority": 5}`), by hand, so
@@ -654,7 +666,7 @@ async fn set_priority(
 /// subscriber that fell behind by more than the channel holds gets a `resync` instead of what
 /// it missed. Resyncs carry no id. The stream ends when the coordinator shuts down (browsers
 /// reconnect by themselves).
-async fn events(State(state): State<AppState>) -> Response {
+async fn events(State(state): State<AppState>, _: Query<NoQuery>) -> Response {
     use axum::response::sse::{Event, KeepAlive, Sse};
     use tokio::sync::broadcast::error::RecvError;
     let resync = |reason: &str| {
@@ -730,8 +742,8 @@ impl ImageQuery {
             return Err(AppError::invalid(
                 field,
                 format!(
-                    "exposure and tonemap shape PNG images only; a {} image is linear",
-                    format.name()
+                    "exposure and tonemap shape PNG images only; {} images are linear",
+                    format.name().to_ascii_uppercase()
                 ),
             ));
         }
@@ -993,7 +1005,7 @@ async fn register(
     }))
 }
 
-async fn list_workers(State(state): State<AppState>) -> Json<proto::WorkerList> {
+async fn list_workers(State(state): State<AppState>, _: Query<NoQuery>) -> Json<proto::WorkerList> {
     Json(proto::WorkerList {
         workers: state.sched().worker_list(state.now()),
     })

@@ -220,7 +220,7 @@ pub fn document() -> Value {
         "paths": {
             "/healthz": {"get": {"summary": "Liveness (no token needed)", "security": [],
                 "responses": {"200": ok_json("ok", "Health")}}},
-            "/metrics": {"get": op("Prometheus metrics", json!([]), none,
+            "/metrics": {"get": op("Prometheus metrics", json!([]), params,
                 json!({"200": {"description": "Prometheus text exposition format", "content": {"text/plain": {"schema": {"type": "string"}}}}}))},
             "/v1/openapi.json": {"get": op("This document", json!([]), none,
                 json!({"200": {"description": "OpenAPI 3 JSON", "content": {"application/json": {"schema": {"type": "object"}}}}}))},
@@ -275,7 +275,7 @@ pub fn document() -> Value {
                 json!({"200": ok_json("Job", "JobStatus"), "404": err("Unknown job"),
                     "409": err("The job is done, or its tiles were made by another renderer version (code conflict): submit it again instead"),
                     "429": err("Retried, the job would pass --max-queued-jobs or --max-queued-tasks (code too_many)")}))},
-            "/v1/events": {"get": op(EVENTS_SUMMARY, json!([]), none,
+            "/v1/events": {"get": op(EVENTS_SUMMARY, json!([]), params,
                 json!({"200": {"description": EVENTS_DESCRIPTION, "content": {"text/event-stream": {"schema": {"type": "string"}}}}}))},
             "/v1/jobs/{id}/tasks/{task}/result": {"put": with_body(binary_body(), op("Upload a tile result (workers): binary, see docs/farm.md",
                 json!([job_id, {"name": "task", "in": "path", "required": true, "description": "Task index", "schema": {"type": "integer", "minimum": 0, "maximum": u32::MAX}},
@@ -288,7 +288,7 @@ pub fn document() -> Value {
             "/v1/workers": {
                 "post": with_body(json_body("RegisterRequest"), op("Register a worker", json!([]), Inputs { json: true, writes: true, ..none },
                     json!({"200": ok_json("Registered", "Registered"), "409": err("Another renderer version: run one release on the whole farm")}))),
-                "get": op("List workers", json!([]), none, json!({"200": ok_json("Workers", "WorkerList")}))},
+                "get": op("List workers", json!([]), params, json!({"200": ok_json("Workers", "WorkerList")}))},
             "/v1/workers/{id}/lease": {"post": op("Lease a task (long poll)",
                 json!([path_param("id", "Worker id"), {"name": "wait_ms", "in": "query", "schema": {"type": "integer", "minimum": 0, "maximum": u64::MAX}, "description": "Longest wait for work (capped by the coordinator)"}]),
                 Inputs { params: true, writes: true, ..none },
