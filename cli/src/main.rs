@@ -146,6 +146,9 @@ mod tests {
                 RenderOverrides::default(),
                 "{command:?}"
             );
+            // `--alpha=false` turns off a scene's own alpha channel.
+            let args: Vec<&str> = command.iter().chain(&["--alpha=false"]).copied().collect();
+            assert_eq!(overrides(&args).alpha, Some(false), "{command:?}");
         }
     }
 

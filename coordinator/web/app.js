@@ -532,7 +532,8 @@ function submitForm() {
       h("input", { type: "number", step: "any", placeholder: "0" })),
     field("priority", "Priority", num("priority", "0")),
     field("alpha", "Transparent background (alpha channel)",
-      h("input", { type: "checkbox" })),
+      h("select", {}, h("option", { value: "" }, "scene's own"),
+        h("option", { value: "true" }, "yes"), h("option", { value: "false" }, "no"))),
     h("div", { class: "buttons" },
       h("button", { type: "submit", id: "submit-button" }, "Submit"),
       h("span", { class: "error", id: "err-form", role: "alert" }),
@@ -596,7 +597,7 @@ function submitForm() {
         if (v !== "") req[name] = Number(v);
       }
       if (form.elements.integrator.value) req.integrator = form.elements.integrator.value;
-      if (form.elements.alpha.checked) req.alpha = true;
+      if (form.elements.alpha.value) req.alpha = form.elements.alpha.value === "true";
       const environment = form.elements.environment.value.trim();
       if (environment !== "") req.environment = environment;
       status.textContent = "submitting…";

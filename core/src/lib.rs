@@ -152,6 +152,7 @@ pub use settings::{
 ///
 /// 19 (2026-12-07): the `alpha` setting (an alpha channel: the environment seen straight from
 /// the camera transparent, colours premultiplied) and tile results that carry coverage (format
-/// 3). A worker of version 18 would not know the setting, so the versions must not mix; images
-/// of jobs without `alpha` are unchanged.
+/// 3). A worker of version 18 would not know the setting, so the versions must not mix; the
+/// pixels of jobs without `alpha` are unchanged (their files' metadata now lists
+/// `"alpha": false` among the settings).
 pub const RENDER_VERSION: u32 = 19;

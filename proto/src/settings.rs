@@ -568,16 +568,20 @@ pub struct RenderOverrides {
     #[serde(deserialize_with = "f32_in_range")]
     pub environment_strength: Option<f32>,
     /// `true`: an alpha channel, the environment seen straight from the camera transparent
-    /// (it still lights the scene); colours premultiplied by alpha (default `false`).
+    /// (it still lights the scene); colours premultiplied by alpha (default `false`). On the
+    /// command line `--alpha`, or `--alpha=false` to turn off a scene's `render.alpha`.
     #[serde(skip_serializing_if = "Option::is_none")]
     #[cfg_attr(
         feature = "clap",
         arg(
             long = "alpha",
-            num_args = 0,
+            num_args = 0..=1,
+            require_equals = true,
             default_missing_value = "true",
+            value_name = "BOOL",
             help = "Write an alpha channel: the environment seen straight from the camera is \
-                    transparent (it still lights the scene), colours are premultiplied"
+                    transparent (it still lights the scene), colours are premultiplied \
+                    (--alpha=false turns off a scene's own)"
         )
     )]
     pub alpha: Option<bool>,

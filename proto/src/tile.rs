@@ -78,7 +78,7 @@ pub enum TileFormatError {
     #[error("tile result does not start with the magic bytes RTTR")]
     Magic,
     /// An unknown format version.
-    #[error("unsupported tile result version {0} (expected {VERSION} or {VERSION_COVERAGE})")]
+    #[error("unsupported tile result version {0} (expected 1, {VERSION} or {VERSION_COVERAGE})")]
     Version(u32),
     /// The rectangle is empty, inverted or too large.
     #[error("bad tile rectangle [{0}, {2}) × [{1}, {3})")]

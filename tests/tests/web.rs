@@ -388,8 +388,13 @@ async fn submit_form(c: &fantoccini::Client, scene: &Path, fields: &[(&str, &str
     file.send_keys(scene.to_str().unwrap()).await.unwrap();
     for (name, value) in fields {
         let el = c.find(Locator::Css(&format!("#f-{name}"))).await.unwrap();
-        el.clear().await.unwrap();
-        el.send_keys(value).await.unwrap();
+        if el.tag_name().await.unwrap() == "select" {
+            // A choice: the option of that value.
+            el.select_by_value(value).await.unwrap();
+        } else {
+            el.clear().await.unwrap();
+            el.send_keys(value).await.unwrap();
+        }
     }
     c.find(Locator::Css("#submit-button"))
         .await
@@ -586,6 +591,8 @@ async fn the_web_page_submits_watches_and_cancels() {
             ("height", "64"),
             ("spp", "65536"),
             ("passes", "256"),
+            // A transparent background: the select's option "yes".
+            ("alpha", "true"),
         ],
     )
     .await;
@@ -611,6 +618,7 @@ async fn the_web_page_submits_watches_and_cancels() {
         .await
         .unwrap();
     assert_eq!(st["state"], "cancelled");
+    assert_eq!(st["settings"]["alpha"], true, "the form's alpha: {st}");
     screenshot(&c, "jobs").await;
 
     // The workers page lists both workers.

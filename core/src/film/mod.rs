@@ -134,7 +134,8 @@ impl Film {
 
     /// Adds a tile's sums. The caller adds the tiles of each pass in pass order, which is what
     /// makes the result independent of who rendered which tile when. A tile that does not fit
-    /// the film, or whose pixels are not its size, is refused and the film is unchanged.
+    /// the film, whose pixels are not its size, or whose coverage does not match the film's
+    /// alpha channel, is refused and the film is unchanged.
     pub fn add_tile(&mut self, t: &TileAccum) -> Result<(), TileMismatch> {
         let tile = t.tile;
         if tile.x0 > tile.x1 || tile.y0 > tile.y1 || tile.x1 > self.width || tile.y1 > self.height {

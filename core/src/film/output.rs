@@ -341,8 +341,8 @@ pub fn encode_with(
             let bytes: Vec<u8> = match &alpha {
                 None => px.iter().flatten().map(|&v| byte(v)).collect(),
                 // PNG's alpha is straight: the colour is divided by alpha before it is exposed,
-                // tone-mapped and encoded (colour where alpha is 0, such as a medium's glow in
-                // front of nothing, cannot be kept: EXR keeps it).
+                // tone-mapped and encoded (colour where alpha is 0, which only `bdpt`'s light
+                // paths joined to the camera can leave, cannot be kept: EXR keeps it).
                 Some(a) => px
                     .iter()
                     .zip(a)

@@ -724,7 +724,6 @@ pub struct RenderDefaults {
     /// Reconstruction filter.
     pub filter: Option<FilterKind>,
     /// An alpha channel (the environment seen straight from the camera transparent).
-    #[serde(default)]
     pub alpha: Option<bool>,
 }
 
