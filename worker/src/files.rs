@@ -9,6 +9,12 @@
 //! removed, and the scene fetched again: the files a frame is rendered from are always the
 //! package's.
 //!
+//! A scene not yet cached is fetched and unpacked by one process sharing the folder at a time:
+//! each takes the scene's install lock (an exclusive `flock` on `ID.installing`, [`Installing`])
+//! first, and a process that waited for it finds the scene installed and uses it, rather than
+//! downloading and unpacking a copy of its own beside the others (a small shared disk filled
+//! up so). A process that waited [`INSTALL_WAIT`] goes on without the lock.
+//!
 //! The cache is bounded (`--cache-max-mb`): after a scene is installed, the scenes used least
 //! recently go until the folder holds no more than the bound ([`trim`]). A scene's last use is
 //! the modification time of its `ok` file, set whenever a build reads it ([`mark_used`]), so
@@ -35,6 +41,10 @@ pub const IN_USE: Duration = Duration::from_secs(15 * 60);
 /// A scene used this recently is not removed where locks work: the gap between a process's
 /// install of a scene and its lock on it (and a network file system's attribute cache).
 pub const LOCKED_GRACE: Duration = Duration::from_secs(2 * 60);
+
+/// Longest wait for another process's install of a scene (its download may be large and
+/// slow); after it a process fetches the scene itself, as without the lock.
+pub const INSTALL_WAIT: Duration = Duration::from_secs(15 * 60);
 
 /// Set once a lock was refused as unsupported (the file system cannot lock): the age rule
 /// ([`IN_USE`]) alone then spares scenes.
@@ -99,6 +109,65 @@ fn lock(dir: &Path, exclusive: bool) -> Option<InUse> {
         }
     }
     Some(InUse(f))
+}
+
+/// The install lock of scene folder `dir` (see the module's documentation), released when
+/// dropped or when its process ends. Holds no file where locks do not work.
+pub struct Installing(#[allow(dead_code)] Option<std::fs::File>);
+
+/// The lock file of scene folder `dir`'s install, beside it.
+fn install_lock_path(dir: &Path) -> PathBuf {
+    dir.with_extension("installing")
+}
+
+/// Takes the install lock of scene folder `dir` without waiting: `None` while another process
+/// holds it. Where the lock cannot be had at all (no locks on this file system, or its file
+/// cannot be made), a guard of nothing: the install goes ahead as without the lock.
+pub fn try_install_lock(dir: &Path) -> Option<Installing> {
+    #[cfg(unix)]
+    {
+        use std::os::fd::AsRawFd;
+        use std::os::unix::fs::MetadataExt;
+        if NO_LOCKS.load(Ordering::Relaxed) {
+            return Some(Installing(None));
+        }
+        let path = install_lock_path(dir);
+        let Ok(f) = std::fs::File::options()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+        else {
+            return Some(Installing(None));
+        };
+        // SAFETY: a valid open descriptor.
+        if unsafe { libc::flock(f.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } != 0 {
+            let e = std::io::Error::last_os_error();
+            if e.kind() == std::io::ErrorKind::WouldBlock {
+                return None;
+            }
+            if matches!(
+                e.raw_os_error(),
+                Some(libc::ENOLCK | libc::EOPNOTSUPP | libc::ENOSYS)
+            ) {
+                NO_LOCKS.store(true, Ordering::Relaxed);
+            }
+            return Some(Installing(None));
+        }
+        // Still the file at that path (a removal of the scene may have taken it meanwhile):
+        // otherwise the caller tries again, and opens the one there now.
+        let same = match (f.metadata(), std::fs::metadata(&path)) {
+            (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+            _ => false,
+        };
+        same.then_some(Installing(Some(f)))
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = dir;
+        Some(Installing(None))
+    }
 }
 
 /// Marks the scene folder `dir` used now and holds it in use (a shared lock) until the guard
@@ -376,6 +445,11 @@ pub fn trim(cache: &Path, max_bytes: u64, keep: Option<&Path>) -> Trimmed {
             "removed the least recently used scene from the disk cache"
         );
         let _ = std::fs::remove_dir_all(&aside);
+        // Its install lock's file too, unless a process is installing the scene again (it
+        // would only lose the lock's effect, not its files: installs are atomic anyway).
+        if let Some(Installing(Some(_held))) = try_install_lock(&h.dir) {
+            let _ = std::fs::remove_file(install_lock_path(&h.dir));
+        }
         out.removed += 1;
         out.freed += h.bytes;
         out.held -= h.bytes;
@@ -664,5 +738,64 @@ mod tests {
             [std::ffi::OsString::from(&sha)],
             "no partial folder left"
         );
+    }
+
+    /// Processes sharing a cache that need one scene at the same moment fetch and unpack it
+    /// once: the first takes the install lock, the others wait for it and then find the scene
+    /// installed (as the worker does, `scene_file`). Threads stand in for the processes: an
+    /// `flock` is held by an open file, so two opens in one process exclude each other too.
+    #[cfg(unix)]
+    #[test]
+    fn a_scene_is_fetched_once_by_the_processes_that_need_it_at_once() {
+        let cache = tempfile::tempdir().unwrap();
+        let (bytes, sha) = json_scene();
+        let dir = cache.path().join(&sha);
+        let fetched = AtomicU64::new(0);
+        std::thread::scope(|s| {
+            for _ in 0..6 {
+                s.spawn(|| {
+                    let _installing = loop {
+                        match try_install_lock(&dir) {
+                            Some(l) => break l,
+                            None => std::thread::sleep(Duration::from_millis(5)),
+                        }
+                    };
+                    if !verify(&dir, &sha) {
+                        fetched.fetch_add(1, Ordering::Relaxed);
+                        // A download takes a while: the others queue on the lock meanwhile.
+                        std::thread::sleep(Duration::from_millis(50));
+                        install(&dir, &bytes, pkg::SceneFormat::Json, "scene.json").unwrap();
+                    }
+                });
+            }
+        });
+        assert_eq!(fetched.into_inner(), 1);
+        assert!(verify(&dir, &sha));
+        // Held, the lock is refused; released, taken.
+        let held = try_install_lock(&dir).unwrap();
+        assert!(held.0.is_some(), "a real lock on this file system");
+        assert!(try_install_lock(&dir).is_none());
+        drop(held);
+        assert!(try_install_lock(&dir).is_some());
+        // Removing the scene removes its lock's file, unless an install holds it.
+        let lock_file = install_lock_path(&dir);
+        assert!(lock_file.exists());
+        let unused_for_an_hour = || {
+            std::fs::File::options()
+                .write(true)
+                .open(dir.join("ok"))
+                .unwrap()
+                .set_modified(SystemTime::now() - Duration::from_secs(3600))
+                .unwrap()
+        };
+        unused_for_an_hour();
+        assert_eq!(trim(cache.path(), 0, None).removed, 1);
+        assert!(!dir.exists() && !lock_file.exists());
+        install(&dir, &bytes, pkg::SceneFormat::Json, "scene.json").unwrap();
+        let installing = try_install_lock(&dir).unwrap();
+        unused_for_an_hour();
+        assert_eq!(trim(cache.path(), 0, None).removed, 1);
+        assert!(lock_file.exists(), "held by an install");
+        drop(installing);
     }
 }

@@ -360,25 +360,33 @@ impl Worker {
         }
         let dir = self.cfg.cache_dir.join(&lease.scene);
         let entry = dir.join("root").join(&lease.scene_entry);
-        // Whenever the files are to be read (a build; a scene in the memory cache reads
-        // none): the blob and every unpacked file checked against what was recorded (see the
-        // `files` module), so that a file edited or rotted since the last build is fetched
-        // again rather than rendered. Hashing costs a fraction of what building costs.
-        if dir.exists() {
-            let (d, sha) = (dir.clone(), lease.scene_sha256.clone());
-            let held = tokio::task::spawn_blocking(move || {
-                // Held first: a worker sharing the cache must not remove it while this one
-                // checks and builds from it.
-                let held = files::hold(&d)?;
-                files::verify(&d, &sha).then_some(held)
-            })
-            .await?;
-            if held.is_some() {
-                return Ok((entry, held));
-            }
-            tracing::warn!(scene = %lease.scene, "cached scene is incomplete or corrupt; downloading again");
+        if let Some(held) = cached(&dir, lease).await? {
+            return Ok((entry, Some(held)));
+        }
+        // Fetched and unpacked by one process sharing the cache at a time: one that waited
+        // for another's install finds the scene installed (see the `files` module).
+        let mut waited = None;
+        let _installing = loop {
             let d = dir.clone();
-            tokio::task::spawn_blocking(move || files::discard(&d)).await?;
+            if let Some(l) =
+                tokio::task::spawn_blocking(move || files::try_install_lock(&d)).await?
+            {
+                break Some(l);
+            }
+            let since = *waited.get_or_insert_with(|| {
+                tracing::info!(scene = %lease.scene, "waiting for another worker sharing the cache to fetch the scene");
+                std::time::Instant::now()
+            });
+            if since.elapsed() > files::INSTALL_WAIT {
+                tracing::warn!(scene = %lease.scene, "another worker sharing the cache has been fetching the scene for {} minutes: fetching it here too", files::INSTALL_WAIT.as_secs() / 60);
+                break None;
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        };
+        if waited.is_some() {
+            if let Some(held) = cached(&dir, lease).await? {
+                return Ok((entry, Some(held)));
+            }
         }
         // A coordinator out of reach is waited for; a download that keeps breaking (a proxy
         // that cuts large answers) fails the task after a few tries, as a lease renewed
@@ -702,6 +710,31 @@ struct Retry {
 /// [`UPLOAD_SERVER_ERRORS`] attempts, so that one result the coordinator cannot take never
 /// wedges the worker: its lease expires and the tile is rendered again.
 ///
+/// The cached folder `dir` of `lease`'s scene, held in use, when it is there and its files are
+/// what was unpacked; a folder that is not (incomplete, edited, rotted) is removed, and `None`
+/// says the scene is to be fetched. Checked whenever the files are to be read (a build; a
+/// scene in the memory cache reads none), so that a file edited or rotted since the last build
+/// is fetched again rather than rendered; hashing costs a fraction of what building costs.
+async fn cached(dir: &Path, lease: &proto::Lease) -> anyhow::Result<Option<files::InUse>> {
+    if !dir.exists() {
+        return Ok(None);
+    }
+    let (d, sha) = (dir.to_path_buf(), lease.scene_sha256.clone());
+    let held = tokio::task::spawn_blocking(move || {
+        // Held first: a worker sharing the cache must not remove it while this one checks and
+        // builds from it.
+        let held = files::hold(&d)?;
+        files::verify(&d, &sha).then_some(held)
+    })
+    .await?;
+    if held.is_none() {
+        tracing::warn!(scene = %lease.scene, "cached scene is incomplete or corrupt; downloading again");
+        let d = dir.to_path_buf();
+        tokio::task::spawn_blocking(move || files::discard(&d)).await?;
+    }
+    Ok(held)
+}
+
 /// The lease is renewed by heartbeats until the upload ends, as while the tile rendered: a
 /// coordinator that cannot write its store still renews leases (they live in memory), so the
 /// tile is not given to another worker to render again while this one waits to deliver it.
