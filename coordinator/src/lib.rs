@@ -158,17 +158,18 @@ impl Limits {
                 ),
             );
         }
-        // A bdpt tile's result may carry a splat for every pixel of the frame: it must be
-        // allowed, or a valid result could never be sent.
+        // Every result must fit --max-result-bytes, or a valid one could never be sent (and
+        // the job would fail by its refused uploads). A tile's is 16 bytes a pixel (20 with an
+        // alpha channel); a bdpt tile's may carry a splat for every pixel of the frame besides.
+        let tile = raytile_proto::Tile {
+            x0: 0,
+            y0: 0,
+            x1: s.tile_size.min(s.width),
+            y1: s.tile_size.min(s.height),
+        };
+        let own = raytile_proto::tile::encoded_len(&tile, s.alpha) as u64;
         if s.integrator == raytile_core::IntegratorKind::Bdpt {
-            let tile = raytile_proto::Tile {
-                x0: 0,
-                y0: 0,
-                x1: s.tile_size.min(s.width),
-                y1: s.tile_size.min(s.height),
-            };
-            let largest = raytile_proto::tile::encoded_len(&tile, s.alpha) as u64
-                + pixels * raytile_proto::tile::SPLAT_LEN as u64;
+            let largest = own + pixels * raytile_proto::tile::SPLAT_LEN as u64;
             if largest > self.max_result_bytes {
                 return over(
                     "width",
@@ -181,6 +182,15 @@ impl Limits {
                     ),
                 );
             }
+        } else if own > self.max_result_bytes {
+            return over(
+                "tile_size",
+                format!(
+                    "tiles of {} × {} pixels make results of {own} bytes, more than the {} a \
+                     result may have on this coordinator (--max-result-bytes): use smaller tiles",
+                    tile.x1, tile.y1, self.max_result_bytes
+                ),
+            );
         }
         Ok(())
     }

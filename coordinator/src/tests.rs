@@ -110,7 +110,8 @@ fn test_state(dir: &std::path::Path, token: Option<&str>) -> AppState {
     let mut c = fake_config(dir);
     c.token = token.map(String::from);
     c.limits.max_upload_bytes = 4096;
-    c.limits.max_result_bytes = 4096;
+    // Room for a result of a 32-pixel tile (16 KiB), not for a 64-pixel one's.
+    c.limits.max_result_bytes = 1 << 15;
     AppState::open(c).unwrap()
 }
 
@@ -819,15 +820,21 @@ async fn jobs_over_the_limits_are_refused_at_once_naming_the_field() {
         "{b}"
     );
     check(r#""spp": 512, "passes": 512"#, "passes").await;
-    // A bdpt tile's result can hold a splat for every pixel of the frame: 16 × 16 × 52 bytes
-    // is over this coordinator's 4096-byte results.
+    // A bdpt tile's result can hold a splat for every pixel of the frame: 32 × 32 × 52 bytes
+    // is over this coordinator's 32 KiB results.
     let b = check(
-        r#""width": 16, "height": 16, "integrator": "bdpt""#,
+        r#""width": 32, "height": 32, "integrator": "bdpt""#,
         "width",
     )
     .await;
     let message = b["error"]["message"].as_str().unwrap();
     assert!(message.contains("--max-result-bytes"), "{b}");
+    // Any job's tiles must fit: 64 × 64 pixels make 64 KiB results; 44 × 44 ones 30.3 KiB,
+    // but 37.9 with an alpha channel.
+    let b = check(r#""tile_size": 64"#, "tile_size").await;
+    let message = b["error"]["message"].as_str().unwrap();
+    assert!(message.contains("use smaller tiles"), "{b}");
+    check(r#""tile_size": 44, "alpha": true"#, "tile_size").await;
     assert_eq!(st.sched().job_list().len(), 0, "nothing was created");
     let (code, b) = call(
         &st,
