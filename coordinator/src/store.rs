@@ -675,29 +675,15 @@ impl Store {
                 dropped.extend(file.flatten().map(|f| self.results.join(f)));
             }
         }
-        let mut done = self.transact(writes);
-        // A purge on a full disk: the job's result files go first, to make the room its
-        // transaction needs, and it is tried once more. The user asked for the job to go;
-        // should the second try fail too, the rows name files that are gone, which reads as
-        // lost tiles until the purge is asked again.
-        let purging: Vec<&str> = writes
-            .iter()
-            .filter_map(|w| match *w {
-                Write::DeleteJob(job) => Some(job),
-                _ => None,
-            })
-            .collect();
-        if !purging.is_empty() && done.as_ref().is_err_and(disk_trouble) {
-            let freed: u64 = purging.iter().map(|j| self.remove_job_files_now(j)).sum();
-            if freed > 0 {
-                tracing::warn!(
-                    mib = freed >> 20,
-                    "the data disk is full: removed the result files of the jobs being purged \
-                     first, and tried again"
-                );
-                done = self.transact(writes);
+        let done = (|| {
+            #[cfg(test)]
+            self.faults.check()?;
+            let tx = self.conn.transaction()?;
+            for w in writes {
+                apply(&tx, w)?;
             }
-        }
+            tx.commit()
+        })();
         if done.is_err() {
             remove_files(&placed);
         }
@@ -718,17 +704,6 @@ impl Store {
             self.shrink(SHRINK_PAGES);
         }
         Ok(())
-    }
-
-    /// Applies `writes` in one transaction.
-    fn transact(&mut self, writes: &[Write<'_>]) -> rusqlite::Result<()> {
-        #[cfg(test)]
-        self.faults.check()?;
-        let tx = self.conn.transaction()?;
-        for w in writes {
-            apply(&tx, w)?;
-        }
-        tx.commit()
     }
 
     /// Gives back to the file system up to `pages` of the database's free pages (those the
@@ -793,27 +768,6 @@ impl Store {
     /// row uses), and emptied on a thread of its own, since unlinking many GB can take long
     /// and the caller holds the scheduler's lock. What a stop interrupts, the next start
     /// removes ([`Store::remove_unnamed_files`]).
-    /// Removes `job`'s result files now, not on a thread of their own: the bytes freed.
-    fn remove_job_files_now(&self, job: &str) -> u64 {
-        let dir = self.results.join(job);
-        let bytes: u64 = std::fs::read_dir(&dir)
-            .into_iter()
-            .flatten()
-            .flatten()
-            .filter_map(|e| e.metadata().ok())
-            .filter(|m| m.is_file())
-            .map(|m| m.len())
-            .sum();
-        match std::fs::remove_dir_all(&dir) {
-            Ok(()) => bytes,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => 0,
-            Err(e) => {
-                tracing::warn!(path = %dir.display(), "cannot remove: {e}");
-                0
-            }
-        }
-    }
-
     fn remove_job_files(&self, job: &str) {
         static NEXT: AtomicU64 = AtomicU64::new(0);
         let dir = self.results.join(job);
@@ -1331,15 +1285,6 @@ const ORPHANED: &str = ".orphaned";
 /// The folder of `results/` where large results are written before they are moved into place.
 const STAGING: &str = ".staging";
 
-/// Whether a failed write may have failed for want of room: SQLite says `SQLITE_FULL`, or
-/// for some writes of a full disk (the write-ahead log's) only "disk I/O error".
-fn disk_trouble(e: &rusqlite::Error) -> bool {
-    matches!(
-        e.sqlite_error_code(),
-        Some(rusqlite::ErrorCode::DiskFull | rusqlite::ErrorCode::SystemIoFailure)
-    )
-}
-
 /// A file error as the store's error: a full disk reads as SQLite's own, so it is answered
 /// the same way (503, retryable).
 fn io_error(e: std::io::Error) -> rusqlite::Error {
@@ -1548,67 +1493,6 @@ mod tests {
         }
         let shrunk = size(&store);
         assert!(shrunk < empty + (1 << 20), "{empty} → {full} → {shrunk}");
-    }
-
-    /// A purge on a full disk removes the job's result files first, for the room its
-    /// transaction needs, and tries again: the job goes. Should it fail again, the files are
-    /// gone all the same and a later purge ends the job.
-    #[test]
-    fn a_purge_on_a_full_disk_frees_its_files_first() {
-        let dir = tempfile::tempdir().unwrap();
-        let mut store = Store::open(dir.path()).unwrap();
-        for (seq, job) in [(0, "j"), (1, "k")] {
-            store
-                .insert_job(&job_row(job, seq, JobState::Done))
-                .unwrap();
-            for idx in 0..3 {
-                let staged = Staged::write(dir.path(), &[idx as u8; 4096]).unwrap();
-                let row = done(idx);
-                store
-                    .write(&[Write::Result {
-                        job,
-                        row: &row,
-                        data: &[idx as u8; 4096],
-                        file: Some(&staged),
-                    }])
-                    .unwrap();
-            }
-        }
-        let files = |job: &str| {
-            std::fs::read_dir(dir.path().join("results").join(job)).map_or(0, |d| d.count())
-        };
-        assert_eq!((files("j"), files("k")), (3, 3));
-        // The disk full once: the files go, the second try succeeds.
-        store.faults().fail_next(1);
-        store.write(&[Write::DeleteJob("j")]).unwrap();
-        assert_eq!(files("j"), 0);
-        assert!(results(&store, "j").is_empty());
-        // Full twice: refused, the files gone all the same; asked again, the job goes.
-        store.faults().fail_next(2);
-        assert!(store.write(&[Write::DeleteJob("k")]).is_err());
-        assert_eq!(files("k"), 0);
-        store.write(&[Write::DeleteJob("k")]).unwrap();
-        // Other writes on a full disk remove nothing.
-        store.insert_job(&job_row("m", 2, JobState::Done)).unwrap();
-        let staged = Staged::write(dir.path(), &[9; 4096]).unwrap();
-        let row = done(0);
-        let result = Write::Result {
-            job: "m",
-            row: &row,
-            data: &[9; 4096],
-            file: Some(&staged),
-        };
-        store.write(&[result]).unwrap();
-        store.faults().fail_next(1);
-        let cancel = Write::Job {
-            id: "m",
-            state: JobState::Cancelled,
-            error: None,
-            started_ms: None,
-            finished_ms: None,
-        };
-        assert!(store.write(&[cancel]).is_err());
-        assert_eq!(files("m"), 1);
     }
 
     /// A database of a release before result files (no `file` column) opens, and its results
