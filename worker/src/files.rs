@@ -132,14 +132,22 @@ pub fn try_install_lock(dir: &Path) -> Option<Installing> {
             return Some(Installing(None));
         }
         let path = install_lock_path(dir);
-        let Ok(f) = std::fs::File::options()
+        let f = match std::fs::File::options()
             .read(true)
             .write(true)
             .create(true)
             .truncate(false)
             .open(&path)
-        else {
-            return Some(Installing(None));
+        {
+            Ok(f) => f,
+            Err(e) => {
+                static SAID: std::sync::atomic::AtomicBool =
+                    std::sync::atomic::AtomicBool::new(false);
+                if !SAID.swap(true, Ordering::Relaxed) {
+                    tracing::warn!(path = %path.display(), "cannot make a scene's install lock ({e}): workers sharing the cache may fetch a scene each");
+                }
+                return Some(Installing(None));
+            }
         };
         // SAFETY: a valid open descriptor.
         if unsafe { libc::flock(f.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } != 0 {
@@ -167,6 +175,15 @@ pub fn try_install_lock(dir: &Path) -> Option<Installing> {
     {
         let _ = dir;
         Some(Installing(None))
+    }
+}
+
+/// Removes the install lock's file of scene folder `dir`, unless a process holds the lock (a
+/// process waiting for it then locks a new file: it would only lose the lock's effect, not
+/// its files, as installs are atomic anyway).
+fn forget_install_lock(dir: &Path) {
+    if let Some(Installing(Some(_held))) = try_install_lock(dir) {
+        let _ = std::fs::remove_file(install_lock_path(dir));
     }
 }
 
@@ -245,6 +262,14 @@ pub fn prepare_cache(cache: &Path) -> anyhow::Result<()> {
     let day = std::time::Duration::from_secs(24 * 3600);
     for e in std::fs::read_dir(cache).into_iter().flatten().flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
+        // The install lock of a scene that is not here (its fetch failed, or it was
+        // discarded), unless a process is installing it.
+        if let Some(scene) = name.strip_suffix(".installing") {
+            if pkg::is_scene_id(scene) && !cache.join(scene).exists() {
+                forget_install_lock(&cache.join(scene));
+            }
+            continue;
+        }
         let Some(pid) = left_by(&name) else { continue };
         let old = e
             .metadata()
@@ -445,11 +470,7 @@ pub fn trim(cache: &Path, max_bytes: u64, keep: Option<&Path>) -> Trimmed {
             "removed the least recently used scene from the disk cache"
         );
         let _ = std::fs::remove_dir_all(&aside);
-        // Its install lock's file too, unless a process is installing the scene again (it
-        // would only lose the lock's effect, not its files: installs are atomic anyway).
-        if let Some(Installing(Some(_held))) = try_install_lock(&h.dir) {
-            let _ = std::fs::remove_file(install_lock_path(&h.dir));
-        }
+        forget_install_lock(&h.dir);
         out.removed += 1;
         out.freed += h.bytes;
         out.held -= h.bytes;
@@ -598,10 +619,24 @@ mod tests {
                     .unwrap();
             }
         }
+        // Install locks: of the scene here, of a scene not here, and of one being installed.
+        let lock_here = install_lock_path(&dir);
+        std::fs::write(&lock_here, b"").unwrap();
+        let gone = cache.path().join("2".repeat(64));
+        std::fs::write(install_lock_path(&gone), b"").unwrap();
+        let coming = cache.path().join("3".repeat(64));
+        let installing = try_install_lock(&coming).unwrap();
         prepare_cache(cache.path()).unwrap();
         assert!(verify(&dir, &sha), "the installed scene stays");
         assert!(mine.exists() && fresh.exists() && other.exists());
         assert_eq!(!stale.exists(), cfg!(target_os = "linux"));
+        assert!(lock_here.exists() && install_lock_path(&coming).exists());
+        assert_eq!(
+            !install_lock_path(&gone).exists(),
+            cfg!(target_os = "linux"),
+            "the lock of a scene not here goes"
+        );
+        drop(installing);
         assert_eq!(left_by(&format!("{sha}.partial-12-3")), Some(12));
         assert_eq!(left_by(&format!("{sha}.partial-12-")), None);
         // A cache folder that is a file cannot be written.
@@ -742,8 +777,10 @@ mod tests {
 
     /// Processes sharing a cache that need one scene at the same moment fetch and unpack it
     /// once: the first takes the install lock, the others wait for it and then find the scene
-    /// installed (as the worker does, `scene_file`). Threads stand in for the processes: an
-    /// `flock` is held by an open file, so two opens in one process exclude each other too.
+    /// installed (as the worker does, `scene_file`). Threads stand in for the processes: a
+    /// local file system's `flock` is held by an open file, so two opens in one process
+    /// exclude each other too (over NFS, where flock is a POSIX lock held by the process, they
+    /// would not: a worker runs one lease at a time).
     #[cfg(unix)]
     #[test]
     fn a_scene_is_fetched_once_by_the_processes_that_need_it_at_once() {

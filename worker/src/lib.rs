@@ -363,14 +363,28 @@ impl Worker {
         if let Some(held) = cached(&dir, lease).await? {
             return Ok((entry, Some(held)));
         }
-        // Fetched and unpacked by one process sharing the cache at a time: one that waited
-        // for another's install finds the scene installed (see the `files` module).
+        // Fetched and unpacked by one process sharing the cache at a time (see the `files`
+        // module): the others wait, and use the scene once it is installed. The lock is held
+        // while the scene is fetched and unpacked, not while anyone checks it.
         let mut waited = None;
-        let _installing = loop {
+        let mut checked = false;
+        let installing = loop {
             let d = dir.clone();
-            if let Some(l) =
-                tokio::task::spawn_blocking(move || files::try_install_lock(&d)).await?
-            {
+            let (lock, installed) = tokio::task::spawn_blocking(move || {
+                let lock = files::try_install_lock(&d);
+                (lock, d.join("ok").exists())
+            })
+            .await?;
+            // Installed meanwhile by another (before this lock, or while this one waited).
+            if installed && !checked {
+                drop(lock);
+                checked = true;
+                if let Some(held) = cached(&dir, lease).await? {
+                    return Ok((entry, Some(held)));
+                }
+                continue;
+            }
+            if let Some(l) = lock {
                 break Some(l);
             }
             let since = *waited.get_or_insert_with(|| {
@@ -383,11 +397,6 @@ impl Worker {
             }
             tokio::time::sleep(Duration::from_millis(100)).await;
         };
-        if waited.is_some() {
-            if let Some(held) = cached(&dir, lease).await? {
-                return Ok((entry, Some(held)));
-            }
-        }
         // A coordinator out of reach is waited for; a download that keeps breaking (a proxy
         // that cuts large answers) fails the task after a few tries, as a lease renewed
         // meanwhile would otherwise hold the task for ever.
@@ -422,6 +431,8 @@ impl Worker {
             self.cfg.cache_max_bytes,
         );
         let held = tokio::task::spawn_blocking(move || {
+            // The install lock lives as long as the unpack, even if the lease ends meanwhile.
+            let installing = installing;
             let mut installed = files::install(&d, &bytes, format, &scene_entry);
             // A full disk: the scenes not used lately make room, and the unpack is tried once
             // more (a full disk is this machine's trouble, not the scene's).
@@ -447,6 +458,7 @@ impl Worker {
                     e
                 }
             })?;
+            drop(installing);
             let held = files::hold(&d);
             if let Some(max) = max {
                 files::trim(&cache, max, Some(&d));
@@ -702,14 +714,6 @@ struct Retry {
     heartbeat: Duration,
 }
 
-/// Uploads one tile result. While the coordinator cannot be reached, or answers 503 (it could
-/// not write its store, or it is shutting down: nothing was stored, the same request may
-/// succeed later), it retries with backoff for as long as it takes: a result is never thrown
-/// away for a fault the coordinator recovers from. A refusal (4xx) is dropped at once (the
-/// task is someone else's by now, or the job is gone), and another server error (500) after
-/// [`UPLOAD_SERVER_ERRORS`] attempts, so that one result the coordinator cannot take never
-/// wedges the worker: its lease expires and the tile is rendered again.
-///
 /// The cached folder `dir` of `lease`'s scene, held in use, when it is there and its files are
 /// what was unpacked; a folder that is not (incomplete, edited, rotted) is removed, and `None`
 /// says the scene is to be fetched. Checked whenever the files are to be read (a build; a
@@ -735,6 +739,14 @@ async fn cached(dir: &Path, lease: &proto::Lease) -> anyhow::Result<Option<files
     Ok(held)
 }
 
+/// Uploads one tile result. While the coordinator cannot be reached, or answers 503 (it could
+/// not write its store, or it is shutting down: nothing was stored, the same request may
+/// succeed later), it retries with backoff for as long as it takes: a result is never thrown
+/// away for a fault the coordinator recovers from. A refusal (4xx) is dropped at once (the
+/// task is someone else's by now, or the job is gone), and another server error (500) after
+/// [`UPLOAD_SERVER_ERRORS`] attempts, so that one result the coordinator cannot take never
+/// wedges the worker: its lease expires and the tile is rendered again.
+///
 /// The lease is renewed by heartbeats until the upload ends, as while the tile rendered: a
 /// coordinator that cannot write its store still renews leases (they live in memory), so the
 /// tile is not given to another worker to render again while this one waits to deliver it.
