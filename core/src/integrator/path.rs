@@ -23,7 +23,6 @@ pub fn li(
     sampler: &mut Sampler,
     max_depth: u32,
 ) -> Estimate {
-    let mut escaped = false;
     let mut l = Vec3A::ZERO;
     let mut beta = Vec3A::ONE;
     let mut specular = true;
@@ -34,7 +33,6 @@ pub fn li(
     let mut bodies = job.starts.camera();
     loop {
         let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
-            escaped = prev_it.is_none();
             if let Some(env) = job.environment() {
                 let le = env.radiance(ray.d) * bodies.escape(scene, false);
                 if specular || prev_it.is_none() {
@@ -45,7 +43,9 @@ pub fn li(
                     l += beta * le * power_heuristic(prev_pdf, light_pdf);
                 }
             }
-            break;
+            // Escaped before any vertex: the environment seen straight on.
+            let escaped = prev_it.is_none();
+            return Estimate { l, escaped };
         };
         let it = scene.interaction(&ray, &hit);
         let wo_world = -ray.d;
@@ -125,5 +125,5 @@ pub fn li(
             beta /= 1.0 - q;
         }
     }
-    Estimate { l, escaped }
+    Estimate { l, escaped: false }
 }

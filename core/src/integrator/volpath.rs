@@ -72,7 +72,6 @@ pub fn li(
     sampler: &mut Sampler,
     max_depth: u32,
 ) -> Estimate {
-    let mut escaped = false;
     // The hero channel (a Sobol dimension: stratified over the pixel's samples) and the
     // media's random stream (a hash of the next dimension: no vertex's numbers reuse it).
     let channel = ((sampler.next_1d() * 3.0) as usize).min(2);
@@ -182,7 +181,6 @@ pub fn li(
         }
 
         let Some(hit) = hit else {
-            escaped = prev_p.is_none();
             if let Some(env) = job.environment() {
                 let le = env.radiance(ray.d) * bodies.escape(scene, true);
                 match prev_p {
@@ -194,7 +192,9 @@ pub fn li(
                     _ => l += beta * le / avg(r_u),
                 }
             }
-            break;
+            // Escaped before any vertex: the environment seen straight on.
+            let escaped = prev_p.is_none();
+            return Estimate { l, escaped };
         };
         let it = scene.interaction(&ray, &hit);
         // Beer–Lambert inside a transmissive body without an interior medium (as `path` does).
@@ -281,7 +281,7 @@ pub fn li(
             beta /= 1.0 - q;
         }
     }
-    Estimate { l, escaped }
+    Estimate { l, escaped: false }
 }
 
 /// Next-event estimation at `v` (in `medium` if it is a medium vertex; for a surface, the
