@@ -63,6 +63,51 @@ fn grace() -> Duration {
 /// released when dropped. Where the file system cannot lock, the lock is taken as had.
 pub struct InUse(#[allow(dead_code)] std::fs::File);
 
+/// What a `flock` without waiting did.
+#[cfg(unix)]
+enum Flock {
+    /// The lock is held.
+    Held,
+    /// Another open file holds a lock that excludes it.
+    Busy,
+    /// The file system cannot lock ([`NO_LOCKS`] is set from now on).
+    Unsupported,
+    /// Another error.
+    Failed,
+}
+
+/// `flock(how | LOCK_NB)` on `f` (`how` is `LOCK_SH` or `LOCK_EX`).
+#[cfg(unix)]
+fn flock_nb(f: &std::fs::File, how: i32) -> Flock {
+    use std::os::fd::AsRawFd;
+    // SAFETY: a valid open descriptor.
+    if unsafe { libc::flock(f.as_raw_fd(), how | libc::LOCK_NB) } == 0 {
+        return Flock::Held;
+    }
+    let e = std::io::Error::last_os_error();
+    if matches!(
+        e.raw_os_error(),
+        Some(libc::ENOLCK | libc::EOPNOTSUPP | libc::ENOSYS)
+    ) {
+        NO_LOCKS.store(true, Ordering::Relaxed);
+        Flock::Unsupported
+    } else if e.kind() == std::io::ErrorKind::WouldBlock {
+        Flock::Busy
+    } else {
+        Flock::Failed
+    }
+}
+
+/// Whether the open file `f` is still the file at `path` (same device and inode).
+#[cfg(unix)]
+fn still_at(f: &std::fs::File, path: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (f.metadata(), std::fs::metadata(path)) {
+        (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+        _ => false,
+    }
+}
+
 /// Takes a lock on `dir`'s `ok` file without waiting: `None` when the file is missing, was
 /// replaced meanwhile, or another process holds a lock that excludes this one (or, for the
 /// exclusive lock a removal takes, when locking failed for any other reason).
@@ -77,34 +122,21 @@ fn lock(dir: &Path, exclusive: bool) -> Option<InUse> {
         .ok()?;
     #[cfg(unix)]
     {
-        use std::os::fd::AsRawFd;
-        use std::os::unix::fs::MetadataExt;
         let how = if exclusive {
             libc::LOCK_EX
         } else {
             libc::LOCK_SH
         };
-        // SAFETY: a valid open descriptor.
-        if unsafe { libc::flock(f.as_raw_fd(), how | libc::LOCK_NB) } != 0 {
-            let e = std::io::Error::last_os_error();
-            let unsupported = matches!(
-                e.raw_os_error(),
-                Some(libc::ENOLCK | libc::EOPNOTSUPP | libc::ENOSYS)
-            );
-            if unsupported {
-                // The age rule alone spares scenes from now on.
-                NO_LOCKS.store(true, Ordering::Relaxed);
-            } else if exclusive || e.kind() == std::io::ErrorKind::WouldBlock {
-                return None;
-            }
+        match flock_nb(&f, how) {
+            // The age rule alone spares scenes from now on.
+            Flock::Held | Flock::Unsupported => {}
+            Flock::Busy => return None,
+            Flock::Failed if exclusive => return None,
+            Flock::Failed => {}
         }
         // The file locked must still be the folder's: a removal may have moved the folder
         // aside, and an install put a new one in its place, between the open and the lock.
-        let same = match (f.metadata(), std::fs::metadata(&path)) {
-            (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
-            _ => false,
-        };
-        if !same {
+        if !still_at(&f, &path) {
             return None;
         }
     }
@@ -126,8 +158,6 @@ fn install_lock_path(dir: &Path) -> PathBuf {
 pub fn try_install_lock(dir: &Path) -> Option<Installing> {
     #[cfg(unix)]
     {
-        use std::os::fd::AsRawFd;
-        use std::os::unix::fs::MetadataExt;
         if NO_LOCKS.load(Ordering::Relaxed) {
             return Some(Installing(None));
         }
@@ -149,27 +179,14 @@ pub fn try_install_lock(dir: &Path) -> Option<Installing> {
                 return Some(Installing(None));
             }
         };
-        // SAFETY: a valid open descriptor.
-        if unsafe { libc::flock(f.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } != 0 {
-            let e = std::io::Error::last_os_error();
-            if e.kind() == std::io::ErrorKind::WouldBlock {
-                return None;
-            }
-            if matches!(
-                e.raw_os_error(),
-                Some(libc::ENOLCK | libc::EOPNOTSUPP | libc::ENOSYS)
-            ) {
-                NO_LOCKS.store(true, Ordering::Relaxed);
-            }
-            return Some(Installing(None));
+        match flock_nb(&f, libc::LOCK_EX) {
+            Flock::Held => {}
+            Flock::Busy => return None,
+            Flock::Unsupported | Flock::Failed => return Some(Installing(None)),
         }
         // Still the file at that path (a removal of the scene may have taken it meanwhile):
         // otherwise the caller tries again, and opens the one there now.
-        let same = match (f.metadata(), std::fs::metadata(&path)) {
-            (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
-            _ => false,
-        };
-        same.then_some(Installing(Some(f)))
+        still_at(&f, &path).then_some(Installing(Some(f)))
     }
     #[cfg(not(unix))]
     {
